@@ -1,0 +1,63 @@
+"""What every filter step shares: options, measurement masking, innovation statistics."""
+from __future__ import annotations
+
+from dataclasses import dataclass, asdict
+
+import casadi as ca
+import numpy as np
+
+from .linalg import forward
+
+__all__ = ["FilterOptions", "masked_noise_factor", "innovation_stats", "model_functions"]
+
+
+@dataclass(frozen=True)
+class FilterOptions:
+    """Tuning of the filters; the same values serve every filter compared.
+
+    alpha, beta, kappa: Merwe's scaled sigma points. ard_steps (N_hp) and
+    eta: gradient steps on ξ (softplus⁻¹ of the prior variances) per sample.
+    max_step: clip of one ξ step. margin: lower bound kept on the eigenvalues
+    of I + Lᵀ D L (the posterior correction amplifies the mean at most
+    1/margin). s_min, s_max: bounds on the prior variances (weight units²).
+    """
+
+    alpha: float = 1.0
+    beta: float = 2.0
+    kappa: float = 0.0
+    ard_steps: int = 1
+    eta: float = 0.1
+    max_step: float = 1.0
+    margin: float = 0.1
+    s_min: float = 1e-10
+    s_max: float = 1e6
+
+    def asdict(self) -> dict:
+        return asdict(self)
+
+
+def masked_noise_factor(R: np.ndarray, valid: ca.SX) -> ca.SX:
+    """A square root of R' = V R V + (I − V), V = diag(valid).
+
+    Invalid (missing) outputs become decoupled unit-variance rows whose
+    innovation is forced to zero, so one branch-free update serves every
+    pattern of missing outputs and equals the update on the valid subset.
+    """
+    Lr = ca.SX(np.linalg.cholesky(R))
+    return ca.horzcat(ca.diag(valid) @ Lr, ca.diag(1 - valid))
+
+
+def innovation_stats(Ly: ca.SX, e: ca.SX, valid: ca.SX) -> tuple[ca.SX, ca.SX]:
+    """NIS = eᵀ Pyy⁻¹ e and the predictive log-likelihood log N(e; 0, Pyy),
+    Pyy = Ly Lyᵀ, counting only valid outputs."""
+    a = forward(Ly, e)
+    nis = ca.dot(a, a)
+    logdet = 2 * ca.sum1(ca.log(ca.diag(Ly)))
+    loglik = -0.5 * (nis + logdet + ca.sum1(valid) * np.log(2 * np.pi))
+    return nis, loglik
+
+
+def model_functions(aug) -> tuple[ca.Function, ca.Function]:
+    """F(z, u, mem) → z[k+1] and H(z, u, mem) → y, for calling on sigma points."""
+    args = [aug.z, aug.u, aug.mem]
+    return ca.Function("F", args, [aug.f]), ca.Function("H", args, [aug.h])

@@ -1,0 +1,322 @@
+"""Declaring a dynamics model with an unknown term, in CasADi symbols.
+
+A model is built in a few calls; every symbol has a name and every error
+names the symbol, equation or matrix at fault::
+
+    model = Model("wingrock", dt=0.02, discretization="rk4")
+    theta = model.state("theta", unit="deg", role="angle", std=1.0)
+    p = model.state("p", unit="deg/s", role="rate", std=1.0)
+    delta = model.input("delta", unit="deg")
+    model.dynamics({theta: p, p: 3 * delta})
+    model.output("phi", theta, unit="deg", noise_std=0.1)
+    model.unknown("p", polynomial([theta, p], 1) + abs_products([(theta, p)]))
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+from .library import Term
+
+__all__ = ["Model", "ModelError", "ROLES", "DISCRETIZATIONS"]
+
+ROLES = ("position", "velocity", "angle", "rate", "altitude")
+DISCRETIZATIONS = ("rk4", "euler", "discrete")
+
+
+class ModelError(ValueError):
+    """A model declaration that cannot be used; the message names the culprit."""
+
+
+@dataclass(frozen=True)
+class Variable:
+    """A named scalar symbol with its unit and, for states, a physical role."""
+
+    name: str
+    sym: ca.SX
+    unit: str = ""
+    role: str | None = None
+
+
+@dataclass(frozen=True)
+class Memory:
+    """A deterministic delayed input: ``sym[k] = source[k - lag]``."""
+
+    sym: ca.SX
+    source: str
+    lag: int
+
+
+@dataclass
+class UnknownBlock:
+    """Weights of basis terms entering the listed state equations."""
+
+    equations: tuple[str, ...]
+    terms: list[Term]
+    prior_variance: np.ndarray
+    process_std: np.ndarray
+
+
+@dataclass
+class Model:
+    """A discrete-time state-space model with an unknown linear-in-weights term.
+
+    dt: sample time (s). discretization: ``"rk4"`` or ``"euler"`` for
+    continuous dynamics (dx/dt), ``"discrete"`` when :meth:`dynamics` gives
+    x[k+1] directly. substeps: integration steps per sample.
+    """
+
+    name: str
+    dt: float
+    discretization: str = "rk4"
+    substeps: int = 1
+    states: list[Variable] = field(default_factory=list)
+    inputs: list[Variable] = field(default_factory=list)
+    outputs: list[Variable] = field(default_factory=list)
+    memory: list[Memory] = field(default_factory=list)
+    unknowns: list[UnknownBlock] = field(default_factory=list)
+    x0: list[float] = field(default_factory=list)
+    x_std: list[float] = field(default_factory=list)
+    q_std: list[float] = field(default_factory=list)
+    r_std: list[float | None] = field(default_factory=list)
+    rhs: dict[str, ca.SX] = field(default_factory=dict)
+    Q: np.ndarray | None = None
+    R: np.ndarray | None = None
+    P0: np.ndarray | None = None
+
+    def __post_init__(self):
+        if not (np.isfinite(self.dt) and self.dt > 0):
+            raise ModelError(f"model '{self.name}': sample time dt must be positive, got {self.dt}")
+        if self.discretization not in DISCRETIZATIONS:
+            raise ModelError(f"model '{self.name}': discretization must be one of "
+                             f"{DISCRETIZATIONS}, got '{self.discretization}'")
+
+    # ----------------------------------------------------------- declaration
+    def _fresh(self, name: str, what: str) -> ca.SX:
+        if not isinstance(name, str) or not name.isidentifier():
+            raise ModelError(f"{what} name {name!r} must be an identifier (letters, digits, _)")
+        if name in self.names:
+            raise ModelError(f"{what} '{name}' is declared twice")
+        return ca.SX.sym(name)
+
+    def state(self, name: str, unit: str = "", role: str | None = None, *,
+              initial: float = 0.0, std: float = 1.0, process_std: float = 0.0) -> ca.SX:
+        """Declare a state; returns its symbol. std: initial standard deviation,
+        process_std: process-noise standard deviation per sample (state units)."""
+        if role is not None and role not in ROLES:
+            raise ModelError(f"state '{name}': role must be one of {ROLES}, got '{role}'")
+        sym = self._fresh(name, "state")
+        self.states.append(Variable(name, sym, unit, role))
+        self.x0.append(float(initial))
+        self.x_std.append(float(std))
+        self.q_std.append(float(process_std))
+        return sym
+
+    def input(self, name: str, unit: str = "") -> ca.SX:
+        """Declare an input (known, measured every sample); returns its symbol."""
+        sym = self._fresh(name, "input")
+        self.inputs.append(Variable(name, sym, unit))
+        return sym
+
+    def output(self, name: str, expr, unit: str = "", *, noise_std: float | None = None):
+        """Declare a measured output y = h(x, u) with its noise standard deviation."""
+        self._fresh(name, "output")
+        self.outputs.append(Variable(name, ca.SX(expr), unit))
+        self.r_std.append(None if noise_std is None else float(noise_std))
+
+    def dynamics(self, equations: dict):
+        """State equations keyed by state symbol or name: dx/dt, or x[k+1]
+        when ``discretization="discrete"``."""
+        for key, expr in equations.items():
+            name = key if isinstance(key, str) else _sym_name(key)
+            if name not in self.state_names:
+                raise ModelError(f"dynamics given for '{name}', which is not a declared state "
+                                 f"(states: {', '.join(self.state_names)})")
+            self.rhs[name] = ca.SX(expr)
+
+    def input_history(self, u: ca.SX, length: int) -> list[ca.SX]:
+        """Symbols for u[k-1], …, u[k-length]: exact memory carried by the filter."""
+        name = _sym_name(u)
+        if name not in self.input_names:
+            raise ModelError(f"input history asked for '{name}', which is not a declared input")
+        have = {(m.source, m.lag): m.sym for m in self.memory}
+        out = []
+        for lag in range(1, length + 1):
+            if (name, lag) not in have:
+                have[(name, lag)] = ca.SX.sym(f"{name}_d{lag}")
+                self.memory.append(Memory(have[(name, lag)], name, lag))
+            out.append(have[(name, lag)])
+        return out
+
+    def unknown(self, equations, basis: list[Term], *, prior_variance=1.0, process_std=0.0):
+        """Add the unknown term Σ w_i φ_i to the given state equation(s).
+
+        A scalar term gets one weight per equation; a term whose expression
+        has one entry per equation is a direction and gets one shared weight.
+        prior_variance: initial ARD prior variance of each weight (scalar or
+        one per weight); process_std: random-walk std of the weights per sample.
+        """
+        if isinstance(equations, (str, ca.SX)):
+            equations = [equations]
+        equations = tuple(e if isinstance(e, str) else _sym_name(e) for e in equations)
+        for eq in equations:
+            if eq not in self.state_names:
+                raise ModelError(f"unknown term on equation '{eq}', which is not a declared state "
+                                 f"(states: {', '.join(self.state_names)})")
+        for t in basis:
+            if t.expr.shape not in ((1, 1), (len(equations), 1)):
+                raise ModelError(f"basis term '{t.name}' has shape {t.expr.shape}; expected a scalar "
+                                 f"or a column of {len(equations)} (one per equation)")
+        count = sum(len(equations) if t.expr.shape == (1, 1) and len(equations) > 1 else 1
+                    for t in basis)
+        self.unknowns.append(UnknownBlock(equations, list(basis),
+                                          _per_weight(prior_variance, count, "prior_variance"),
+                                          _per_weight(process_std, count, "process_std")))
+
+    def covariances(self, *, Q=None, R=None, P0=None):
+        """Override the diagonal noise and initial covariances with full matrices
+        (Q, P0 over the physical states; R over the outputs)."""
+        self.Q, self.R, self.P0 = (None if M is None else np.atleast_2d(np.asarray(M, float))
+                                   for M in (Q, R, P0))
+
+    # ---------------------------------------------------------------- views
+    @property
+    def names(self) -> list[str]:
+        return self.state_names + self.input_names + [v.name for v in self.outputs]
+
+    @property
+    def state_names(self) -> list[str]:
+        return [v.name for v in self.states]
+
+    @property
+    def input_names(self) -> list[str]:
+        return [v.name for v in self.inputs]
+
+    @property
+    def output_names(self) -> list[str]:
+        return [v.name for v in self.outputs]
+
+    def weights(self) -> list[tuple[str, str, Term, ca.SX]]:
+        """(weight name, equation, term, direction over the block's equations) per weight."""
+        many = len({eq for b in self.unknowns for eq in b.equations}) > 1
+        out = []
+        for b in self.unknowns:
+            for t in b.terms:
+                if t.expr.shape == (1, 1) and len(b.equations) > 1:
+                    for i, eq in enumerate(b.equations):
+                        direction = ca.SX.zeros(len(b.equations), 1)
+                        direction[i] = t.expr
+                        out.append((f"w_{eq}_{t.key}", eq, t, direction))
+                else:
+                    eq = b.equations[0] if len(b.equations) == 1 else "+".join(b.equations)
+                    out.append((f"w_{eq}_{t.key}" if many else f"w_{t.key}", eq, t, t.expr))
+        return out
+
+    @property
+    def weight_names(self) -> list[str]:
+        return [w[0] for w in self.weights()]
+
+    # ------------------------------------------------------------ validation
+    def check(self) -> "Model":
+        """Validate the declaration; raise :class:`ModelError` naming the problem."""
+        if not self.states:
+            raise ModelError(f"model '{self.name}' declares no states")
+        if not self.outputs:
+            raise ModelError(f"model '{self.name}' declares no outputs")
+        missing = [n for n in self.state_names if n not in self.rhs]
+        if missing:
+            raise ModelError(f"no dynamics for state(s) {', '.join(missing)}")
+        known = set(self.state_names + self.input_names + [_sym_name(m.sym) for m in self.memory])
+        for name, expr in self.rhs.items():
+            _check_scalar(expr, f"dynamics of '{name}'")
+            _check_symbols(expr, known, f"dynamics of '{name}'")
+        for v in self.outputs:
+            _check_scalar(v.sym, f"output '{v.name}'")
+            _check_symbols(v.sym, known, f"output '{v.name}'")
+        names = set()
+        for wname, eq, t, _ in self.weights():
+            _check_symbols(t.expr, known, f"basis term '{t.name}'")
+            if wname in names:
+                raise ModelError(f"weight '{wname}' appears twice (basis term '{t.name}' repeated "
+                                 f"on equation '{eq}')")
+            names.add(wname)
+        _check_covariance(self.process_noise(), "Q (process noise)", self.state_names, definite=False)
+        _check_covariance(self.measurement_noise(), "R (measurement noise)", self.output_names)
+        _check_covariance(self.initial_covariance(), "P0 (initial covariance)", self.state_names)
+        return self
+
+    def process_noise(self) -> np.ndarray:
+        """Q over the physical states, per sample (state units²)."""
+        return self.Q if self.Q is not None else np.diag(np.square(self.q_std))
+
+    def measurement_noise(self) -> np.ndarray:
+        """R over the outputs (output units²)."""
+        if self.R is not None:
+            return self.R
+        for v, s in zip(self.outputs, self.r_std):
+            if s is None:
+                raise ModelError(f"output '{v.name}' has no noise_std and no R was given")
+        return np.diag(np.square(np.asarray(self.r_std, float)))
+
+    def initial_covariance(self) -> np.ndarray:
+        """P0 over the physical states (state units²)."""
+        return self.P0 if self.P0 is not None else np.diag(np.square(self.x_std))
+
+    def prior_variances(self) -> np.ndarray:
+        """Initial ARD prior variance of every weight."""
+        return np.concatenate([b.prior_variance for b in self.unknowns]) if self.unknowns else np.zeros(0)
+
+    def weight_process_std(self) -> np.ndarray:
+        return np.concatenate([b.process_std for b in self.unknowns]) if self.unknowns else np.zeros(0)
+
+
+def _sym_name(s) -> str:
+    s = ca.SX(s)
+    if not (s.shape == (1, 1) and s.is_symbolic()):
+        raise ModelError(f"expected a declared symbol, got expression {s}")
+    return s.name()
+
+
+def _per_weight(value, count: int, what: str) -> np.ndarray:
+    arr = np.broadcast_to(np.asarray(value, float), (count,)) if np.ndim(value) == 0 else np.asarray(value, float)
+    if arr.shape != (count,):
+        raise ModelError(f"{what} has {arr.size} entries for {count} weights")
+    if what == "prior_variance" and not np.all(arr > 0):
+        raise ModelError(f"prior_variance must be positive, got {arr}")
+    if not np.all(np.isfinite(arr)) or np.any(arr < 0):
+        raise ModelError(f"{what} must be finite and non-negative, got {arr}")
+    return arr.copy()
+
+
+def _check_scalar(expr: ca.SX, what: str):
+    if expr.shape != (1, 1):
+        raise ModelError(f"{what} must be a scalar, got shape {expr.shape}")
+
+
+def _check_symbols(expr: ca.SX, known: set[str], what: str):
+    for s in ca.symvar(expr):
+        if s.name() not in known:
+            raise ModelError(f"{what} uses symbol '{s.name()}', which is not a declared state, "
+                             f"input or input history")
+
+
+def _check_covariance(M: np.ndarray, what: str, labels: list[str], definite: bool = True):
+    n = len(labels)
+    if M.shape != (n, n):
+        raise ModelError(f"{what} has shape {M.shape}; expected ({n}, {n}) for {', '.join(labels)}")
+    if not np.all(np.isfinite(M)):
+        raise ModelError(f"{what} has non-finite entries")
+    asym = np.abs(M - M.T)
+    if asym.max(initial=0) > 1e-12 * max(1.0, np.abs(M).max()):
+        i, j = np.unravel_index(asym.argmax(), asym.shape)
+        raise ModelError(f"{what} is not symmetric: entry ({labels[i]}, {labels[j]}) = {M[i, j]} "
+                         f"but ({labels[j]}, {labels[i]}) = {M[j, i]}")
+    eig, vec = np.linalg.eigh(M)
+    floor = 0.0 if not definite else 1e-300
+    if eig[0] < -1e-12 * max(1.0, eig[-1]) or (definite and eig[0] <= floor):
+        worst = labels[int(np.abs(vec[:, 0]).argmax())]
+        kind = "positive definite" if definite else "positive semi-definite"
+        raise ModelError(f"{what} is not {kind}: smallest eigenvalue {eig[0]:.3g}, "
+                         f"mostly along '{worst}'")

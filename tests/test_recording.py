@@ -1,0 +1,150 @@
+import io
+
+import numpy as np
+import pytest
+
+from skigen.progress import progress
+from skigen.recording import Recording, RecordingError, read_recording, write_recording, write_table
+
+INS, OUTS = ("delta",), ("p", "phi")
+
+
+def _csv(tmp_path, text, name="run.csv", **open_kw):
+    path = tmp_path / name
+    path.write_text(text, **open_kw)
+    return str(path)
+
+
+GOOD = "t,delta,p,phi\n0,1,2,3\n0.1,1.5,,nan\n0.2,2,4,NaN\n"
+
+
+def test_roundtrip_exact_with_nan_outputs_and_extra(tmp_path):
+    rng = np.random.default_rng(0)
+    n = 50
+    t = np.cumsum(rng.uniform(0.001, 0.1, n))
+    u = rng.normal(size=n) * 1e-7
+    p, phi = rng.normal(size=n), rng.normal(size=n) * 1e5
+    p[[3, 10]] = np.nan
+    path = str(tmp_path / "sub" / "rt.csv")
+    write_recording(path, t, {"delta": u}, {"p": p, "phi": phi}, extra={"note": np.arange(n)})
+    lines = open(path).read().splitlines()
+    assert lines[0] == "t,delta,p,phi,note"
+    assert lines[4].split(",")[2] == ""  # NaN written as an empty cell
+    rec = read_recording(path, INS, OUTS)
+    assert isinstance(rec, Recording) and rec.path == path
+    assert rec.input_names == INS and rec.output_names == OUTS
+    assert np.array_equal(rec.t, t)
+    assert np.array_equal(rec.inputs[:, 0], u)
+    assert np.array_equal(rec.outputs, np.column_stack([p, phi]), equal_nan=True)
+    assert rec.inputs.shape == (n, 1) and rec.outputs.shape == (n, 2)
+    assert rec.dt == pytest.approx(np.median(np.diff(t)))
+    part = rec.slice(5, 9)
+    assert len(part) == 4 and np.array_equal(part.t, t[5:9]) and part.outputs.shape == (4, 2)
+    with pytest.raises(ValueError):
+        rec.t[0] = 1.0  # read-only
+
+
+def test_nan_spellings_and_column_order(tmp_path):
+    rec = read_recording(_csv(tmp_path, GOOD), INS, ("phi", "p"))
+    assert np.array_equal(rec.outputs, [[3, 2], [np.nan, np.nan], [np.nan, 4]], equal_nan=True)
+    assert np.array_equal(rec.inputs[:, 0], [1, 1.5, 2])
+
+
+def test_crlf_bom_whitespace_trailing_blank_line(tmp_path):
+    text = "\ufefft, delta ,p,phi \r\n0,1 ,2, 3\r\n0.1,1.5,  ,nan \r\n0.2,2,4,NaN\r\n\r\n"
+    path = _csv(tmp_path, text, encoding="utf-8", newline="")
+    rec = read_recording(path, INS, OUTS)
+    assert np.array_equal(rec.t, [0, 0.1, 0.2])
+    assert np.array_equal(rec.outputs, [[2, 3], [np.nan, np.nan], [4, np.nan]], equal_nan=True)
+
+
+def test_write_table(tmp_path):
+    path = str(tmp_path / "res.csv")
+    write_table(path, {"a": [0.1, np.nan], "b": np.array([1, 2])})
+    assert open(path).read() == "a,b\n0.10000000000000001,1\n,2\n"
+    with pytest.raises(ValueError):
+        write_table(path, {"a": [1, 2], "b": [1]})
+    with pytest.raises(ValueError):
+        write_recording(path, [0, 1], {"p": [0, 1]}, {"p": [0, 1]})
+
+
+def _error(path, ins=INS, outs=OUTS, **kw):
+    with pytest.raises(RecordingError) as e:
+        read_recording(path, ins, outs, **kw)
+    return str(e.value)
+
+
+@pytest.mark.parametrize("text, row, col, extra", [
+    ("t,delta,p,phi\n0,1,2,3\n0.1,abc,2,3\n", 3, "delta", "'abc' is not a number"),
+    ("t,delta,p,phi,x\n0,1,2,3,4\n0.1,1,2,3,\n0.2,1,2,3,oops\n", 4, "x", "'oops'"),
+    ("t,delta,p,phi\n0,1,2,3\n0.1,,2,3\n", 3, "delta", "inputs must be present in every row"),
+    ("t,delta,p,phi\n0,1,2,3\n0.1,1,2,3\n0.2,nan,2,3\n", 4, "delta", "inputs must be present in every row"),
+    ("t,delta,p,phi\n0,1,2,3\n0.1,inf,2,3\n", 3, "delta", "inputs must be present in every row"),
+    ("t,delta,p,phi\n0,1,2,3\n,1,2,3\n", 3, "t", "'t'"),
+    ("t,delta,p,phi\n0,1,2,3\nnan,1,2,3\n", 3, "t", "finite"),
+    ("t,delta,p,phi\n0,1,2,3\n0.1,1,2,-inf\n", 3, "phi", "'-inf'"),
+    ("t,delta,p,phi\n0,1,2,3\n0.5,1,2,3\n0.5,1,2,3\n", 4, "t", "0.5 follows 0.5"),
+    ("t,delta,p,phi\n0,1,2,3\n0.5,1,2,3\n0.25,1,2,3\n", 4, "t", "0.25 follows 0.5"),
+    ("t,delta,p,phi\n0,1,2,3\n0.1,1,2\n", 3, None, "found 3"),
+    ("t,delta,p,phi\n0,1,2,3\n0.1,1,2,3,4\n", 3, None, "found 5"),
+    ("t,delta,p,phi\n0,1,2,3\n\n0.1,1,2,3\n", 3, None, "found 0"),
+    ("t,delta,p,phi\n0,1,2,\"3\n\"\n0.1,x,2,3\n", 4, "delta", "'x'"),  # quoted cell spans 2 lines
+    ("time,delta,p,phi\n0,1,2,3\n", 1, "t", "no 't' column"),
+    ("delta,t,p,phi\n0,1,2,3\n", 1, "t", "'t' is column 2"),
+    ("t,delta,p,delta\n0,1,2,3\n", 1, "delta", "duplicate"),
+])
+def test_errors_name_file_row_column(tmp_path, text, row, col, extra):
+    msg = _error(_csv(tmp_path, text))
+    assert "run.csv" in msg and f"row {row}" in msg and extra in msg
+    if col is not None:
+        assert f"column '{col}'" in msg
+
+
+def test_missing_columns_named_with_columns_found(tmp_path):
+    msg = _error(_csv(tmp_path, "t,p,x\n0,1,2\n0.1,1,2\n"), ("delta", "beta"), ("p", "phi"))
+    assert "run.csv" in msg and "'delta'" in msg and "'beta'" in msg and "'phi'" in msg
+    assert "columns found: t, p, x" in msg
+
+
+def test_empty_missing_short(tmp_path):
+    assert "empty" in _error(_csv(tmp_path, ""))
+    assert "empty" in _error(_csv(tmp_path, "\n\n", name="blank.csv"))
+    msg = _error(str(tmp_path / "nope.csv"))
+    assert "nope.csv" in msg and "not found" in msg
+    msg = _error(_csv(tmp_path, "t,delta,p,phi\n0,1,2,3\n"))
+    assert "run.csv" in msg and "1 data row" in msg and "at least 2" in msg
+    assert "0 data row" in _error(_csv(tmp_path, "t,delta,p,phi\n"))
+    assert "at least 5" in _error(_csv(tmp_path, GOOD), min_samples=5)
+    bad = tmp_path / "bin.csv"
+    bad.write_bytes(b"t,p\n\xff\xfe\n")
+    assert "bin.csv" in _error(str(bad))
+
+
+class FakeTTY(io.StringIO):
+    def isatty(self):
+        return True
+
+
+def test_progress_tty(monkeypatch):
+    monkeypatch.delenv("SKIGEN_PROGRESS", raising=False)
+    out = FakeTTY()
+    assert list(progress(range(20), 20, "filtering", stream=out, min_seconds=0)) == list(range(20))
+    text = out.getvalue()
+    assert "filtering" in text and "100% (20/20)" in text and "\r" in text and text.endswith("\n")
+
+
+def test_progress_not_tty(monkeypatch):
+    monkeypatch.delenv("SKIGEN_PROGRESS", raising=False)
+    out = io.StringIO()
+    assert list(progress(range(20), 20, "filtering", stream=out, min_seconds=0)) == list(range(20))
+    assert out.getvalue() == ""
+    monkeypatch.setenv("SKIGEN_PROGRESS", "1")
+    list(progress(range(3), 3, "forced", stream=out, min_seconds=0))
+    assert "forced" in out.getvalue()
+
+
+def test_progress_quiet_when_fast(monkeypatch):
+    monkeypatch.delenv("SKIGEN_PROGRESS", raising=False)
+    out = FakeTTY()
+    list(progress(range(5), 5, "quick", stream=out, min_seconds=10))
+    assert out.getvalue() == ""
