@@ -1,0 +1,32 @@
+# Two commands on a fresh machine (Python 3.11, gcc, make): `make demo`, `make test`.
+PYTHON ?= python3
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.installed-$(shell cksum < pyproject.toml | cut -d' ' -f1)
+
+.PHONY: demo test test-fast bench generate clean
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --disable-pip-version-check -e '.[test]'
+	rm -f $(VENV)/.installed-*
+	touch $@
+
+demo: $(STAMP)  ## declare WingRock, generate C, compile, filter simulated data, print the table, write plots
+	$(PY) examples/demo.py --out out/demo
+
+test: $(STAMP)  ## the whole suite
+	$(PY) -m pytest
+
+test-fast: $(STAMP)
+	$(PY) -m pytest -m "not slow"
+
+bench: $(STAMP)  ## accuracy and speed tables (figures land in out/bench)
+	$(PY) -m skigen bench wingrock
+	$(PY) -m skigen bench delay
+
+generate: $(STAMP)  ## regenerate the checked-in C sources in generated/
+	$(PY) -m skigen.emit.shipped generated
+
+clean:
+	rm -rf $(VENV) out build *.egg-info
