@@ -36,7 +36,7 @@ def settings() -> dict:
         x0=m.x0, P0_diag=np.diag(m.initial_covariance()).tolist(),
         weight_prior_mean=0.0, weight_prior_variance=m.prior_variances().tolist(),
         prior_rule=f"std_i = {ACCEL} deg/s^2 / rms(phi_i), rms = {BASIS_RMS.tolist()}",
-        filter_options=OPTIONS.asdict(), sindy="pysindy STLSQ on finite-difference derivatives, "
+        filter_options=OPTIONS.asdict(), sindy="pysindy STLSQ on Savitzky-Golay (SmoothedFiniteDifference) derivatives of phi, "
         "refitted every 1 s on the data so far", weights_true=wingrock.W_TRUE.tolist()))
 
 

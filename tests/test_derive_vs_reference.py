@@ -33,7 +33,7 @@ def _ref_step(kind, d, state, delta, y, valid):
                             o.alpha, o.beta, o.kappa)
     return ref.ski_step(state["z"], state["C"], state["s"], y, valid, f, wingrock_h, aug.Q, aug.R,
                         aug.w_index, o.alpha, o.beta, o.kappa, o.eta, o.ard_steps, o.margin,
-                        o.s_min, o.s_max, o.max_step)
+                        o.s_min, o.s_max, o.max_step, o.backtracks)
 
 
 def _cas_step(d, state, delta, y, valid):

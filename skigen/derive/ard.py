@@ -64,13 +64,19 @@ def ard_project(s_new, s_old, Pww, opts):
 
 
 def ard_optimise(s_old, mu, Pww, opts):
-    """N_hp clipped gradient steps on ξ from ξ = softplus⁻¹(s), each projected."""
+    """N_hp clipped gradient steps on ξ from ξ = softplus⁻¹(s), each projected and
+    backtracked: the longest of the steps 2⁻ʲ Δ (j = backtracks … 0) that lowers L."""
     Lw = chol(Pww)
     xi = softplus_inv(s_old)
     s_new = s_old
     for _ in range(opts.ard_steps):
         step = ca.fmin(ca.fmax(opts.eta * ard_grad(xi, s_old, mu, Lw), -opts.max_step), opts.max_step)
-        s_new = ard_project(softplus(xi - step), s_old, Pww, opts)
+        loss = ard_loss(s_new, s_old, mu, Lw)
+        best = s_new
+        for j in range(opts.backtracks, -1, -1):
+            trial = ard_project(softplus(xi - 2.0 ** -j * step), s_old, Pww, opts)
+            best = ca.if_else(ard_loss(trial, s_old, mu, Lw) < loss, trial, best)
+        s_new = best
         xi = softplus_inv(s_new)
     return s_new
 

@@ -17,7 +17,8 @@ class FilterOptions:
 
     alpha, beta, kappa: Merwe's scaled sigma points. ard_steps (N_hp) and
     eta: gradient steps on ξ (softplus⁻¹ of the prior variances) per sample.
-    max_step: clip of one ξ step. margin: lower bound kept on the eigenvalues
+    max_step: clip of one ξ step; backtracks: halvings tried so that a step
+    lowers the ARD loss (else the prior stays). margin: lower bound kept on the eigenvalues
     of I + Lᵀ D L (the posterior correction amplifies the mean at most
     1/margin). s_min, s_max: bounds on the prior variances (weight units²).
     """
@@ -28,7 +29,8 @@ class FilterOptions:
     ard_steps: int = 1
     eta: float = 0.1
     max_step: float = 1.0
-    margin: float = 0.1
+    backtracks: int = 3
+    margin: float = 0.9
     s_min: float = 1e-10
     s_max: float = 1e6
 

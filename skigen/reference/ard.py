@@ -96,16 +96,23 @@ def ard_project(s_new, s_old, Pww, margin, s_min, s_max):
     return 1.0 / (1.0 / s_old + d)
 
 
-def ard_optimise(s_old, mu, Pww, eta, n_steps, margin, s_min, s_max, max_step):
-    """n_steps projected gradient steps on ξ = softplus⁻¹(s'), starting at s' = s_old; returns s' (m,).
+def ard_optimise(s_old, mu, Pww, eta, n_steps, margin, s_min, s_max, max_step, backtracks=3):
+    """n_steps projected, backtracked gradient steps on ξ = softplus⁻¹(s'), from s' = s_old; returns s' (m,).
 
-    Each step: Δ = clip(η ∂L/∂ξ, ±max_step); ξ ← ξ − Δ; s' = ard_project(softplus(ξ), ...);
-    ξ ← softplus⁻¹(s'). With n_steps = 0 returns s_old.
+    Each step: Δ = clip(η ∂L/∂ξ, ±max_step); among the trial points
+    ard_project(softplus(ξ − 2⁻ʲ Δ)), j = backtracks … 0, keep the longest one that
+    lowers L (else stay); ξ ← softplus⁻¹(s'). With n_steps = 0 returns s_old.
     """
     s = np.array(s_old, dtype=float)
     xi = softplus_inv(s)
     for _ in range(n_steps):
         step = np.clip(eta * ard_grad(xi, s_old, mu, Pww), -max_step, max_step)
-        s = ard_project(softplus(xi - step), s_old, Pww, margin, s_min, s_max)
+        loss = ard_loss(s, s_old, mu, Pww)
+        best = s
+        for j in range(backtracks, -1, -1):
+            trial = ard_project(softplus(xi - 2.0 ** -j * step), s_old, Pww, margin, s_min, s_max)
+            if ard_loss(trial, s_old, mu, Pww) < loss:
+                best = trial
+        s = best
         xi = softplus_inv(s)
     return s

@@ -140,7 +140,7 @@ def ukf_step(z, S, y, valid, f, h, Q, R, alpha, beta, kappa):
 
 
 def ski_step(z, S, s, y, valid, f, h, Q, R, w_idx, alpha, beta, kappa,
-             eta, n_steps, margin, s_min, s_max, max_step):
+             eta, n_steps, margin, s_min, s_max, max_step, backtracks=3):
     """One SKI step: UKF update, ARD on the prior variances s (m,) of z[w_idx], correction, UKF predict.
 
     Arguments as ukf_step plus the ARD settings (see ard.ard_optimise).
@@ -151,7 +151,7 @@ def ski_step(z, S, s, y, valid, f, h, Q, R, w_idx, alpha, beta, kappa,
     w_idx = np.asarray(w_idx)
     z_post = upd["z_post"]
     s_new = ard_optimise(s, z_post[w_idx], P[np.ix_(w_idx, w_idx)],
-                         eta, n_steps, margin, s_min, s_max, max_step)
+                         eta, n_steps, margin, s_min, s_max, max_step, backtracks)
     z_post, P = ard_correct(z_post, P, w_idx, s_new, s)
     S_post = chol(P)
     z_pred, S_pred = _ukf_predict(z_post, S_post, f, Q, *W)

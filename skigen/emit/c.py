@@ -1,0 +1,316 @@
+"""Emit a derived filter as a self-contained C99 library, build it, drive it from Python.
+
+:func:`emit_c` writes four files per filter (``<prefix>`` defaults to ``<model>_<kind>``):
+
+* ``<prefix>_kernel.c/.h``: CasADi's generated code of ``filt.step``, renamed
+  ``<prefix>_kernel``, its helpers made ``static``, every global symbol prefixed;
+  in float builds every maths call and literal is rewritten to single precision.
+* ``<prefix>.h/.c``: the step API (state struct, init, guarded step, std) from the
+  templates ``filter.h.in`` / ``filter.c.in`` beside this module.
+
+:func:`compile_shared` builds (and caches) a shared library; :class:`CFilter`
+runs it through ctypes; :func:`load_c` does all three.
+"""
+from __future__ import annotations
+
+import ctypes
+import enum
+import functools
+import hashlib
+import os
+import re
+import shutil
+import string
+import subprocess
+import tempfile
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from ..derive import DerivedFilter
+
+__all__ = ["DEFAULT_FLAGS", "CFilter", "CompileError", "Status", "compile_shared",
+           "default_prefix", "emit_c", "load_c"]
+
+REALS = {"double": (ctypes.c_double, np.float64), "float": (ctypes.c_float, np.float32)}
+DEFAULT_FLAGS = ("-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror", "-O2")
+_HERE = Path(__file__).parent
+# C99 <math.h> functions CasADi may call; float builds use their f-suffixed forms.
+_MATH = ("sqrt cbrt exp expm1 log log1p log2 log10 pow fabs fmax fmin fmod floor ceil round trunc "
+         "copysign hypot erf erfc sin cos tan asin acos atan atan2 sinh cosh tanh asinh acosh atanh")
+_MATH_RE = re.compile(r"\b(%s)\(" % "|".join(_MATH.split()))
+_LITERAL_RE = re.compile(r"(?<![\w.])(\d+\.\d*(?:[eE][+-]?\d+)?|\d+[eE][+-]?\d+)(?![\w.])")
+_UPDATES = {"z": "z_next", "C": "C_next", "s": "s_next", "mem": "mem_next"}   # committed on success
+_LOCALS = {"u": "u", "y": "yv", "valid": "valid"}                          # step inputs not in the state
+
+
+class Status(enum.IntEnum):
+    """Return codes of ``<prefix>_step`` (the ``skigen_status`` enum of the header)."""
+
+    OK = 0
+    MEASUREMENT_SKIPPED = 1
+    BAD_INPUT = 2
+    NUMERICAL_FAILURE = 3
+
+
+class CompileError(RuntimeError):
+    """The C compiler failed; the message holds its command and output."""
+
+
+def default_prefix(filt: DerivedFilter) -> str:
+    return f"{filt.aug.model.name}_{filt.kind}"
+
+
+def _fields(filt: DerivedFilter) -> list[tuple[str, tuple, str]]:
+    """The real-valued fields of ``<prefix>_state`` in order: (name, shape, comment).
+
+    The int/real work buffers ``iw`` and ``w`` follow them, last, in the struct.
+    """
+    d, ski = filt.aug.shapes, filt.kind == "ski"
+    n, ny, nw, nmem = d["n"], d["ny"], d["nw"], d["nmem"]
+    cov = "lower Cholesky factor S" if filt.square_root else "covariance P"
+    rows = [("z", (n,), "prior mean for the next sample"),
+            ("C", (n, n), f"prior {cov} for the next sample"),
+            ("s", (nw,), "ARD prior variances of the weights"),
+            ("mem", (nmem,), "input history"),
+            ("z_post", (n,), "posterior mean at the last sample"),
+            ("C_post", (n, n), f"posterior {cov} at the last sample"),
+            ("e", (ny,), "innovation y - h(z) (0 where skipped)"),
+            ("Pyy", (ny, ny), "innovation covariance"),
+            ("nis", (), "normalised innovation squared"),
+            ("loglik", (), "log-likelihood of the measurement"),
+            ("z_next", (n,), "scratch: kernel results awaiting acceptance"),
+            ("C_next", (n, n), "scratch"),
+            ("s_next", (nw,), "scratch"),
+            ("mem_next", (nmem,), "scratch")]
+    return [r for r in rows if ski or r[0] not in ("s", "s_next")]
+
+
+def _size(shape: tuple) -> int:
+    return int(np.prod(shape, dtype=int))
+
+
+def _literal(x: float, real: str) -> str:
+    if not np.isfinite(x):
+        raise ValueError(f"non-finite initial value {x}")
+    return repr(float(x)) + ("f" if real == "float" else "")   # shortest round-trip form
+
+
+def _c_strings(names) -> str:
+    return ", ".join(f'"{s}"' for s in names) or "0"
+
+
+def _kernel(filt: DerivedFilter, prefix: str, real: str) -> tuple[str, str, dict[str, int]]:
+    """CasADi's code of the step as ``<prefix>_kernel``: (c text, h text, work sizes)."""
+    step, name = filt.step, f"{prefix}_kernel"
+    f = ca.Function(name, step.sx_in(), step.call(step.sx_in()), step.name_in(), step.name_out())
+    cg = ca.CodeGenerator(f"{name}.c", {"with_header": True, "casadi_real": real, "casadi_int": "int",
+                                        "prefix": name, "with_mem": False, "with_export": False})
+    cg.add(f)
+    with tempfile.TemporaryDirectory() as tmp:
+        cg.generate(tmp + os.sep)
+        c, h = (Path(tmp, name + ext).read_text() for ext in (".c", ".h"))
+    sizes = {k: int(re.search(rf"#define {name}_SZ_{k.upper()} (\d+)", h).group(1))
+             for k in ("arg", "res", "iw", "w")}
+    stamp = f"/* {name}: {filt.kind} step of model '{filt.aug.model.name}' ({real}), generated by skigen. */\n"
+    return stamp + _tidy(c, name, real), stamp + h, sizes
+
+
+def _tidy(c: str, name: str, real: str) -> str:
+    """Make CasADi's C strict-C99 clean, helpers static, float builds single precision."""
+    # Check the definitions against the header's prototypes.
+    c = c.replace("#include <math.h>\n", f'#include <math.h>\n#include "{name}.h"\n', 1)
+    # Helpers like `casadi_real casadi_sq(...)` are file-local.
+    c = re.sub(r"^(casadi_real|casadi_int|int|void) (casadi_\w+\()", r"static \1 \2", c, flags=re.M)
+    # Silence unused-parameter warnings of the entry points (iw, w, mem are unused by SX code).
+    def void_casts(m):
+        params = [p.replace("*", " ").split()[-1] for p in m.group(1).split(",") if p.strip() != "void"]
+        return m.group(0) + "".join(f"\n  (void){p};" for p in params if p in ("arg", "res", "iw", "w", "mem"))
+    c = re.sub(r"^[^\s#/][^;\n]*\b\w+\(([^()]*)\)\s*\{", void_casts, c, flags=re.M)
+    if real == "float":
+        c = _MATH_RE.sub(r"\1f(", c)
+        c = _LITERAL_RE.sub(r"\1f", c)
+    return c
+
+
+def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | None = None) -> list[Path]:
+    """Write ``<prefix>.h/.c`` and ``<prefix>_kernel.h/.c`` to ``out_dir``; return their paths."""
+    if real not in REALS:
+        raise ValueError(f"real must be one of {', '.join(REALS)}, got '{real}'")
+    prefix = prefix or default_prefix(filt)
+    if not prefix.isidentifier() or not prefix.isascii():
+        raise ValueError(f"prefix '{prefix}' is not a C identifier")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    kc, kh, sz = _kernel(filt, prefix, real)
+    d, step = filt.aug.shapes, filt.step
+    fields = {name: shape for name, shape, _ in _fields(filt)}
+    dim = lambda shape: "" if shape == () else f"[{max(_size(shape), 1)}]"
+    ref = lambda name: f"&st->{name}" if fields[name] == () else f"st->{name}"
+    struct = [f"    {prefix}_real {name}{dim(shape)}; /* {doc} */" for name, shape, doc in _fields(filt)]
+    struct += [f"    int iw[{max(sz['iw'], 1)}]; /* kernel work */",
+               f"    {prefix}_real w[{max(sz['w'], 1)}]; /* kernel work */"]
+    wiring = [f"    arg[{i}] = {ref(k) if k in fields else _LOCALS[k]};" for i, k in enumerate(step.name_in())]
+    wiring += [f"    res[{i}] = {ref(k)};" for i, k in enumerate(step.name_out())]
+    finite = [f"    failed = failed || !all_finite({ref(k)}, {_size(fields[k])});" for k in step.name_out()]
+    commit = [f"    copy_n(st->{a}, st->{b}, {_size(fields[a])});" for a, b in _UPDATES.items() if a in fields]
+    # Initial values: z, C (column-major), s as constants; posterior = prior; the rest 0.
+    start = filt.initial()
+    start["C"] = np.asarray(start["C"]).ravel(order="F")
+    source = {**{k: k for k in start}, "z_post": "z", "C_post": "C"}
+    consts, init = [], []
+    for key, v in start.items():
+        if np.any(v):
+            vals = [_literal(x, real) for x in np.ravel(v)]
+            body = ",\n    ".join(", ".join(vals[i:i + 4]) for i in range(0, len(vals), 4))
+            consts.append(f"static const real {key}0[{len(vals)}] = {{\n    {body}}};")
+    for name, shape, _ in _fields(filt):
+        key = source.get(name)
+        if name.endswith("_next"):
+            continue
+        if shape == ():
+            init.append(f"    st->{name} = 0;")
+        elif key is not None and np.any(start[key]):
+            init.append(f"    copy_n(st->{name}, {key}0, {_size(shape)});")
+        else:
+            init.append(f"    zero_n(st->{name}, {_size(shape)});")
+    model = filt.aug.model
+    values = dict(
+        prefix=prefix, PREFIX=prefix.upper(), real=real, model=model.name,
+        kind_long={"ekf": "augmented EKF", "ukf": "augmented square-root UKF",
+                   "ski": "SKI (square-root UKF with ARD)"}[filt.kind],
+        s_note=", s" if "s" in fields else "",
+        N=d["n"], NX=d["nx"], NW=d["nw"], NU=d["nu"], NY=d["ny"], NMEM=d["nmem"],
+        NU1=max(d["nu"], 1), NY1=max(d["ny"], 1), SQUARE_ROOT=int(filt.square_root),
+        SZ_ARG=max(sz["arg"], 1), SZ_RES=max(sz["res"], 1), SZ_IW=sz["iw"], SZ_W=sz["w"],
+        fields="\n".join(struct), wiring="\n".join(wiring), finite="\n".join(finite), commit="\n".join(commit),
+        initial="\n".join(consts), init="\n".join(init), sqrt="sqrtf" if real == "float" else "sqrt",
+        state_names=_c_strings(filt.aug.names), input_names=_c_strings(v.name for v in model.inputs),
+        output_names=_c_strings(v.name for v in model.outputs))
+    texts = {f"{prefix}.h": string.Template((_HERE / "filter.h.in").read_text()).substitute(values),
+             f"{prefix}.c": string.Template((_HERE / "filter.c.in").read_text()).substitute(values),
+             f"{prefix}_kernel.h": kh, f"{prefix}_kernel.c": kc}
+    paths = []
+    for fname, text in texts.items():
+        (out / fname).write_text(text)
+        paths.append(out / fname)
+    return paths
+
+
+@functools.lru_cache(maxsize=None)
+def _cc_version(cc: str) -> str:
+    return subprocess.run([cc, "--version"], capture_output=True, text=True, check=True).stdout
+
+
+def compile_shared(sources, out=None, cc: str = "gcc", flags=DEFAULT_FLAGS, cache_dir=None) -> Path:
+    """Build ``sources`` (.c; .h allowed) into a shared library with ``-fPIC -shared ... -lm``.
+
+    Libraries are cached by a hash of the compiler, flags and the sources with every header
+    beside them, in ``cache_dir`` (default ``$SKIGEN_CACHE`` or ``~/.cache/skigen``).
+    Returns ``out`` (a copy of the cached library) or the cached path itself.
+    """
+    sources = [Path(s).resolve() for s in sources]
+    cfiles = [s for s in sources if s.suffix == ".c"]
+    dirs = sorted({s.parent for s in sources})
+    hashed = cfiles + sorted({h for d in dirs for h in d.glob("*.h")})
+    key = hashlib.sha256("\0".join([cc, _cc_version(cc), *flags]).encode())
+    for p in hashed:
+        key.update(b"\0" + p.name.encode() + b"\0" + p.read_bytes())
+    cache = Path(cache_dir or os.environ.get("SKIGEN_CACHE") or Path.home() / ".cache" / "skigen")
+    lib = cache / "c" / f"{key.hexdigest()[:32]}.so"
+    if not lib.exists():
+        lib.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(suffix=".so", dir=lib.parent)
+        os.close(fd)
+        cmd = [cc, *flags, "-fPIC", "-shared", *(f"-I{d}" for d in dirs), *map(str, cfiles), "-o", tmp, "-lm"]
+        r = subprocess.run(cmd, capture_output=True, text=True)
+        if r.returncode:
+            os.unlink(tmp)
+            raise CompileError(f"{' '.join(cmd)}\n{r.stdout}{r.stderr}")
+        os.replace(tmp, lib)
+    if out is None:
+        return lib
+    shutil.copyfile(lib, out)
+    return Path(out)
+
+
+class CFilter:
+    """A compiled filter library run through ctypes; the state lives in a Python-owned buffer.
+
+    Fields of ``<prefix>_state`` read as NumPy arrays (``cf.z``, ``cf.C`` as an n×n matrix,
+    ``cf.nis`` as a float) and are written with :meth:`set`.
+    """
+
+    def __init__(self, lib_path, filt: DerivedFilter, real: str = "double", prefix: str | None = None):
+        ct, self.dtype = REALS[real]
+        self.prefix, self.kind, self.n = prefix or default_prefix(filt), filt.kind, filt.aug.n
+        self.shapes = {name: shape for name, shape, _ in _fields(filt)}
+        self.lib = ctypes.CDLL(str(Path(lib_path).resolve()))
+
+        class State(ctypes.Structure):   # the leading real fields; iw and w follow, opaque
+            _fields_ = [(k, ct * max(_size(s), 1) if s else ct) for k, s in self.shapes.items()]
+
+        fn = lambda name: getattr(self.lib, f"{self.prefix}_{name}")
+        size = fn("state_size")
+        size.restype = ctypes.c_size_t
+        if size() < ctypes.sizeof(State):
+            raise ValueError(f"{lib_path}: state layout does not match the filter")
+        self._buf = ctypes.create_string_buffer(size())
+        self._st = State.from_buffer(self._buf)
+        self._init, self._step, self._std = fn("init"), fn("step"), fn("std")
+        self._step.restype = ctypes.c_int
+        d = filt.aug.shapes
+        self._u, self._y, self._out = (ct * d["nu"])(), (ct * d["ny"])(), (ct * self.n)()
+        self.init()
+
+    def init(self) -> None:
+        self._init(ctypes.byref(self._st))
+
+    def step(self, u, y) -> int:
+        """One sample; returns the :class:`Status` code as an int."""
+        self._u[:] = [float(v) for v in np.ravel(u)]
+        self._y[:] = [float(v) for v in np.ravel(y)]
+        return self._step(ctypes.byref(self._st), self._u, self._y)
+
+    def std(self) -> np.ndarray:
+        """Posterior standard deviations."""
+        self._std(ctypes.byref(self._st), self._out)
+        return np.array(self._out, dtype=self.dtype)
+
+    def get(self, name: str):
+        shape, v = self.shapes[name], getattr(self._st, name)
+        if shape == ():
+            return float(v)
+        return np.array(v, dtype=self.dtype)[:_size(shape)].reshape(shape, order="F")
+
+    def set(self, name: str, value) -> None:
+        shape = self.shapes[name]
+        if shape == ():
+            setattr(self._st, name, float(value))
+        else:
+            getattr(self._st, name)[:_size(shape)] = np.broadcast_to(value, shape).ravel(order="F").tolist()
+
+    def __getattr__(self, name):
+        if name != "shapes" and name in self.shapes:
+            return self.get(name)
+        raise AttributeError(name)
+
+    def run(self, inputs, outputs) -> dict[str, np.ndarray]:
+        """Step over rows of ``inputs`` (N×nu) and ``outputs`` (N×ny): posterior means, stds, codes."""
+        inputs, outputs = np.asarray(inputs, float), np.asarray(outputs, float)
+        N = len(inputs)
+        z, sd, code = np.empty((N, self.n)), np.empty((N, self.n)), np.empty(N, int)
+        for k in range(N):
+            code[k] = self.step(inputs[k], outputs[k])
+            z[k], sd[k] = self.get("z_post"), self.std()
+        return dict(z_post=z, std=sd, code=code)
+
+
+def load_c(filt: DerivedFilter, real: str = "double", prefix: str | None = None, cache_dir=None,
+           cc: str = "gcc", flags=DEFAULT_FLAGS) -> CFilter:
+    """Emit, compile (cached) and load ``filt`` as a :class:`CFilter`."""
+    with tempfile.TemporaryDirectory() as tmp:
+        paths = emit_c(filt, tmp, real, prefix)
+        lib = compile_shared(paths, cc=cc, flags=flags, cache_dir=cache_dir)
+    return CFilter(lib, filt, real, prefix)

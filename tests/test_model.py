@@ -1,0 +1,115 @@
+"""Model declaration: what it builds, and the errors that name the culprit."""
+import casadi as ca
+import numpy as np
+import pytest
+
+from models.wingrock import build
+from skigen import Model, ModelError
+from skigen.derive import augment
+from skigen.library import abs_products, delayed_inputs, polynomial, term
+
+
+def small():
+    m = Model("toy", dt=0.1)
+    x = m.state("x", unit="m", role="position", std=1.0, process_std=0.01)
+    v = m.state("v", unit="m/s", role="velocity", std=1.0, process_std=0.01)
+    u = m.input("u", unit="N")
+    m.dynamics({x: v, v: u})
+    m.output("pos", x, unit="m", noise_std=0.1)
+    return m, x, v, u
+
+
+def test_wingrock_declaration():
+    m = build()
+    aug = augment(m)
+    assert aug.names == ["theta", "p", "w_one", "w_theta", "w_p", "w_abs_theta_p", "w_abs_p_p", "w_theta3"]
+    assert aug.shapes == dict(n=8, nx=2, nw=6, nu=1, ny=1, nmem=0)
+    assert np.allclose(aug.P0, np.diag([1, 1, 1, 1, 1, 1, 1, 1]))
+
+
+def test_polynomial_library_names():
+    m, x, v, _ = small()
+    names = [t.name for t in polynomial([x, v], 2)]
+    assert names == ["1", "x", "v", "x^2", "x*v", "v^2"]
+    assert [t.key for t in abs_products([(x, v)])] == ["abs_x_v"]
+
+
+def test_delayed_inputs_become_memory():
+    m, x, v, u = small()
+    m.unknown(v, delayed_inputs(m, u, 4))
+    aug = augment(m)
+    assert aug.shapes["nmem"] == 3 and aug.shapes["nw"] == 4
+    shift = ca.Function("shift", [aug.u, aug.mem], [aug.mem_next])
+    assert np.allclose(np.array(shift(7.0, [1.0, 2.0, 3.0])).ravel(), [7.0, 1.0, 2.0])
+
+
+def test_direction_term_shares_one_weight():
+    m, x, v, u = small()
+    m.unknown([x, v], [term("drag", ca.vertcat(0, -v))])
+    m.unknown([x, v], [term("bias", 1.0)])
+    assert m.weight_names == ["w_x+v_drag", "w_x_bias", "w_v_bias"]
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda m, x, v, u: m.dynamics({"q": v}), "'q', which is not a declared state"),
+    (lambda m, x, v, u: m.unknown("speed", [term("b", 1)]), "unknown term on equation 'speed'"),
+    (lambda m, x, v, u: m.state("x"), "state 'x' is declared twice"),
+    (lambda m, x, v, u: m.state("x y"), "must be an identifier"),
+    (lambda m, x, v, u: m.state("z", role="altitud"), "role must be one of"),
+    (lambda m, x, v, u: m.unknown(v, [term("b", ca.vertcat(1, 2))]), "basis term 'b' has shape (2, 1)"),
+    (lambda m, x, v, u: m.unknown(v, [term("b", 1)], prior_variance=[1, 2]), "2 entries for 1 weights"),
+    (lambda m, x, v, u: m.unknown(v, [term("b", 1)], prior_variance=-1), "prior_variance must be positive"),
+])
+def test_declaration_errors_name_the_culprit(mutate, message):
+    m, x, v, u = small()
+    with pytest.raises(ModelError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        mutate(m, x, v, u)
+        m.check()
+
+
+@pytest.mark.parametrize("mutate, message", [
+    (lambda m, x, v, u: m.dynamics({v: u + ca.SX.sym("k")}), "dynamics of 'v' uses symbol 'k'"),
+    (lambda m, x, v, u: m.unknown(v, [term("bad", ca.SX.sym("ghost"))]), "basis term 'bad' uses symbol 'ghost'"),
+    (lambda m, x, v, u: m.output("vel2", ca.vertcat(v, v), noise_std=1), "output 'vel2' must be a scalar"),
+    (lambda m, x, v, u: m.covariances(Q=np.eye(3)), "Q (process noise) has shape (3, 3); expected (2, 2)"),
+    (lambda m, x, v, u: m.covariances(P0=[[1, 0.5], [0.4, 1]]), "P0 (initial covariance) is not symmetric"),
+    (lambda m, x, v, u: m.covariances(P0=[[1, 2], [2, 1]]), "P0 (initial covariance) is not positive definite"),
+    (lambda m, x, v, u: m.covariances(R=[[0.0]]), "R (measurement noise) is not positive definite"),
+    (lambda m, x, v, u: m.covariances(Q=-np.eye(2)), "Q (process noise) is not positive semi-definite"),
+    (lambda m, x, v, u: m.output("acc", v), "output 'acc' has no noise_std"),
+])
+def test_check_errors_name_the_culprit(mutate, message):
+    m, x, v, u = small()
+    mutate(m, x, v, u)
+    with pytest.raises(ModelError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        m.check()
+
+
+def test_missing_dynamics_named():
+    m = Model("toy", dt=0.1)
+    m.state("x")
+    m.state("v")
+    m.dynamics({"x": 0})
+    m.output("y", 0, noise_std=1)
+    with pytest.raises(ModelError, match="no dynamics for state\\(s\\) v"):
+        m.check()
+
+
+def test_bad_sample_time_and_discretization():
+    with pytest.raises(ModelError, match="dt must be positive"):
+        Model("toy", dt=0)
+    with pytest.raises(ModelError, match="discretization must be one of"):
+        Model("toy", dt=0.1, discretization="rk45")
+
+
+def test_euler_and_discrete_match_by_hand():
+    for method in ("euler", "discrete"):
+        m = Model("toy", dt=0.1, discretization=method)
+        x = m.state("x", std=1)
+        u = m.input("u")
+        m.dynamics({x: -2 * x + u})
+        m.output("y", x, noise_std=1)
+        aug = augment(m)
+        f = ca.Function("f", [aug.z, aug.u], [aug.f])
+        expected = 1.0 + 0.1 * (-2 + 3) if method == "euler" else -2 + 3
+        assert float(f(1.0, 3.0)) == pytest.approx(expected, rel=1e-15)
