@@ -1,0 +1,78 @@
+"""The command line as a user meets it: results on good data, one-line errors on bad."""
+import csv
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from models.wingrock_sim import simulate
+from skigen.recording import write_recording
+
+MODEL = "models/wingrock.py"
+
+
+def skigen(*args, cwd=None):
+    return subprocess.run([sys.executable, "-m", "skigen", *args], capture_output=True, text=True, cwd=cwd)
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    sim = simulate(seed=0, duration=4.0)
+    phi = sim.phi.copy()
+    phi[10] = np.nan                                   # one missing sample
+    path = tmp_path_factory.mktemp("rec") / "wingrock.csv"
+    write_recording(path, sim.t, {"delta": sim.delta}, {"phi": phi})
+    return path
+
+
+def test_run_writes_the_result_contract(recording, tmp_path):
+    out = tmp_path / "result.csv"
+    r = skigen("run", MODEL, str(recording), "--filter", "ski", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    rows = list(csv.reader(open(out)))
+    header = rows[0]
+    names = ["theta", "p", "w_one", "w_theta", "w_p", "w_abs_theta_p", "w_abs_p_p", "w_theta3"]
+    assert header[:1 + 2 * len(names)] == ["t"] + names + [f"std_{n}" for n in names]
+    assert header[17:20] == ["innov_phi", "nis", "loglik"]
+    assert len(rows) == 1 + 201
+    assert rows[1 + 10][17] == "" and rows[1 + 10][18] == ""          # missing sample: no innovation
+    assert all(np.isfinite(float(v)) for v in rows[-1][:17])
+
+
+@pytest.mark.parametrize("content, expected", [
+    ("t,delta,phi\n0,0,0\n0.02,abc,0.1\n", ["row 3", "column 'delta'", "'abc' is not a number"]),
+    ("t,delta,phi\n0,0,0\n0.02,0\n", ["row 3", "fields"]),
+    ("t,delta,phi\n0,0,0\n0,0,0.1\n", ["row 3", "column 't'"]),
+    ("t,delta\n0,0\n0.02,0\n", ["missing", "phi"]),
+    ("", ["empty"]),
+    ("t,delta,phi\n0,0,0\n0.02,nan,0.1\n", ["row 3", "column 'delta'"]),
+])
+def test_malformed_recordings_get_one_line_errors(tmp_path, content, expected):
+    bad = tmp_path / "bad.csv"
+    bad.write_text(content)
+    r = skigen("run", MODEL, str(bad), "--out", str(tmp_path / "o.csv"))
+    assert r.returncode == 2
+    assert "Traceback" not in r.stderr
+    assert "bad.csv" in r.stderr
+    for piece in expected:
+        assert piece in r.stderr
+
+
+def test_bad_model_specs_are_explained(tmp_path, recording):
+    r = skigen("run", "nope.py", str(recording), "--out", str(tmp_path / "o.csv"))
+    assert r.returncode == 2 and "model file 'nope.py' not found" in r.stderr
+    broken = tmp_path / "broken.py"
+    broken.write_text("from skigen import Model\nmodel = Model('m', dt=0.1)\nx = model.state('x')\n"
+                      "model.dynamics({'y': x})\n")
+    r = skigen("run", str(broken), str(recording), "--out", str(tmp_path / "o.csv"))
+    assert r.returncode == 2 and "'y', which is not a declared state" in r.stderr
+    assert "Traceback" not in r.stderr
+    r = skigen("run", "models.wingrock:nothing", str(recording), "--out", str(tmp_path / "o.csv"))
+    assert r.returncode == 2 and "defines no skigen.Model named 'nothing'" in r.stderr
+
+
+def test_module_attribute_spec_works(recording, tmp_path):
+    r = skigen("run", "models.wingrock:model", str(recording), "--filter", "ekf", "--out", str(tmp_path / "o.csv"))
+    assert r.returncode == 0, r.stderr
+    assert "mean NIS" in r.stdout

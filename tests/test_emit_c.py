@@ -1,0 +1,355 @@
+"""The emitted C library: equal to the derived step, guarded against bad data, portable.
+
+Float builds are checked against the double Python step with FLOAT_RTOL (measured on the
+750-sample WingRock run: max |z_float - z_double| / max(|z|, 1) is about 4e-5 for the
+EKF, 8e-6 for the UKF and 4e-6 for SKI; the bound leaves a margin of 4 over the worst).
+"""
+import os
+import re
+import shutil
+import subprocess
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from models.wingrock import build
+from models.wingrock_sim import simulate
+from skigen import derive
+from skigen.emit import CFilter, Status, compile_shared, emit_c
+from skigen.emit.c import DEFAULT_FLAGS
+
+KINDS = ("ekf", "ukf", "ski")
+REALS = ("double", "float")
+RTOL = 1e-9
+FLOAT_RTOL = 2e-4
+STRICT = DEFAULT_FLAGS + ("-Wmissing-prototypes", "-Wstrict-prototypes")
+FLOAT_STRICT = ("-Wdouble-promotion", "-Wfloat-conversion")   # no silent double maths
+M7 = ("-mcpu=cortex-m7", "-mthumb", "-mfpu=fpv5-d16", "-mfloat-abi=hard")
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "flight_computer"
+DOUBLE_MATHS = {"sqrt", "cbrt", "exp", "expm1", "log", "log1p", "log2", "log10", "pow", "fabs",
+                "fmax", "fmin", "fmod", "floor", "ceil", "round", "trunc", "hypot", "erf",
+                "sin", "cos", "tan", "asin", "acos", "atan", "atan2", "sinh", "cosh", "tanh"}
+APT = {"aarch64-linux-gnu-gcc": "gcc-aarch64-linux-gnu",
+       "arm-none-eabi-gcc": "gcc-arm-none-eabi libnewlib-arm-none-eabi",
+       "qemu-aarch64": "qemu-user"}
+
+
+def _need(*tools):
+    for tool in tools:
+        if shutil.which(tool) is None:
+            pytest.skip(f"{tool} not installed: apt-get install -y {APT[tool]}")
+
+
+def _parallel(fn, items):
+    with ThreadPoolExecutor(os.cpu_count() or 2) as ex:
+        return list(ex.map(fn, items))
+
+
+def _run(cmd, **kw):
+    r = subprocess.run([str(c) for c in cmd], capture_output=True, text=True, **kw)
+    assert r.returncode == 0, f"{' '.join(map(str, cmd))}\n{r.stdout}{r.stderr}"
+    return r.stdout
+
+
+def _close(a, b, rtol=RTOL):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    np.testing.assert_allclose(a, b, rtol=0, atol=rtol * max(np.abs(b).max(initial=0.0), 1.0))
+
+
+@pytest.fixture(scope="module")
+def filters():
+    return {k: derive(build(), k) for k in KINDS}
+
+
+@pytest.fixture(scope="module")
+def emitted(filters, tmp_path_factory):
+    root = tmp_path_factory.mktemp("emit")
+    return {(k, r): emit_c(filters[k], root / f"{k}_{r}", r) for k in KINDS for r in REALS}
+
+
+@pytest.fixture(scope="module")
+def libs(emitted, tmp_path_factory):
+    """Every emitted library built for the host with -Werror (float: no double promotion)."""
+    cache = tmp_path_factory.mktemp("cache")
+    keys = list(emitted)
+    build_one = lambda key: compile_shared(emitted[key], cache_dir=cache,
+                                           flags=STRICT + (FLOAT_STRICT if key[1] == "float" else ()))
+    return dict(zip(keys, _parallel(build_one, keys)))
+
+
+@pytest.fixture(scope="module")
+def record():
+    """A 751-sample closed-loop WingRock flight: 750 steps are run."""
+    return simulate(seed=0, duration=15)
+
+
+def _c(libs, filters, kind, real="double"):
+    return CFilter(libs[kind, real], filters[kind], real)
+
+
+def _py_step(d, st, u, y):
+    """The derived CasADi step from state dict ``st``: (outputs, next state)."""
+    y = np.asarray(y, float)
+    valid = np.isfinite(y)
+    args = dict(z=st["z"], C=st["C"], u=u, mem=st["mem"], y=np.where(valid, y, 0.0),
+                valid=valid.astype(float))
+    if d.kind == "ski":
+        args["s"] = st["s"]
+    r = {k: np.array(v) for k, v in d.step(**args).items()}
+    nxt = dict(z=r["z_next"].ravel(), C=r["C_next"], mem=r["mem_next"].ravel())
+    if d.kind == "ski":
+        nxt["s"] = r["s_next"].ravel()
+    return r, nxt
+
+
+def _c_state(cf):
+    st = dict(z=cf.z, C=cf.C, mem=cf.mem)
+    if cf.kind == "ski":
+        st["s"] = cf.s
+    return st
+
+
+def _measurement(record, k):
+    return np.nan if k % 7 == 3 else record.phi[k]          # some samples not measured
+
+
+# ---------------------------------------------------------------- equality with the derived step
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_double_matches_python_step_and_run(kind, filters, libs, record):
+    d, cf = filters[kind], _c(libs, filters, kind)
+    ours = d.initial()
+    for name, v in ours.items():
+        _close(cf.get(name), v)
+    for k in range(750):
+        u, y = [record.delta[k]], [_measurement(record, k)]
+        prior = _c_state(cf)
+        code = cf.step(u, y)
+        assert code == (Status.MEASUREMENT_SKIPPED if np.isnan(y[0]) else Status.OK)
+        # Per step: the Python step from the C prior gives the C results.
+        r, nxt = _py_step(d, prior, u, y)
+        for name in ("z_post", "C_post", "e", "Pyy", "nis", "loglik"):
+            _close(cf.get(name), np.reshape(r[name], cf.shapes[name]))
+        # Whole run: Python fed its own previous state stays on the C trajectory.
+        r_own, ours = _py_step(d, ours, u, y)
+        _close(cf.z_post, r_own["z_post"].ravel())
+        for name, v in nxt.items():
+            _close(cf.get(name), v)
+            _close(cf.get(name), ours[name])
+    sd = cf.std()
+    C = cf.C_post
+    _close(sd, np.sqrt(np.diag(C @ C.T)) if d.square_root else np.sqrt(np.diag(C)))
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_float_tracks_double(kind, filters, libs, record):
+    d, cf = filters[kind], _c(libs, filters, kind, "float")
+    ours, worst = d.initial(), 0.0
+    for k in range(750):
+        u, y = [record.delta[k]], [_measurement(record, k)]
+        cf.step(u, y)
+        r, ours = _py_step(d, ours, u, y)
+        ref = r["z_post"].ravel()
+        worst = max(worst, np.abs(cf.z_post - ref).max() / max(np.abs(ref).max(), 1.0))
+    assert worst < FLOAT_RTOL, f"float posterior off by {worst:.2e} of the state scale"
+    assert cf.z_post.dtype == np.float32
+
+
+@pytest.fixture(scope="module")
+def long_record():
+    return simulate(seed=1, duration=2000)          # 100001 samples, bounded by the PID loop
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_float_long_run_stays_finite(kind, filters, libs, long_record):
+    cf, rec = _c(libs, filters, kind, "float"), long_record
+    codes = np.bincount([cf.step((u,), (y,)) for u, y in zip(rec.delta.tolist(), rec.phi.tolist())],
+                        minlength=4)
+    assert codes[Status.OK] == rec.n, f"codes {codes}"
+    for name in cf.shapes:
+        assert np.all(np.isfinite(cf.get(name))), name
+    assert abs(cf.z_post[0] - rec.theta[-1]) < 1.0            # still tracks the roll angle
+    assert np.all(cf.std() > 0) and np.all(cf.std() < 10)
+
+
+# ----------------------------------------------------------------------------------- guards
+
+def _warm(cf, record, n=20):
+    for k in range(n):
+        cf.step([record.delta[k]], [record.phi[k]])
+
+
+def _fields(cf):
+    return {name: cf.get(name) for name in cf.shapes if not name.endswith("_next")}
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_missing_measurement_skips_update_but_predicts(kind, filters, libs, record):
+    d, cf = filters[kind], _c(libs, filters, kind)
+    _warm(cf, record)
+    prior = _c_state(cf)
+    assert cf.step([1.5], [np.nan]) == Status.MEASUREMENT_SKIPPED
+    _close(cf.z_post, prior["z"])
+    assert cf.e[0] == 0 and cf.nis == 0 and cf.loglik == 0
+    _, nxt = _py_step(d, prior, [1.5], [np.nan])
+    _close(cf.z, nxt["z"])
+    assert not np.allclose(cf.z, prior["z"])                 # it did predict
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+@pytest.mark.parametrize("kind", KINDS)
+def test_bad_input_leaves_state_unchanged(kind, bad, filters, libs, record):
+    cf = _c(libs, filters, kind)
+    _warm(cf, record)
+    before = _fields(cf)
+    assert cf.step([bad], [0.3]) == Status.BAD_INPUT
+    for name, v in _fields(cf).items():
+        np.testing.assert_array_equal(v, before[name], err_msg=name)
+
+
+@pytest.mark.parametrize("real", REALS)
+@pytest.mark.parametrize("kind", KINDS)
+def test_numerical_failure_is_rejected(kind, real, filters, libs, record):
+    """P not positive definite (EKF) or an overflowing factor S: the step is rejected."""
+    cf = _c(libs, filters, kind, real)
+    _warm(cf, record)
+    n, huge = cf.n, 1e300 if real == "double" else 1e30
+    cf.set("C", huge * np.eye(n) if filters[kind].square_root else -np.eye(n))
+    before = _fields(cf)
+    assert cf.step([1.0], [0.5]) == Status.NUMERICAL_FAILURE
+    after = _fields(cf)
+    for name in ("z", "C", "s", "mem"):
+        if name in before:
+            np.testing.assert_array_equal(after[name], before[name], err_msg=name)
+    np.testing.assert_array_equal(cf.z_post, cf.z)
+    np.testing.assert_array_equal(cf.C_post, cf.C)
+    assert cf.e[0] == cf.Pyy[0, 0] == cf.nis == cf.loglik == 0
+    for name, v in after.items():
+        assert np.all(np.isfinite(v)), name
+    cf.set("C", filters[kind].initial()["C"])                # recovers once C is sane again
+    assert cf.step([1.0], [0.5]) == Status.OK
+
+
+# ---------------------------------------------------------------------------- generated text
+
+def test_emission_is_deterministic_and_path_free(filters, tmp_path):
+    a = emit_c(filters["ski"], tmp_path / "a", "float")
+    b = emit_c(filters["ski"], tmp_path / "b", "float")
+    assert [p.name for p in a] == ["wingrock_ski.h", "wingrock_ski.c",
+                                   "wingrock_ski_kernel.h", "wingrock_ski_kernel.c"]
+    for p, q in zip(a, b):
+        assert p.read_bytes() == q.read_bytes()
+        assert str(tmp_path) not in p.read_text()
+    kernel = a[3].read_text()
+    assert not re.search(r"\b(sqrt|exp|log|fabs|fmax|fmin|expm1|log1p)\(", kernel)
+    assert not re.search(r"\d\.\d*e[+-]\d+(?!f)\b", kernel)          # every literal is float
+
+
+def test_filters_link_into_one_program(filters, emitted, tmp_path):
+    """Three kinds plus a float copy under another prefix in one binary, headers together."""
+    f32 = emit_c(filters["ski"], tmp_path / "f32", "float", prefix="wingrock_ski_f32")
+    sources = [p for k in KINDS for p in emitted[k, "double"]] + f32
+    main = tmp_path / "main.c"
+    main.write_text("""#include <stdio.h>
+#include "wingrock_ekf.h"
+#include "wingrock_ukf.h"
+#include "wingrock_ski.h"
+#include "wingrock_ski_f32.h"
+int main(void)
+{
+    static wingrock_ekf_state a; static wingrock_ukf_state b;
+    static wingrock_ski_state c; static wingrock_ski_f32_state d;
+    double u = 1.0, y = 0.1; float uf = 1.0f, yf = 0.1f;
+    wingrock_ekf_init(&a); wingrock_ukf_init(&b); wingrock_ski_init(&c); wingrock_ski_f32_init(&d);
+    printf("%d %d %d %d\\n", wingrock_ekf_step(&a, &u, &y), wingrock_ukf_step(&b, &u, &y),
+           wingrock_ski_step(&c, &u, &y), wingrock_ski_f32_step(&d, &uf, &yf));
+    return 0;
+}
+""")
+    dirs = sorted({f"-I{p.parent}" for p in sources})
+    exe = tmp_path / "together"
+    _run(["gcc", *(f for f in DEFAULT_FLAGS if not f.startswith("-O")), "-O0", *dirs, main, *[p for p in sources if p.suffix == ".c"],
+          "-o", exe, "-lm"])
+    assert _run([exe]).split() == ["0"] * 4
+
+
+# --------------------------------------------------------------------------- cross toolchains
+
+def _cross_objects(cc, flags, emitted, out):
+    jobs = [(r, p) for (k, r), paths in emitted.items() for p in paths if p.suffix == ".c"]
+
+    def one(job):
+        real, src = job
+        obj = out / f"{real}_{src.stem}.o"
+        _run([cc, *DEFAULT_FLAGS, *(FLOAT_STRICT if real == "float" else ()), *flags,
+              f"-I{src.parent}", "-c", src, "-o", obj])
+        return real, obj
+    out.mkdir(exist_ok=True)
+    return _parallel(one, jobs)
+
+
+def test_cross_compiles_for_aarch64(emitted, tmp_path):
+    _need("aarch64-linux-gnu-gcc")
+    assert len(_cross_objects("aarch64-linux-gnu-gcc", (), emitted, tmp_path)) == 12
+
+
+def test_cross_compiles_for_cortex_m7(emitted, tmp_path):
+    """No heap; float builds call no double maths and hold no double-precision instruction."""
+    _need("arm-none-eabi-gcc")
+    for real, obj in _cross_objects("arm-none-eabi-gcc", M7, emitted, tmp_path):
+        undefined = set(_run(["arm-none-eabi-nm", "-u", obj]).split()) - {"U"}
+        assert not undefined & {"malloc", "free", "calloc", "realloc"}, obj
+        if real == "float":
+            assert not undefined & DOUBLE_MATHS, (obj, undefined & DOUBLE_MATHS)
+            assert not [s for s in undefined if s.startswith("__aeabi_d")], obj
+            assert not re.search(r"\.f64\b", _run(["arm-none-eabi-objdump", "-d", obj])), obj
+
+
+# ------------------------------------------------------------------------- flight-computer example
+
+def _recording_csv(record, path, n=200):
+    rows = ["t,delta,phi"]
+    for k in range(n):
+        phi = "" if k % 11 == 5 else ("nan" if k % 13 == 6 else repr(float(record.phi[k])))
+        rows.append(f"{record.t[k]!r},{float(record.delta[k])!r},{phi}")
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+def _example(tmp_path, filters, record, **make):
+    gen, out = tmp_path / "gen", tmp_path / make.pop("BUILD", "host")
+    if not gen.exists():
+        emit_c(filters["ski"], gen, "double")
+    out.mkdir()
+    _run(["make", "-s", "-C", EXAMPLE, f"GEN={gen}", f"BUILD={out}", *(f"{k}={v}" for k, v in make.items())])
+    return out / "flight_computer", _recording_csv(record, tmp_path / "rec.csv")
+
+
+def _table(text):
+    lines = text.strip().splitlines()
+    return lines[0].split(","), np.array([[float(v) for v in line.split(",")] for line in lines[1:]])
+
+
+def test_flight_computer_example_matches_ctypes(filters, libs, record, tmp_path):
+    exe, csv = _example(tmp_path, filters, record)
+    header, table = _table(_run([exe, csv]))
+    assert header == ["t"] + filters["ski"].aug.names
+    assert _run([exe], input=csv.read_text()) == _run([exe, csv])          # stdin works too
+    n = len(table)
+    y = np.array([np.nan if (k % 11 == 5 or k % 13 == 6) else record.phi[k] for k in range(n)])
+    ref = _c(libs, filters, "ski").run(record.delta[:n, None], y[:, None])
+    _close(table[:, 0], record.t[:n])
+    _close(table[:, 1:], ref["z_post"])
+
+
+def test_flight_computer_example_under_qemu_aarch64(filters, record, tmp_path):
+    _need("aarch64-linux-gnu-gcc", "qemu-aarch64")
+    host, csv = _example(tmp_path, filters, record)
+    arm, _ = _example(tmp_path, filters, record, BUILD="arm", CC="aarch64-linux-gnu-gcc",
+                      LDFLAGS="-static")
+    h, host_out = _table(_run([host, csv]))
+    a, arm_out = _table(_run(["qemu-aarch64", arm, csv]))
+    assert h == a
+    _close(arm_out, host_out)
