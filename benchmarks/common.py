@@ -15,7 +15,7 @@ def parser(name: str, seeds: int) -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog=f"skigen bench {name}")
     p.add_argument("--json", action="store_true", help="print one JSON object instead of tables")
     p.add_argument("--seeds", type=int, default=seeds, help="noise seeds (median reported)")
-    p.add_argument("--out", default="out/bench", help="folder for the figures")
+    p.add_argument("--out", default="benchmarks/figures", help="folder for the figures")
     return p
 
 

@@ -99,6 +99,17 @@ def square_wave_reference(t):
     return r
 
 
+STAIRCASE_AMPLITUDES = np.array([5.0, -3.0, 4.0, -5.0, 2.0, -4.0, 5.0, -2.0, 3.0, -5.0, 4.0, -3.0])
+
+
+def staircase_reference(t):
+    """A richer roll reference (deg) for the excitation study: 0 for t < 0.2 s, then
+    steps every 1.25 s through amplitudes between 2 and 5 deg of both signs."""
+    t = np.asarray(t, dtype=float)
+    k = np.clip(((t - 0.2) // 1.25).astype(int), 0, len(STAIRCASE_AMPLITUDES) - 1)
+    return np.where(t < 0.2, 0.0, STAIRCASE_AMPLITUDES[k])
+
+
 def pid_matrices(dt: float = DT, Kp: float = PID_GAINS["Kp"], Ki: float = PID_GAINS["Ki"],
                  Kd: float = PID_GAINS["Kd"], N: float = PID_GAINS["N"]):
     """Discrete PID (Tustin) as state-space matrices, built once with python-control.
@@ -197,7 +208,8 @@ def delayed(u: np.ndarray, d: int) -> np.ndarray:
 
 
 def simulate(seed: int = 0, duration: float = 15.0, dt: float = DT, noise_std: float = 0.1,
-             weights=W_TRUE, gain: float = L_TRUE, delay: int = 0) -> WingRockRun:
+             weights=W_TRUE, gain: float = L_TRUE, delay: int = 0,
+             reference=None) -> WingRockRun:
     """Closed-loop WingRock simulation, deterministic for a given seed.
 
     At sample k: measure ``phi[k] = theta[k] + v[k]``, compute the PID command
@@ -211,7 +223,7 @@ def simulate(seed: int = 0, duration: float = 15.0, dt: float = DT, noise_std: f
     t = np.arange(n) * dt
     rng = np.random.default_rng(seed)
     noise = rng.normal(0.0, noise_std, n) if noise_std > 0 else np.zeros(n)
-    ref = square_wave_reference(t)
+    ref = (reference or square_wave_reference)(t)
     w = np.asarray(weights, dtype=float).copy()
 
     A, B, C, D, i_int = _cached_pid(dt)

@@ -53,11 +53,7 @@ def _run(args) -> int:
     model = load_model(args.model)
     rec = read_recording(args.data, model.input_names, model.output_names)
     filt = derive(model, args.filter)
-    if args.backend == "c":
-        from .emit.c import run_c
-        result = run_c(filt, rec, real=args.real)
-    else:
-        result = run(filt, rec)
+    result = run(filt, rec, backend=args.backend, real=args.real)
     result.write(args.out)
     print(f"{model.name} {args.filter} ({args.backend}): {len(rec.t)} samples -> {args.out}; "
           f"mean NIS {np.nanmean(result.nis):.3f} (expected about {len(model.output_names)})")

@@ -1,9 +1,10 @@
-"""Run a derived filter over a recording (the Python backend).
+"""Run a derived filter over a recording, in Python or through the generated C.
 
-Every step is guarded like the generated C: a non-finite input skips the
-sample, a non-finite measurement skips its update, and a step whose result
-is not finite is rejected (the prior is kept). Many rejections in a row mean
-the filter diverged, which is an error naming the time it began.
+Both backends step with the same guards (those of the generated C): a
+non-finite input skips the sample (state unchanged), a non-finite
+measurement skips its update, and a step whose result is not finite is
+rejected, keeping the prior. Many rejections in a row mean the filter
+diverged, which is an error naming the time it began.
 """
 from __future__ import annotations
 
@@ -12,13 +13,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from .derive import DerivedFilter
+from .emit.c import Status
 from .progress import progress
 from .recording import Recording, write_table
 
-__all__ = ["RunResult", "FilterDivergedError", "run", "STEP_OK", "STEP_SKIPPED", "STEP_BAD_INPUT",
-           "STEP_REJECTED"]
+__all__ = ["RunResult", "FilterDivergedError", "PythonStepper", "run", "Status"]
 
-STEP_OK, STEP_SKIPPED, STEP_BAD_INPUT, STEP_REJECTED = 0, 1, 2, 3
 MAX_REJECTED_IN_A_ROW = 20
 
 
@@ -39,7 +39,7 @@ class RunResult:
     nis: np.ndarray           # (N,), NaN when nothing was measured
     loglik: np.ndarray        # (N,)
     prior_var: np.ndarray     # (N, nw) ARD prior variances (SKI), else empty
-    code: np.ndarray          # (N,) STEP_* per sample
+    code: np.ndarray          # (N,) Status per sample
     final_cov: np.ndarray     # (n, n) last posterior covariance
 
     @property
@@ -71,68 +71,99 @@ class RunResult:
         write_table(path, self.columns())
 
 
-def _std(C: np.ndarray, square_root: bool) -> np.ndarray:
-    return np.sqrt(np.sum(C * C, axis=1)) if square_root else np.sqrt(np.clip(np.diag(C), 0, None))
+class PythonStepper:
+    """The derived step Function behind the generated C's interface and guards.
+
+    Holds the filter state (z, C, s, mem) and, after each step, the posterior
+    (z_post, C_post) and innovation statistics (e, Pyy, nis, loglik).
+    """
+
+    def __init__(self, filt: DerivedFilter):
+        self.filt = filt
+        self.init()
+
+    def init(self) -> None:
+        st = self.filt.initial()
+        self.z, self.C, self.mem, self.s = st["z"], st["C"], st["mem"], st.get("s")
+        self._reset_posterior()
+
+    def _reset_posterior(self):
+        ny = self.filt.aug.shapes["ny"]
+        self.z_post, self.C_post = self.z, self.C
+        self.e, self.Pyy, self.nis, self.loglik = np.zeros(ny), np.zeros((ny, ny)), 0.0, 0.0
+
+    def step(self, u, y) -> int:
+        """One sample; returns a :class:`Status` code."""
+        u, y = np.asarray(u, float), np.asarray(y, float)
+        if not np.all(np.isfinite(u)):
+            return Status.BAD_INPUT
+        valid = np.isfinite(y)
+        ski = self.filt.kind == "ski"
+        args = [self.z, self.C] + ([self.s] if ski else []) + [u, self.mem, np.where(valid, y, 0.0),
+                                                              valid.astype(float)]
+        z_post, C_post, *rest = (np.asarray(r) for r in self.filt.step(*args))
+        s_next = rest.pop(0).ravel() if ski else None
+        z_next, C_next, mem_next, e, Pyy, nis, loglik = rest
+        self.mem = mem_next.ravel()
+        if not all(np.all(np.isfinite(a)) for a in [z_post, C_post, z_next, C_next] + ([s_next] if ski else [])):
+            self._reset_posterior()
+            return Status.NUMERICAL_FAILURE
+        self.z_post, self.C_post, self.z, self.C = z_post.ravel(), C_post, z_next.ravel(), C_next
+        self.e, self.Pyy, self.nis, self.loglik = e.ravel(), Pyy, nis.item(), loglik.item()
+        if ski:
+            self.s = s_next
+        return Status.OK if valid.all() else Status.MEASUREMENT_SKIPPED
+
+    def std(self) -> np.ndarray:
+        """Posterior standard deviations."""
+        C = self.C_post
+        return np.sqrt(np.sum(C * C, axis=1)) if self.filt.square_root else np.sqrt(np.clip(np.diag(C), 0, None))
 
 
-def run(filt: DerivedFilter, rec: Recording, *, show_progress: bool = True, label: str | None = None,
-        state: dict | None = None) -> RunResult:
-    """Filter the whole recording; returns the posterior at every sample."""
-    aug = filt.aug
-    model = aug.model
+def run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", real: str = "double",
+        show_progress: bool = True, label: str | None = None, cache_dir=None) -> RunResult:
+    """Filter the whole recording; returns the posterior at every sample.
+
+    backend: ``"python"`` (the CasADi Function) or ``"c"`` (the generated C,
+    compiled and cached on first use, in ``real`` precision).
+    """
+    aug, model = filt.aug, filt.aug.model
     if list(rec.input_names) != model.input_names or list(rec.output_names) != model.output_names:
         raise ValueError(f"{rec.path}: recording columns {list(rec.input_names) + list(rec.output_names)} "
                          f"do not match model '{model.name}' (inputs {model.input_names}, "
                          f"outputs {model.output_names})")
-    N, n, ny = len(rec.t), aug.n, len(model.output_names)
-    state = dict(state or filt.initial())
+    if backend == "c":
+        from .emit.c import load_c
+        stepper = load_c(filt, real, cache_dir=cache_dir)
+    elif backend == "python":
+        stepper = PythonStepper(filt)
+    else:
+        raise ValueError(f"unknown backend '{backend}'; choose python or c")
+    N, n, ny, ski = len(rec.t), aug.n, len(model.output_names), filt.kind == "ski"
     out = {k: np.full(shape, np.nan) for k, shape in
            dict(mean=(N, n), std=(N, n), e=(N, ny), ev=(N, ny), nis=(N,), ll=(N,),
-                s=(N, len(aug.w_index) if filt.kind == "ski" else 0)).items()}
-    code = np.zeros(N, dtype=int)
-    ski = filt.kind == "ski"
-    rejected = 0
-    C_post = state["C"]
-    steps = progress(range(N), N, label or f"{model.name} {filt.kind}") if show_progress else range(N)
-    for k in steps:
-        u, y = rec.inputs[k], rec.outputs[k]
-        valid = np.isfinite(y)
-        if not np.all(np.isfinite(u)):
-            code[k] = STEP_BAD_INPUT
+                s=(N, len(aug.w_index) if ski else 0)).items()}
+    code, rejected = np.zeros(N, dtype=int), 0
+    label = label or f"{model.name} {filt.kind} ({backend})"
+    for k in progress(range(N), N, label) if show_progress else range(N):
+        code[k] = c = stepper.step(rec.inputs[k], rec.outputs[k])
+        if c == Status.BAD_INPUT:
             continue
-        args = [state["z"], state["C"]] + ([state["s"]] if ski else []) + \
-               [u, state["mem"], np.where(valid, y, 0.0), valid.astype(float)]
-        res = [np.asarray(r) for r in filt.step(*args)]
-        z_post, C_post_k, *rest = res
-        s_next = rest.pop(0) if ski else None
-        z_next, C_next, mem_next, e, Pyy, nis, ll = rest
-        checked = [z_post, C_post_k, z_next, C_next] + ([s_next] if ski else [])
-        if not all(np.all(np.isfinite(a)) for a in checked):
-            code[k] = STEP_REJECTED
-            rejected += 1
-            if rejected >= MAX_REJECTED_IN_A_ROW:
-                t0 = rec.t[k - rejected + 1]
-                raise FilterDivergedError(
-                    f"{rec.path}: the {filt.kind} filter of '{model.name}' diverged: {rejected} "
-                    f"non-finite steps in a row from t = {t0:g} s (row {k - rejected + 3} of the file)")
-            state["mem"] = mem_next.ravel()
-            z_post, C_post_k = state["z"], state["C"]
-            e = np.full(ny, np.nan)
-        else:
-            rejected = 0
-            code[k] = STEP_OK if valid.all() else STEP_SKIPPED
-            state.update(z=z_next.ravel(), C=C_next, mem=mem_next.ravel())
-            if ski:
-                state["s"] = s_next.ravel()
-            e = np.where(valid, e.ravel(), np.nan)
-            out["nis"][k], out["ll"][k] = (nis.item(), ll.item()) if valid.any() else (np.nan, 0.0)
-            out["ev"][k] = np.where(valid, np.diag(Pyy), np.nan)
-        out["mean"][k] = np.ravel(z_post)
-        out["std"][k] = _std(C_post_k, filt.square_root)
-        out["e"][k] = e
+        rejected = rejected + 1 if c == Status.NUMERICAL_FAILURE else 0
+        if rejected >= MAX_REJECTED_IN_A_ROW:
+            raise FilterDivergedError(
+                f"{rec.path}: the {filt.kind} filter of '{model.name}' diverged: {rejected} non-finite "
+                f"steps in a row from t = {rec.t[k - rejected + 1]:g} s (row {k - rejected + 3} of the file)")
+        out["mean"][k], out["std"][k] = stepper.z_post, stepper.std()
         if ski:
-            out["s"][k] = state["s"]
-        C_post = C_post_k
-    final_cov = C_post @ C_post.T if filt.square_root else C_post
+            out["s"][k] = stepper.s
+        valid = np.isfinite(rec.outputs[k])
+        if c != Status.NUMERICAL_FAILURE and valid.any():
+            out["e"][k] = np.where(valid, stepper.e, np.nan)
+            out["ev"][k] = np.where(valid, np.diag(stepper.Pyy), np.nan)
+            out["nis"][k], out["ll"][k] = stepper.nis, stepper.loglik
+        else:
+            out["ll"][k] = 0.0
+    C = np.asarray(stepper.C_post, float)
     return RunResult(filt, rec.t, out["mean"], out["std"], out["e"], out["ev"], out["nis"], out["ll"],
-                     out["s"], code, final_cov)
+                     out["s"], code, C @ C.T if filt.square_root else C)

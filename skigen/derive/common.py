@@ -27,7 +27,7 @@ class FilterOptions:
     beta: float = 2.0
     kappa: float = 0.0
     ard_steps: int = 1
-    eta: float = 0.1
+    eta: float = 0.3
     max_step: float = 1.0
     backtracks: int = 3
     margin: float = 0.9

@@ -9,7 +9,8 @@
   templates ``filter.h.in`` / ``filter.c.in`` beside this module.
 
 :func:`compile_shared` builds (and caches) a shared library; :class:`CFilter`
-runs it through ctypes; :func:`load_c` does all three.
+runs it through ctypes; :func:`load_c` does all three (it is the C backend of
+:func:`skigen.runtime.run`).
 """
 from __future__ import annotations
 
@@ -123,10 +124,10 @@ def _tidy(c: str, name: str, real: str) -> str:
     c = c.replace("#include <math.h>\n", f'#include <math.h>\n#include "{name}.h"\n', 1)
     # Helpers like `casadi_real casadi_sq(...)` are file-local.
     c = re.sub(r"^(casadi_real|casadi_int|int|void) (casadi_\w+\()", r"static \1 \2", c, flags=re.M)
-    # Silence unused-parameter warnings of the entry points (iw, w, mem are unused by SX code).
+    # Silence unused-parameter warnings of the entry points (SX code uses no iw, w, mem).
     def void_casts(m):
         params = [p.replace("*", " ").split()[-1] for p in m.group(1).split(",") if p.strip() != "void"]
-        return m.group(0) + "".join(f"\n  (void){p};" for p in params if p in ("arg", "res", "iw", "w", "mem"))
+        return m.group(0) + "".join(f"\n  (void){p};" for p in params if p in ("iw", "w", "mem"))
     c = re.sub(r"^[^\s#/][^;\n]*\b\w+\(([^()]*)\)\s*\{", void_casts, c, flags=re.M)
     if real == "float":
         c = _MATH_RE.sub(r"\1f(", c)
@@ -155,24 +156,20 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
     wiring += [f"    res[{i}] = {ref(k)};" for i, k in enumerate(step.name_out())]
     finite = [f"    failed = failed || !all_finite({ref(k)}, {_size(fields[k])});" for k in step.name_out()]
     commit = [f"    copy_n(st->{a}, st->{b}, {_size(fields[a])});" for a, b in _UPDATES.items() if a in fields]
-    # Initial values: z, C (column-major), s as constants; posterior = prior; the rest 0.
-    start = filt.initial()
-    start["C"] = np.asarray(start["C"]).ravel(order="F")
-    source = {**{k: k for k in start}, "z_post": "z", "C_post": "C"}
-    consts, init = [], []
-    for key, v in start.items():
-        if np.any(v):
-            vals = [_literal(x, real) for x in np.ravel(v)]
-            body = ",\n    ".join(", ".join(vals[i:i + 4]) for i in range(0, len(vals), 4))
-            consts.append(f"static const real {key}0[{len(vals)}] = {{\n    {body}}};")
+    # Initial values: nonzero z, C (column-major), s as constants; posterior = prior; the rest 0.
+    start = {k: np.ravel(v, order="F") for k, v in filt.initial().items()}
+    consts = [f"static const real {k}0[{v.size}] = {{\n    " + ",\n    ".join(
+              ", ".join(_literal(x, real) for x in v[i:i + 8]) for i in range(0, v.size, 8)) + "};"
+              for k, v in start.items() if np.any(v)]
+    init = []
     for name, shape, _ in _fields(filt):
-        key = source.get(name)
+        base = name.removesuffix("_post")                        # z_post starts at z, C_post at C
         if name.endswith("_next"):
             continue
         if shape == ():
             init.append(f"    st->{name} = 0;")
-        elif key is not None and np.any(start[key]):
-            init.append(f"    copy_n(st->{name}, {key}0, {_size(shape)});")
+        elif base in start and np.any(start[base]):
+            init.append(f"    copy_n(st->{name}, {base}0, {_size(shape)});")
         else:
             init.append(f"    zero_n(st->{name}, {_size(shape)});")
     model = filt.aug.model
@@ -193,7 +190,7 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
              f"{prefix}_kernel.h": kh, f"{prefix}_kernel.c": kc}
     paths = []
     for fname, text in texts.items():
-        (out / fname).write_text(text)
+        (out / fname).write_text(text, newline="\n")
         paths.append(out / fname)
     return paths
 

@@ -1,0 +1,41 @@
+"""Regenerate the checked-in C sources of the shipped models (``generated/``).
+
+    python -m skigen.emit.shipped generated      (what `make generate` runs)
+
+Each filter lands in ``generated/<model>_<kind>_<real>/``; a test regenerates
+them into a temporary folder and fails on any difference.
+"""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+from ..derive import derive
+from .c import emit_c
+
+__all__ = ["SHIPPED", "generate_all"]
+
+SHIPPED = {"models.wingrock:model": ("ekf", "ukf", "ski")}
+REALS = ("double", "float")
+
+
+def _model(spec: str):
+    from ..cli import load_model
+    return load_model(spec)
+
+
+def generate_all(out_dir) -> list[Path]:
+    """Emit every shipped filter in double and float; returns the files written."""
+    files = []
+    for spec, kinds in SHIPPED.items():
+        model = _model(spec)
+        for kind in kinds:
+            filt = derive(model, kind)
+            for real in REALS:
+                files += emit_c(filt, Path(out_dir) / f"{model.name}_{kind}_{real}", real=real)
+    return files
+
+
+if __name__ == "__main__":
+    for f in generate_all(sys.argv[1] if len(sys.argv) > 1 else "generated"):
+        print(f)
