@@ -46,8 +46,10 @@ def plot_weights(path, t, estimates: dict, names, truth=None, title="") -> Path:
 
 
 def _range(estimates, i, truth):
-    """Axis limits from the estimates after the first tenth of the run (robust to early transients)."""
-    vals = [W[len(W) // 10:, i] for W, _ in estimates.values()]
+    """Axis limits from the filters' estimates (those with a σ band; a batch baseline may
+    leave the frame) after the first tenth of the run, so early transients do not flatten it."""
+    banded = [W for W, S in estimates.values() if S is not None] or [W for W, _ in estimates.values()]
+    vals = [W[len(W) // 10:, i] for W in banded]
     vals = np.concatenate(vals + ([np.atleast_1d(truth[i])] if truth is not None else []))
     vals = vals[np.isfinite(vals)]
     lo, hi = np.percentile(vals, [1, 99]) if vals.size else (-1, 1)
