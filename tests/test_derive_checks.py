@@ -112,11 +112,12 @@ def test_casadi_ard_correction_is_posterior_from_scratch():
     info = np.linalg.inv(P) - np.diag(1 / s)             # Φᵀ Φ / r
     s_new = s * rng.uniform(0.2, 5.0, m)
     P_new = np.linalg.inv(info + np.diag(1 / s_new))
-    z, Pz, sn, so = ca.SX.sym("z", m), ca.SX.sym("P", m, m), ca.SX.sym("sn", m), ca.SX.sym("so", m)
-    corr = ca.Function("c", [z, Pz, sn, so], list(ard.ard_correct(z, Pz, range(m), sn, so)))
-    m_c, P_c = corr(mu, P, s_new, s)
-    np.testing.assert_allclose(np.array(m_c).ravel(), P_new @ Phi_y, rtol=1e-9, atol=1e-12)
-    np.testing.assert_allclose(np.array(P_c), P_new, rtol=1e-9, atol=1e-12)
+    z, Sz, sn, so = ca.SX.sym("z", m), ca.SX.sym("S", m, m), ca.SX.sym("sn", m), ca.SX.sym("so", m)
+    corr = ca.Function("c", [z, Sz, sn, so], list(ard.ard_correct(z, Sz, range(m), sn, so)))
+    m_c, S_c = (np.array(v) for v in corr(mu, np.linalg.cholesky(P), s_new, s))
+    np.testing.assert_allclose(m_c.ravel(), P_new @ Phi_y, rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(S_c @ S_c.T, P_new, rtol=1e-9, atol=1e-12)
+    assert np.allclose(S_c, np.tril(S_c)) and np.all(np.diag(S_c) > 0)
 
 
 def _sim_recording(seed):

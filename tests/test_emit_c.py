@@ -381,3 +381,18 @@ def test_flight_computer_example_under_qemu_aarch64(example, tmp_path):
     a, arm_out = _table(_run(["qemu-aarch64", arm, csv]))
     assert h == a
     _close(arm_out, host_out)
+
+
+def test_float_ski_stays_close_on_the_delay_model():
+    """The square-root ARD correction keeps float SKI within a small fraction of a
+    posterior standard deviation of double on the ill-conditioned delay model."""
+    from benchmarks.common import recording
+    from models import wingrock_delay
+    from models.wingrock_sim import simulate
+
+    filt = derive(wingrock_delay.build(), "ski")
+    rec = recording(simulate(seed=1, delay=6))
+    double = run(filt, rec, backend="c", show_progress=False)
+    single = run(filt, rec, backend="c", real="float", show_progress=False)
+    assert not np.any(single.code == Status.NUMERICAL_FAILURE)
+    assert np.max(np.abs(single.mean - double.mean) / double.std) < 0.01

@@ -15,7 +15,7 @@ from .c import emit_c
 
 __all__ = ["SHIPPED", "generate_all"]
 
-SHIPPED = {"models.wingrock:model": ("ekf", "ukf", "ski")}
+SHIPPED = {"models.wingrock:model": ("ekf", "ukf", "ski"), "models.wingrock_delay:model": ("ukf", "ski")}
 REALS = ("double", "float")
 
 
