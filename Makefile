@@ -23,7 +23,10 @@ test-fast: $(STAMP)
 
 bench: $(STAMP)  ## accuracy and speed tables (figures land in out/bench)
 	$(PY) -m skigen bench wingrock
+	$(PY) -m skigen bench wingrock --reference staircase
 	$(PY) -m skigen bench delay
+	$(PY) -m skigen bench speed
+	$(PY) -m skigen bench footprint
 
 generate: $(STAMP)  ## regenerate the checked-in C sources in generated/
 	$(PY) -m skigen.emit.shipped generated

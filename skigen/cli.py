@@ -96,7 +96,7 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--real", choices=["double", "float"], default="double")
     g.add_argument("--out", required=True, help="output directory")
     g.set_defaults(func=_generate)
-    b = sub.add_parser("bench", help="print a benchmark table (wingrock, delay, speed)")
+    b = sub.add_parser("bench", help="print a benchmark table (wingrock, delay, speed, footprint)")
     b.add_argument("name")
     b.add_argument("--json", action="store_true", help="print one JSON object")
     b.add_argument("rest", nargs=argparse.REMAINDER)

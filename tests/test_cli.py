@@ -76,3 +76,18 @@ def test_module_attribute_spec_works(recording, tmp_path):
     r = skigen("run", "models.wingrock:model", str(recording), "--filter", "ekf", "--out", str(tmp_path / "o.csv"))
     assert r.returncode == 0, r.stderr
     assert "mean NIS" in r.stdout
+
+
+def test_generate_then_run_with_the_c_backend(recording, tmp_path):
+    r = skigen("generate", MODEL, "--filter", "ukf", "--real", "float", "--out", str(tmp_path / "c"))
+    assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in (tmp_path / "c").iterdir()) == [
+        "wingrock_ukf.c", "wingrock_ukf.h", "wingrock_ukf_kernel.c", "wingrock_ukf_kernel.h"]
+    assert "sqrtf(" in (tmp_path / "c" / "wingrock_ukf_kernel.c").read_text()
+    py, c = tmp_path / "py.csv", tmp_path / "c.csv"
+    assert skigen("run", MODEL, str(recording), "--filter", "ukf", "--out", str(py)).returncode == 0
+    r = skigen("run", MODEL, str(recording), "--filter", "ukf", "--backend", "c", "--out", str(c))
+    assert r.returncode == 0, r.stderr
+    a = np.genfromtxt(py, delimiter=",", skip_header=1)
+    b = np.genfromtxt(c, delimiter=",", skip_header=1)
+    np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-12, equal_nan=True)

@@ -12,7 +12,7 @@ from skigen.derive import ard
 from skigen.recording import Recording
 from skigen.reference import ard as ref_ard
 from skigen.runtime import FilterDivergedError, run
-from tests.oracle_models import wingrock_f
+from skigen.reference.wingrock import wingrock_f
 
 
 def test_ekf_jacobians_equal_finite_differences():

@@ -5,7 +5,7 @@ import pytest
 from models.wingrock import build
 from skigen import FilterOptions, derive
 from skigen.reference import filters as ref
-from tests.oracle_models import wingrock_f, wingrock_h
+from skigen.reference.wingrock import wingrock_f, wingrock_h
 
 RTOL = 1e-9
 

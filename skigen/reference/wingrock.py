@@ -1,4 +1,4 @@
-"""Models written by hand in NumPy for the reference filters (complex-step safe).
+"""WingRock written by hand in NumPy for the reference filters (complex-step safe).
 
 Independent of CasADi and of skigen's declaration: the WingRock equations
 are typed in again here so that the oracle shares nothing with the derivation.

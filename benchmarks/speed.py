@@ -1,0 +1,130 @@
+"""Time per filter step: generated C (double, float), the Python callables,
+and filterpy's UKF on the same augmented WingRock model, plus how the C SKI
+step scales with the number of basis functions m (delayed-input windows).
+
+C is timed by a small C program (the filter's own sources, -O2) that replays a
+simulated flight many times; no Python is in the loop.
+"""
+from __future__ import annotations
+
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from benchmarks.common import emit, parser, recording
+from models import wingrock, wingrock_delay
+from models.wingrock_sim import simulate
+from skigen import derive
+from skigen.emit.c import DEFAULT_FLAGS, default_prefix, emit_c
+from skigen.reference.wingrock import wingrock_f
+from skigen.runtime import run
+
+KINDS = ("ekf", "ukf", "ski")
+SCALING_M = (6, 12, 24)
+
+HARNESS = r"""
+#define _POSIX_C_SOURCE 199309L
+#include <stdio.h>
+#include <time.h>
+#include "%(prefix)s.h"
+static const %(real)s U[%(n)d] = {%(u)s};
+static const %(real)s Y[%(n)d] = {%(y)s};
+int main(void) {
+    static %(prefix)s_state st;
+    struct timespec a, b;
+    long reps = 1, k, r;
+    double ns = 0;
+    volatile %(real)s sink = 0;
+    for (;;) {                                   /* grow until a run takes 0.2 s */
+        clock_gettime(CLOCK_MONOTONIC, &a);
+        for (r = 0; r < reps; ++r) {
+            %(prefix)s_init(&st);
+            for (k = 0; k < %(n)d; ++k) %(prefix)s_step(&st, &U[k], &Y[k]);
+            sink += st.z_post[0];
+        }
+        clock_gettime(CLOCK_MONOTONIC, &b);
+        ns = (b.tv_sec - a.tv_sec) * 1e9 + (b.tv_nsec - a.tv_nsec);
+        if (ns > 2e8) break;
+        reps *= 2;
+    }
+    printf("%%.3f\n", ns / ((double)reps * %(n)d));
+    return sink != sink;
+}
+"""
+
+
+def c_ns_per_step(filt, rec, real: str, work: Path) -> float:
+    """Nanoseconds per step of the generated C, timed in C."""
+    prefix = default_prefix(filt)
+    out = work / f"{prefix}_{real}"
+    files = emit_c(filt, out, real=real)
+    fmt = lambda a: ", ".join(f"{v:.17g}" for v in a)
+    (out / "bench.c").write_text(HARNESS % dict(prefix=prefix, real=real, n=len(rec.t),
+                                                u=fmt(rec.inputs[:, 0]), y=fmt(rec.outputs[:, 0])))
+    exe = out / "bench"
+    sources = [str(f) for f in files if f.suffix == ".c"] + [str(out / "bench.c")]
+    subprocess.run(["gcc", *DEFAULT_FLAGS, "-I", str(out), *sources, "-o", str(exe), "-lm"], check=True)
+    return float(subprocess.run([str(exe)], capture_output=True, text=True, check=True).stdout)
+
+
+def python_us_per_step(filt, rec) -> float:
+    t0 = time.perf_counter()
+    run(filt, rec, show_progress=False)
+    return 1e6 * (time.perf_counter() - t0) / len(rec.t)
+
+
+def filterpy_us_per_step(aug, rec) -> float:
+    """filterpy's UKF (Merwe points, same α, β, κ) on the augmented WingRock model in NumPy."""
+    from filterpy.kalman import MerweScaledSigmaPoints, UnscentedKalmanFilter
+
+    ukf = UnscentedKalmanFilter(dim_x=aug.n, dim_z=1, dt=aug.model.dt, hx=lambda z: z[:1],
+                                fx=lambda z, dt, delta: wingrock_f(z, delta),
+                                points=MerweScaledSigmaPoints(aug.n, alpha=1.0, beta=2.0, kappa=0.0))
+    ukf.x, ukf.P, ukf.Q, ukf.R = aug.z0.copy(), aug.P0.copy(), aug.Q.copy(), aug.R.copy()
+    t0 = time.perf_counter()
+    for u, y in zip(rec.inputs[:, 0], rec.outputs[:, 0]):
+        ukf.update(np.array([y]))
+        ukf.predict(delta=u)
+    return 1e6 * (time.perf_counter() - t0) / len(rec.t)
+
+
+def main(argv=None) -> int:
+    args = parser("speed", seeds=1).parse_args(argv)
+    rec = recording(simulate(seed=0))
+    delay_rec = recording(simulate(seed=0, delay=wingrock_delay.TRUE_DELAY))
+    model = wingrock.model
+    filters = {k: derive(model, k) for k in KINDS}
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        report = {"wingrock": {
+            "c_double_ns_per_step": {k: c_ns_per_step(f, rec, "double", work) for k, f in filters.items()},
+            "c_float_ns_per_step": {k: c_ns_per_step(f, rec, "float", work) for k, f in filters.items()},
+            "python_us_per_step": {k: python_us_per_step(f, rec) for k, f in filters.items()},
+            "filterpy_ukf_us_per_step": filterpy_us_per_step(filters["ukf"].aug, rec)}}
+        scaling = []
+        for m in SCALING_M:
+            filt = derive(wingrock_delay.build(window=m, name=f"wingrock_delay{m}"), "ski")
+            scaling.append({"m": m, "n": filt.aug.n, "c_ns_per_step": c_ns_per_step(filt, delay_rec, "double", work),
+                            "operations": filt.step.n_instructions()})
+            print(f"scaling m = {m} done", file=sys.stderr)
+        report["scaling"] = scaling
+    w = report["wingrock"]
+    report["wingrock"]["c_ukf_speedup_over_filterpy"] = 1e3 * w["filterpy_ukf_us_per_step"] / w["c_double_ns_per_step"]["ukf"]
+    rows = ["WingRock time per step (augmented state n = 8; C -O2 on this machine)",
+            f"{'filter':6s} {'C double ns':>12s} {'C float ns':>11s} {'Python us':>10s}"]
+    rows += [f"{k:6s} {w['c_double_ns_per_step'][k]:12.0f} {w['c_float_ns_per_step'][k]:11.0f} "
+             f"{w['python_us_per_step'][k]:10.1f}" for k in KINDS]
+    rows += [f"filterpy UKF (NumPy): {w['filterpy_ukf_us_per_step']:.1f} us/step; "
+             f"generated C UKF is {w['c_ukf_speedup_over_filterpy']:.0f}x faster",
+             "", "C SKI step vs number of basis functions (delayed-input windows)",
+             f"{'m':>4s} {'n':>4s} {'ns/step':>10s} {'operations':>11s}"]
+    rows += [f"{s['m']:4d} {s['n']:4d} {s['c_ns_per_step']:10.0f} {s['operations']:11d}" for s in scaling]
+    return emit(report, args.json, "\n".join(rows))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
