@@ -9,6 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .derive import FILTERS
 from .model import Model, ModelError
 from .recording import RecordingError
 
@@ -85,14 +86,14 @@ def _parser() -> argparse.ArgumentParser:
     r = sub.add_parser("run", help="run a filter over a recording")
     r.add_argument("model", help="model file (.py exposing `model`) or package.module:attribute")
     r.add_argument("data", help="recording CSV: t, inputs, outputs")
-    r.add_argument("--filter", choices=["ekf", "ukf", "ski"], default="ski")
+    r.add_argument("--filter", choices=FILTERS, default="ski")
     r.add_argument("--backend", choices=["python", "c"], default="python")
     r.add_argument("--real", choices=["double", "float"], default="double", help="C backend precision")
     r.add_argument("--out", required=True, help="result CSV")
     r.set_defaults(func=_run)
     g = sub.add_parser("generate", help="emit the C library of a filter")
     g.add_argument("model")
-    g.add_argument("--filter", choices=["ekf", "ukf", "ski"], default="ski")
+    g.add_argument("--filter", choices=FILTERS, default="ski")
     g.add_argument("--real", choices=["double", "float"], default="double")
     g.add_argument("--out", required=True, help="output directory")
     g.set_defaults(func=_generate)
