@@ -4,11 +4,14 @@
 ``Function`` (SX, dense outputs). One step at sample k takes the prior for k,
 updates with y[k] (h at u[k]), runs ARD for SKI, and predicts to k+1 with u[k]:
 
-    inputs : z (n), C (n×n), [s (nw), SKI only], u, mem, y, valid (1/0 per output)
+    inputs : z (n), C (n×n), [s (nw), SKI kinds only], u, mem, y, valid (1/0 per output)
     outputs: z_post, C_post, [s_next], z_next, C_next, mem_next, e, Pyy, nis, loglik
 
-C is the covariance P for the EKF and its lower Cholesky factor S for the UKF
-and SKI. The same Functions feed the Python callables and the C emitter.
+C is the covariance P for the EKF and its lower Cholesky factor S for every
+other kind. 'mukf' is the marginalised square-root UKF (sigma points over the
+substate z_n only, the conditionally linear z_l integrated exactly; see
+mukf.py), 'ski_mukf' SKI with the MUKF core (MUKF update, ARD, MUKF predict).
+The same Functions feed the Python callables and the C emitter.
 """
 from __future__ import annotations
 
@@ -21,12 +24,16 @@ from ..model import Model
 from .augment import Augmented, augment
 from .common import FilterOptions
 from .ekf import ekf_predict, ekf_update
+from .mukf import Partition, mukf_predict, mukf_update, partition
 from .ski import ard_step
 from .ukf import ukf_predict, ukf_update
 
-__all__ = ["FILTERS", "DerivedFilter", "FilterOptions", "augment", "derive"]
+__all__ = ["FILTERS", "SKI_KINDS", "MUKF_KINDS", "DerivedFilter", "FilterOptions", "Partition",
+           "augment", "derive", "partition"]
 
-FILTERS = ("ekf", "ukf", "ski")
+FILTERS = ("ekf", "ukf", "ski", "mukf", "ski_mukf")
+SKI_KINDS = ("ski", "ski_mukf")      # steps with the ARD prior variances s as input and output
+MUKF_KINDS = ("mukf", "ski_mukf")    # marginalised UKF core
 
 
 @dataclass(frozen=True)
@@ -37,29 +44,43 @@ class DerivedFilter:
     aug: Augmented
     options: FilterOptions
     step: ca.Function
+    partition: Partition | None = None     # MUKF kinds: the z_n / z_l split
 
     @property
     def square_root(self) -> bool:
         return self.kind != "ekf"
 
+    @property
+    def has_ard(self) -> bool:
+        """True when the step carries the ARD prior variances s (SKI kinds)."""
+        return self.kind in SKI_KINDS
+
     def initial(self) -> dict[str, np.ndarray]:
         """The filter state before the first sample: z, C (and s for SKI), mem."""
         C = np.linalg.cholesky(self.aug.P0) if self.square_root else self.aug.P0.copy()
         state = dict(z=self.aug.z0.copy(), C=C, mem=np.zeros(self.aug.mem.shape[0]))
-        if self.kind == "ski":
+        if self.has_ard:
             state["s"] = self.aug.s0.copy()
         return state
 
 
-def derive(model: Model | Augmented, kind: str, options: FilterOptions | None = None) -> DerivedFilter:
-    """Derive the step Function of filter ``kind`` ('ekf', 'ukf' or 'ski')."""
+def derive(model: Model | Augmented, kind: str, options: FilterOptions | None = None, *,
+           linear=None) -> DerivedFilter:
+    """Derive the step Function of filter ``kind`` (one of :data:`FILTERS`).
+
+    linear: MUKF kinds only, the names of the states/weights to treat as the
+    conditionally linear substate z_l (default: the largest one detected).
+    """
     if kind not in FILTERS:
         raise ValueError(f"unknown filter '{kind}'; choose one of {', '.join(FILTERS)}")
+    if linear is not None and kind not in MUKF_KINDS:
+        raise ValueError(f"'linear' chooses the MUKF's linear substate; filter '{kind}' has none")
     aug = model if isinstance(model, Augmented) else augment(model)
     opts = options or FilterOptions()
     d = aug.shapes
-    if kind == "ski" and d["nw"] == 0:
+    if kind in SKI_KINDS and d["nw"] == 0:
         raise ValueError(f"model '{aug.model.name}' declares no unknown term: SKI needs basis weights")
+    part = partition(aug, linear) if kind in MUKF_KINDS else None
     z, C = ca.SX.sym("z", d["n"]), ca.SX.sym("C", d["n"], d["n"])
     s = ca.SX.sym("s", d["nw"])
     u, mem = ca.SX.sym("u", d["nu"]), ca.SX.sym("mem", d["nmem"])
@@ -69,6 +90,11 @@ def derive(model: Model | Augmented, kind: str, options: FilterOptions | None = 
     if kind == "ekf":
         z_post, C_post, e, Pyy, Ly = ekf_update(aug_b, z, C, u, mem, y, valid)
         z_next, C_next = ekf_predict(aug_b, z_post, C_post, u, mem)
+    elif part is not None:
+        z_post, C_post, e, Pyy, Ly = mukf_update(aug_b, part, opts, z, C, u, mem, y, valid)
+        if kind == "ski_mukf":
+            z_post, C_post, s_next = ard_step(aug_b, opts, z_post, C_post, s)
+        z_next, C_next = mukf_predict(aug_b, part, opts, z_post, C_post, u, mem)
     else:
         z_post, C_post, e, Pyy, Ly = ukf_update(aug_b, opts, z, C, u, mem, y, valid)
         if kind == "ski":
@@ -79,7 +105,7 @@ def derive(model: Model | Augmented, kind: str, options: FilterOptions | None = 
     mem_next = ca.substitute(aug.mem_next, ca.vertcat(aug.u, aug.mem), ca.vertcat(u, mem))
     ins, outs = [z, C], [z_post, C_post]
     names_in, names_out = ["z", "C"], ["z_post", "C_post"]
-    if kind == "ski":
+    if kind in SKI_KINDS:
         ins.append(s); outs.append(s_next); names_in.append("s"); names_out.append("s_next")
     ins += [u, mem, y, valid]
     names_in += ["u", "mem", "y", "valid"]
@@ -87,7 +113,7 @@ def derive(model: Model | Augmented, kind: str, options: FilterOptions | None = 
     names_out += ["z_next", "C_next", "mem_next", "e", "Pyy", "nis", "loglik"]
     step = ca.Function(f"{aug.model.name}_{kind}_step", ins, [ca.densify(o) for o in outs],
                        names_in, names_out)
-    return DerivedFilter(kind, aug, opts, step)
+    return DerivedFilter(kind, aug, opts, step, part)
 
 
 def _rebind(aug: Augmented, u: ca.SX, mem: ca.SX) -> Augmented:

@@ -1,0 +1,277 @@
+"""Marginalised (Rao-Blackwellised) square-root UKF, symbolic (Morelande & Moran, 2007).
+
+For an augmented model that is affine in a substate z_l given the rest z_n,
+
+    f(z) = d(z_n, u) + A(z_n, u) z_l,     h(z) = c(z_n, u) + C(z_n, u) z_l,
+
+sigma points are drawn over z_n only (2·n_n + 1 of them) and the z_l part is
+integrated exactly, given each point, from the joint Gaussian. With the prior
+(m, P) written in [z_n; z_l] order with lower factor
+
+    T = [[T_nn, 0], [T_ln, T_ll]],  T_nn T_nnᵀ = P_nn,  T_ll T_llᵀ = P_l|n = P_ll − P_ln P_nn⁻¹ P_nl,
+
+the sigma point χ_i = m_n ± γ T_nn[:, j] has the conditional mean
+m_l|i = m_l + P_ln P_nn⁻¹ (χ_i − m_n) = m_l ± γ T_ln[:, j], i.e. the full-state
+point ζ_i = m ± γ T[:, j] (j < n_n), and the conditional covariance P_l|n (the
+same for every point). With B_i = A(χ_i) T_ll, D_i = C(χ_i) T_ll (Jacobians of
+f, h w.r.t. z_l, which do not depend on z_l), E_l the embedding of z_l in z:
+
+    predict:  μ_i = f(ζ_i),   m⁻ = Σ Wm_i μ_i,
+              P⁻ = Σ Wc_i (μ_i − m⁻)(μ_i − m⁻)ᵀ + Σ Wm_i B_i B_iᵀ + Q
+    update:   η_i = h(ζ_i),   ŷ = Σ Wm_i η_i,
+              Pyy = Σ Wc_i (η_i − ŷ)(η_i − ŷ)ᵀ + Σ Wm_i D_i D_iᵀ + R
+              Pzy = Σ Wc_i (ζ_i − m)(η_i − ŷ)ᵀ + E_l T_ll (Σ Wm_i D_i)ᵀ
+              K = Pzy Pyy⁻¹,  m⁺ = m + K (y − ŷ),  P⁺ = P − K Pyy Kᵀ
+
+(the law of total covariance: the spread of the conditional means with the
+covariance weights Wc, the mean of the conditional covariances with the mean
+weights Wm). Everything is held as the lower Cholesky factor S of the full P
+in the model's own state order: T = tria(S[order, :]), the covariances by one
+QR of the stacked square roots plus rank-one updates/downdates for Wc_0 and a
+negative Wm_0, and P⁺ by the rank-ny downdate of S, as in the square-root UKF.
+The conditional linearity is detected from the derived f and h
+(:func:`partition`); the discretisation must keep it (Euler does, RK4 does not).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+from ..model import ModelError
+from .common import masked_noise_factor
+from .linalg import cholupdate, spd_solve, tria
+from .ukf import _sqrt_psd, merwe_weights
+
+__all__ = ["Partition", "partition", "mukf_weights", "mukf_update", "mukf_predict"]
+
+_EXACT_SEARCH_MAX = 40   # candidate components up to which the largest linear set is searched exactly
+
+
+@dataclass(frozen=True)
+class Partition:
+    """The split of the augmented state z into z_n (sigma points) and z_l (exact).
+
+    nonlinear, linear: indices into z, each in increasing order. reasons: for
+    every component of z_n, why it cannot be in z_l (empty when it was put in
+    z_n by the user's choice only).
+    """
+
+    names: tuple[str, ...]
+    nonlinear: tuple[int, ...]
+    linear: tuple[int, ...]
+    reasons: dict = field(default_factory=dict)
+
+    @property
+    def nonlinear_names(self) -> list[str]:
+        return [self.names[i] for i in self.nonlinear]
+
+    @property
+    def linear_names(self) -> list[str]:
+        return [self.names[i] for i in self.linear]
+
+    @property
+    def sigma_points(self) -> int:
+        return 2 * len(self.nonlinear) + 1
+
+    def describe(self) -> str:
+        lines = [f"z_n (sigma points, {self.sigma_points}): {', '.join(self.nonlinear_names) or '-'}",
+                 f"z_l (exact, conditionally linear): {', '.join(self.linear_names) or '-'}"]
+        lines += [f"  {self.names[i]}: {self.reasons[i]}" for i in self.nonlinear if self.reasons.get(i)]
+        return "\n".join(lines)
+
+
+def _dependence(aug):
+    """For every component j of z: the components k such that ∂[f; h]/∂z_j depends on z_k,
+    and for each such k a readable 'where' (the first row of f or h in which it happens)."""
+    rows = ca.vertcat(aug.f, aug.h)
+    row_names = [f"{nm}[k+1]" for nm in aug.names] + [f"output '{v.name}'" for v in aug.model.outputs]
+    J = ca.jacobian(rows, aug.z)
+    n = aug.n
+    deps: list[dict[int, str]] = []
+    for j in range(n):
+        col = J[:, j]
+        found = {}
+        if col.nnz() and not col.is_constant():
+            for k in range(n):
+                if ca.depends_on(col, aug.z[k]):
+                    r = next(r for r in range(rows.shape[0]) if ca.depends_on(J[r, j], aug.z[k]))
+                    found[k] = row_names[r]
+        deps.append(found)
+    # Mixed second derivatives are symmetric; make the structural test symmetric too.
+    for j in range(n):
+        for k in list(deps[j]):
+            deps[k].setdefault(j, deps[j][k])
+    return deps
+
+
+def _largest_independent(nodes, adj):
+    """A largest subset of ``nodes`` with no two members adjacent (exact branch and bound;
+    greedy by smallest degree beyond _EXACT_SEARCH_MAX connected candidates)."""
+    nodes = frozenset(nodes)
+    if sum(1 for v in nodes if adj[v] & nodes) > _EXACT_SEARCH_MAX:
+        chosen, left = [], set(nodes)
+        while left:
+            v = min(left, key=lambda x: (len(adj[x] & left), x))
+            chosen.append(v)
+            left -= {v} | adj[v]
+        return sorted(chosen)
+    best: list[int] = []
+
+    def search(cand: frozenset, chosen: list[int]):
+        nonlocal best
+        if len(chosen) + len(cand) <= len(best):
+            return
+        v = max(cand, key=lambda x: (len(adj[x] & cand), -x), default=None)
+        if v is None or not adj[v] & cand:          # what is left is independent
+            best = chosen + sorted(cand)
+            return
+        search(cand - {v} - adj[v], chosen + [v])    # v in z_l
+        search(cand - {v}, chosen)                   # v in z_n
+
+    search(nodes, [])
+    return sorted(best)
+
+
+def partition(aug, linear=None) -> Partition:
+    """Split z into z_n and the largest conditionally linear z_l (or the user's ``linear`` names).
+
+    Rule: z_l is admissible iff the Jacobian of [f; h] w.r.t. z_l does not depend on
+    any component of z_l — f and h are then jointly affine in z_l given z_n. A
+    component whose own Jacobian column depends on itself is never linear; two
+    components whose mixed second derivative is not zero (a cross term such as
+    z_j z_k) cannot both be linear; among the rest the largest admissible set is
+    chosen (exactly, by branch and bound). Raises ModelError naming the reasons when
+    no component is conditionally linear, or when ``linear`` is not admissible.
+    """
+    deps = _dependence(aug)
+    names, n = tuple(aug.names), aug.n
+    self_nl = {j for j in range(n) if j in deps[j]}
+    adj = {j: set(deps[j]) - {j} for j in range(n)}
+    if linear is None:
+        cand = [j for j in range(n) if j not in self_nl]
+        lin = _largest_independent(cand, adj)
+    else:
+        linear = [linear] if isinstance(linear, str) else list(linear)
+        unknown = [nm for nm in linear if nm not in names]
+        if unknown:
+            raise ModelError(f"model '{aug.model.name}': linear substate names {unknown} are not states "
+                             f"or weights (have: {', '.join(names)})")
+        lin = sorted({names.index(nm) for nm in linear})
+        for j in lin:
+            if j in self_nl:
+                raise ModelError(f"model '{aug.model.name}': '{names[j]}' cannot be in the linear substate: "
+                                 f"{_why(names, j, j, deps)}")
+            clash = sorted(adj[j] & set(lin))
+            if clash:
+                raise ModelError(f"model '{aug.model.name}': '{names[j]}' and '{names[clash[0]]}' cannot both be "
+                                 f"in the linear substate: {_why(names, j, clash[0], deps)}")
+    lin_set = set(lin)
+    reasons = {}
+    for j in range(n):
+        if j in lin_set:
+            continue
+        if j in self_nl:
+            reasons[j] = _why(names, j, j, deps)
+        elif adj[j] & lin_set:
+            reasons[j] = _why(names, j, min(adj[j] & lin_set), deps)
+        else:
+            reasons[j] = ""
+    part = Partition(names, tuple(j for j in range(n) if j not in lin_set), tuple(lin), reasons)
+    if not lin:
+        why = "; ".join(f"{names[j]}: {reasons[j] or 'not chosen'}" for j in range(n))
+        raise ModelError(f"model '{aug.model.name}' has no conditionally linear substate, so the MUKF "
+                         f"has nothing to marginalise (use 'ukf'/'ski'): {why}. A component is linear when "
+                         f"the Jacobian of f and h with respect to the linear block does not depend on "
+                         f"that block; an RK4 discretisation usually breaks this, Euler keeps it.")
+    return part
+
+
+def _why(names, j, k, deps) -> str:
+    where = deps[j][k]
+    if j == k:
+        return f"d {where}/d {names[j]} depends on {names[j]} (not affine in it)"
+    return f"d {where}/d {names[j]} depends on {names[k]} (a cross term {names[j]}·{names[k]})"
+
+
+def mukf_weights(n_n: int, opts):
+    """(Wm, Wc, gamma) over the nonlinear substate; one point of weight 1 when it is empty."""
+    if n_n == 0:
+        return np.ones(1), np.ones(1), 0.0
+    return merwe_weights(n_n, opts.alpha, opts.beta, opts.kappa)
+
+
+def _conditional(part, z, S, gamma):
+    """Full-state points ζ_i, the embedded conditional factor L = E_l T_ll and T_ll."""
+    order = list(part.nonlinear) + list(part.linear)
+    n, nn = len(order), len(part.nonlinear)
+    T = S if order == list(range(n)) else tria(S[order, :])
+    U = ca.SX.zeros(n, n)
+    U[order, :] = T                                    # rows back to the model's order
+    cols = [U[:, j] for j in range(nn)]
+    points = [z] + [z + gamma * c for c in cols] + [z - gamma * c for c in cols]
+    return points, U[:, nn:], T[nn:, nn:]
+
+
+def _factor(devs, mats, extra, Wm, Wc):
+    """Lower factor of Σ Wc_i dev_i dev_iᵀ + Σ Wm_i M_i M_iᵀ + extra extraᵀ (Wc_i = Wm_i > 0, i ≥ 1)."""
+    cols = [np.sqrt(Wc[i]) * devs[i] for i in range(1, len(devs))]
+    cols += [np.sqrt(Wm[i]) * mats[i] for i in range(len(mats)) if Wm[i] > 0]
+    S = tria(ca.horzcat(*cols, extra))
+    if len(devs) > 1 and Wc[0] != 0:
+        S = cholupdate(S, np.sqrt(abs(Wc[0])) * devs[0], float(np.sign(Wc[0])))
+    if Wm[0] < 0:
+        for j in range(mats[0].shape[1]):
+            S = cholupdate(S, np.sqrt(-Wm[0]) * mats[0][:, j], -1.0)
+    return S
+
+
+def _functions(aug, part):
+    """[f, ∂f/∂z_l](z, u, mem) and [h, ∂h/∂z_l](z, u, mem)."""
+    args = [aug.z, aug.u, aug.mem]
+    zl = aug.z[list(part.linear)]
+    return (ca.Function("Fl", args, [aug.f, ca.jacobian(aug.f, zl)]),
+            ca.Function("Hl", args, [aug.h, ca.jacobian(aug.h, zl)]))
+
+
+def mukf_update(aug, part, opts, z, S, u, mem, y, valid):
+    """Measurement update. Returns z⁺, S⁺, e, Pyy, Sy (as ukf_update)."""
+    _, H = _functions(aug, part)
+    Wm, Wc, gamma = mukf_weights(len(part.nonlinear), opts)
+    X, L, Tll = _conditional(part, z, S, gamma)
+    V = ca.diag(valid)
+    Y, Dm = [], []
+    for x in X:
+        hx, Cx = H(x, u, mem)
+        Y.append(valid * hx)
+        Dm.append(V @ Cx @ Tll)
+    y_hat = sum((w * yi for w, yi in zip(Wm, Y)), ca.SX.zeros(aug.h.shape[0]))
+    dY = [yi - y_hat for yi in Y]
+    Sy = _factor(dY, Dm, masked_noise_factor(aug.R, valid), Wm, Wc)
+    D_bar = sum((w * d for w, d in zip(Wm, Dm)), ca.SX.zeros(Dm[0].shape))
+    Pzy = L @ D_bar.T
+    for w, x, d in zip(Wc[1:], X[1:], dY[1:]):
+        Pzy += w * (x - z) @ d.T
+    K = spd_solve(Sy, Pzy.T).T
+    e = valid * y - y_hat
+    U = K @ Sy
+    S_post = S
+    for j in range(U.shape[1]):
+        S_post = cholupdate(S_post, U[:, j], -1.0)
+    return z + K @ e, S_post, e, Sy @ Sy.T, Sy
+
+
+def mukf_predict(aug, part, opts, z, S, u, mem):
+    """Time update. Returns z⁻, S⁻."""
+    F, _ = _functions(aug, part)
+    Wm, Wc, gamma = mukf_weights(len(part.nonlinear), opts)
+    X, _, Tll = _conditional(part, z, S, gamma)
+    M, B = [], []
+    for x in X:
+        fx, Ax = F(x, u, mem)
+        M.append(fx)
+        B.append(Ax @ Tll)
+    z_next = sum((w * m for w, m in zip(Wm, M)), ca.SX.zeros(aug.n))
+    S_next = _factor([m - z_next for m in M], B, ca.SX(_sqrt_psd(aug.Q)), Wm, Wc)
+    return z_next, S_next
