@@ -10,9 +10,11 @@ with ``THRUST_GAIN = 2 g / 1000 µs`` (zero thrust at the ESC minimum
 1000 µs, hover at 1500 µs, thrust-to-weight 2 at 2000 µs), linear drag
 ``d1 = DRAG_LIN = 0.3 1/s`` (no quadratic drag) and ``b3 = R(q) e3`` the body
 z axis in the world frame. ``w_gust`` is a small Ornstein–Uhlenbeck
-acceleration disturbance (std ``gust_std``, correlation time 1 s, held over
-each sample), recorded in the truth: it is the part of the motion no model
-term explains, so the filters need process noise on v.
+acceleration disturbance (light turbulence: std ``gust_std`` = 0.02 m/s²,
+correlation time 1 s, held over each sample), recorded in the truth: it is
+the part of the motion no model term explains, so the filters need process
+noise on v. Because the controller reacts to it, it is correlated with the
+PWM (closed-loop data), which biases the identified PWM gain a little.
 
 Attitude is NOT simulated as rigid-body rotational dynamics: the attitude
 loop is modelled as a discrete first-order lag (time constant
@@ -63,7 +65,7 @@ DRAG_LIN = 0.3                 # 1/s, true linear drag d1 (true quadratic drag d
 ATT_TAU = 0.1                  # s, first-order attitude lag
 YAW = 0.3                      # rad, held yaw setpoint
 NOISE_STD = 0.02               # m, position measurement noise
-GUST_STD = 0.05                # m/s², disturbance acceleration std
+GUST_STD = 0.02                # m/s², disturbance acceleration std (light turbulence)
 GUST_TAU = 1.0                 # s, its correlation time
 EST_STD = (0.01, 0.03)         # controller's estimate noise: position m, velocity m/s
 MAX_TILT = np.deg2rad(35.0)

@@ -41,12 +41,18 @@ TERMS = ["1", "pwm"] + [f"pwm^{k}" for k in range(2, DEGREE + 1)] + ["drag_lin",
 W_TRUE = np.array([sim.THRUST_GAIN * (PWM_CENTER - sim.PWM_MIN), sim.THRUST_GAIN * PWM_SCALE,
                    0, 0, 0, 0, sim.DRAG_LIN, 0.0])
 TRUE_TERMS = ["1", "pwm", "drag_lin"]
-# RMS over the spiral (seed 0, true states) of the magnitude of each candidate, for a
-# scale-aware prior (see basis_rms); units m/s² per unit weight.
-BASIS_RMS = np.array([1.0, 1.10, 2.01, 4.54, 11.7, 33.2, 1.94, 4.79])
+# RMS over the spiral (seed 0, true states) of the magnitude of each candidate (basis_rms).
+BASIS_RMS = np.array([1.0, 1.06, 1.85, 3.99, 9.73, 26.0, 1.95, 4.82])
+# Scale-aware prior: weight i has prior std PRIOR_ACCEL / BASIS_RMS_i, so that every
+# candidate may a priori contribute about PRIOR_ACCEL m/s² of acceleration.
+PRIOR_ACCEL = 1.0
+PRIOR_VARIANCE = (PRIOR_ACCEL / BASIS_RMS) ** 2
+# Process noise on v: the white-noise equivalent of the simulator's gust (OU, std σ,
+# correlation time τ) at low frequency, σ·sqrt(2 τ dt) per sample; 1e-4 m on p.
+PROCESS_STD = (1e-4, float(sim.GUST_STD * np.sqrt(2 * sim.GUST_TAU * DT)))
 
 
-def build(prior_variance=1.0, process_std=(1e-4, 5e-3), weight_std=0.0, initial=(0.5, 0.0, 1.0),
+def build(prior_variance=PRIOR_VARIANCE, process_std=PROCESS_STD, weight_std=0.0, initial=(0.5, 0.0, 1.0),
           position_std=0.1, velocity_std=0.5, name="quadrotor_spiral"):
     """The spiral model. process_std: (position m, velocity m/s) per sample;
     initial: the initial position (the spiral's start), velocity 0."""

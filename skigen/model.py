@@ -199,8 +199,11 @@ class Model:
         return [v.name for v in self.outputs]
 
     def weights(self) -> list[tuple[str, str, Term, ca.SX]]:
-        """(weight name, equation, term, direction over the block's equations) per weight."""
-        many = len({eq for b in self.unknowns for eq in b.equations}) > 1
+        """(weight name, equation, term, direction over the block's equations) per weight.
+
+        A weight is named ``w_<term key>``, or ``w_<equation>_<term key>`` where
+        the same term enters several equations with separate weights.
+        """
         out = []
         for b in self.unknowns:
             for t in b.terms:
@@ -208,11 +211,12 @@ class Model:
                     for i, eq in enumerate(b.equations):
                         direction = ca.SX.zeros(len(b.equations), 1)
                         direction[i] = t.expr
-                        out.append((f"w_{eq}_{t.key}", eq, t, direction))
+                        out.append((eq, t, direction))
                 else:
-                    eq = b.equations[0] if len(b.equations) == 1 else "+".join(b.equations)
-                    out.append((f"w_{eq}_{t.key}" if many else f"w_{t.key}", eq, t, t.expr))
-        return out
+                    out.append(("+".join(b.equations), t, t.expr))
+        keys = [t.key for _, t, _ in out]
+        return [(f"w_{t.key}" if keys.count(t.key) == 1 else f"w_{eq.replace('+', '_')}_{t.key}", eq, t, d)
+                for eq, t, d in out]
 
     @property
     def weight_names(self) -> list[str]:

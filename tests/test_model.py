@@ -47,7 +47,9 @@ def test_direction_term_shares_one_weight():
     m, x, v, u = small()
     m.unknown([x, v], [term("drag", ca.vertcat(0, -v))])
     m.unknown([x, v], [term("bias", 1.0)])
-    assert m.weight_names == ["w_x+v_drag", "w_x_bias", "w_v_bias"]
+    assert m.weight_names == ["w_drag", "w_x_bias", "w_v_bias"]
+    aug = augment(m)
+    assert aug.names[2:] == ["w_drag", "w_x_bias", "w_v_bias"]
 
 
 @pytest.mark.parametrize("mutate, message", [
