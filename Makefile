@@ -21,10 +21,11 @@ test: $(STAMP)  ## the whole suite
 test-fast: $(STAMP)
 	$(PY) -m pytest -m "not slow"
 
-bench: $(STAMP)  ## accuracy and speed tables (figures land in out/bench)
+bench: $(STAMP)  ## accuracy and speed tables (figures land in benchmarks/figures)
 	$(PY) -m skigen bench wingrock
 	$(PY) -m skigen bench wingrock --reference staircase
 	$(PY) -m skigen bench delay
+	$(PY) -m skigen bench quadrotor
 	$(PY) -m skigen bench speed
 	$(PY) -m skigen bench footprint
 

@@ -1,4 +1,4 @@
-"""Command line: ``skigen run | generate | bench`` (also ``python -m skigen``)."""
+"""Command line: ``skigen run | generate | diagnose | bench`` (also ``python -m skigen``)."""
 from __future__ import annotations
 
 import argparse
@@ -72,6 +72,43 @@ def _generate(args) -> int:
     return 0
 
 
+def _diagnose(args) -> int:
+    from .diagnose import DiagnosisError, diagnose
+
+    candidates = []
+    for c in args.candidate:
+        parts = c.split(":", 2)
+        if len(parts) != 3 or not all(p.strip() for p in parts):
+            raise CliError(f"--candidate '{c}': expected NAME:EQUATION:FORMULA, e.g. 'stiction:v:-tanh(v/0.001)'")
+        candidates.append(tuple(p.strip() for p in parts))
+    try:
+        report = diagnose(args.model, args.data, args.out, candidates=candidates, alpha=args.alpha,
+                          validation=args.validation, horizon=args.horizon, figures=not args.no_figures)
+    except DiagnosisError as exc:
+        raise CliError(str(exc)) from None
+    d = report.data
+    c = d["consistency"]
+    print(f"{'mismatch detected' if d['mismatch_detected'] else 'no significant mismatch'}: "
+          f"mean NIS {c['nis_mean']:.3g} (expected {c['nis_expected']:.3g}, bounds "
+          f"{c['nis_bounds'][0]:.3g}-{c['nis_bounds'][1]:.3g}), whiteness p = {c['whiteness_pvalue']:.3g}")
+    if d["mismatch_detected"]:
+        loc = d["located"]
+        print(f"located: outputs {', '.join(loc['outputs'])}; equations {', '.join(loc['equations'])}; "
+              f"{len(loc['windows'])} window(s); {loc.get('regime') or 'no single regime'}")
+        for f in d["findings"]:
+            print(f"finding: {f['effect']} on {f['equation']}: {f['expression']}, coefficient "
+                  f"{f['coefficient']:.4g} ± {f['std'] if f['std'] is None else format(f['std'], '.2g')}, "
+                  f"validation log-likelihood gain {f['evidence']:+.1f}")
+        if d["fit"]["after"]:
+            b, a = d["fit"]["before"], d["fit"]["after"]
+            print(f"validation log-likelihood {b['loglik']:.1f} -> {a['loglik']:.1f}, "
+                  f"mean NIS {b['nis_mean']:.3g} -> {a['nis_mean']:.3g}")
+    if d["corrected_model"]:
+        print(f"corrected model: {d['corrected_model']}")
+    print(f"report: {Path(args.out) / 'report.md'} ({report.seconds:.1f} s)")
+    return 0
+
+
 def _bench(args) -> int:
     try:
         bench = importlib.import_module(f"benchmarks.{args.name}")
@@ -97,7 +134,19 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--real", choices=["double", "float"], default="double")
     g.add_argument("--out", required=True, help="output directory")
     g.set_defaults(func=_generate)
-    b = sub.add_parser("bench", help="print a benchmark table (wingrock, delay, speed, footprint)")
+    d = sub.add_parser("diagnose", help="find, name and correct what the model misses in a recording")
+    d.add_argument("model", help="model file (.py exposing `model`) or package.module:attribute")
+    d.add_argument("data", help="recording CSV: t, inputs, outputs")
+    d.add_argument("--out", required=True, help="output directory (report.json, report.md, figures, "
+                                                "corrected_model.py, generated/)")
+    d.add_argument("--candidate", action="append", default=[], metavar="NAME:EQUATION:FORMULA",
+                   help="an extra additive candidate, e.g. 'stiction:v:-tanh(v/0.001)' (repeatable)")
+    d.add_argument("--alpha", type=float, default=0.01, help="false-alarm rate of the decision (0.01)")
+    d.add_argument("--validation", type=float, default=0.3, help="held-out last fraction (0.3)")
+    d.add_argument("--horizon", type=float, default=1.0, help="free-run length in seconds (1)")
+    d.add_argument("--no-figures", action="store_true", help="skip the figures")
+    d.set_defaults(func=_diagnose)
+    b = sub.add_parser("bench", help="print a benchmark table (wingrock, delay, quadrotor, mukf, speed, footprint)")
     b.add_argument("name")
     b.add_argument("--json", action="store_true", help="print one JSON object")
     b.add_argument("rest", nargs=argparse.REMAINDER)
