@@ -98,7 +98,7 @@ class PythonStepper:
         if not np.all(np.isfinite(u)):
             return Status.BAD_INPUT
         valid = np.isfinite(y)
-        ski = self.filt.kind == "ski"
+        ski = self.filt.has_ard
         args = [self.z, self.C] + ([self.s] if ski else []) + [u, self.mem, np.where(valid, y, 0.0),
                                                               valid.astype(float)]
         z_post, C_post, *rest = (np.asarray(r) for r in self.filt.step(*args))
@@ -139,7 +139,7 @@ def run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", real: s
         stepper = PythonStepper(filt)
     else:
         raise ValueError(f"unknown backend '{backend}'; choose python or c")
-    N, n, ny, ski = len(rec.t), aug.n, len(model.output_names), filt.kind == "ski"
+    N, n, ny, ski = len(rec.t), aug.n, len(model.output_names), filt.has_ard
     out = {k: np.full(shape, np.nan) for k, shape in
            dict(mean=(N, n), std=(N, n), e=(N, ny), ev=(N, ny), nis=(N,), ll=(N,),
                 s=(N, len(aug.w_index) if ski else 0)).items()}

@@ -29,6 +29,14 @@ weights Wm). Everything is held as the lower Cholesky factor S of the full P
 in the model's own state order: T = tria(S[order, :]), the covariances by one
 QR of the stacked square roots plus rank-one updates/downdates for Wc_0 and a
 negative Wm_0, and P⁺ by the rank-ny downdate of S, as in the square-root UKF.
+
+Two exact shortcuts keep the generated code small: Σ Wm_i B_i B_iᵀ is written
+B̄ B̄ᵀ + Σ Wm_i ΔB_i ΔB_iᵀ (B̄ = Σ Wm_i B_i; ΔB_i is zero outside the entries of
+A that vary with z_n, so it takes a few columns, not n_l per point); and when h
+is affine in the whole z the update needs no sigma point (the Merwe points
+reproduce the mean and covariance of z_n exactly, so the marginalised update
+is then the Kalman update whatever the split).
+
 The conditional linearity is detected from the derived f and h
 (:func:`partition`); the discretisation must keep it (Euler does, RK4 does not).
 """
@@ -214,17 +222,66 @@ def _conditional(part, z, S, gamma):
     return points, U[:, nn:], T[nn:, nn:]
 
 
-def _factor(devs, mats, extra, Wm, Wc):
-    """Lower factor of Σ Wc_i dev_i dev_iᵀ + Σ Wm_i M_i M_iᵀ + extra extraᵀ (Wc_i = Wm_i > 0, i ≥ 1)."""
+def _factor(devs, Mbar, dpos, dneg, extra, Wc):
+    """Lower factor of Σ Wc_i dev_i dev_iᵀ + Mbar Mbarᵀ + dpos dposᵀ − dneg dnegᵀ + extra extraᵀ.
+
+    Wc_i > 0 for i ≥ 1; Wc_0 enters as a rank-one update (downdate when negative),
+    dneg (from a negative Wm_0) as rank-one downdates.
+    """
     cols = [np.sqrt(Wc[i]) * devs[i] for i in range(1, len(devs))]
-    cols += [np.sqrt(Wm[i]) * mats[i] for i in range(len(mats)) if Wm[i] > 0]
-    S = tria(ca.horzcat(*cols, extra))
+    S = tria(ca.horzcat(*cols, Mbar, dpos, extra))
     if len(devs) > 1 and Wc[0] != 0:
         S = cholupdate(S, np.sqrt(abs(Wc[0])) * devs[0], float(np.sign(Wc[0])))
-    if Wm[0] < 0:
-        for j in range(mats[0].shape[1]):
-            S = cholupdate(S, np.sqrt(-Wm[0]) * mats[0][:, j], -1.0)
+    for j in range(dneg.shape[1]):
+        S = cholupdate(S, dneg[:, j], -1.0)
     return S
+
+
+def _varying(aug, part, expr):
+    """Mask of the entries of ∂expr/∂z_l that depend on z_n (the others are the same at every point)."""
+    J = ca.jacobian(expr, aug.z[list(part.linear)])
+    zn = aug.z[list(part.nonlinear)] if part.nonlinear else None
+    return np.array([[zn is not None and ca.depends_on(J[r, c], zn) for c in range(J.shape[1])]
+                     for r in range(J.shape[0])], dtype=bool).reshape(J.shape)
+
+
+def _conditional_terms(Gs, mask, Wm, Tll):
+    """Σ Wm_i G_i P_l|n G_iᵀ in square-root pieces, G_i = ∂g/∂z_l at point i.
+
+    With Ḡ = Σ Wm_i G_i and ΔG_i = G_i − Ḡ (Σ Wm_i ΔG_i = 0, so the cross terms vanish):
+    Σ Wm_i G_i P_l|n G_iᵀ = Ḡ T_ll (Ḡ T_ll)ᵀ + Σ Wm_i ΔG_i P_l|n ΔG_iᵀ. ΔG_i is zero outside
+    the entries that vary with z_n — rows W, columns V — so the second sum is a |W|×|W|
+    block: Σ_i Wm_i ΔG_i[W, V] R_V (…)ᵀ with R_V R_Vᵀ = P_l|n[V, V], whose factor one QR
+    over the points compresses to |W| columns. Returns (Ḡ T_ll, dpos, dneg), dpos dposᵀ the
+    positive-weight part and dneg dnegᵀ the part of a negative Wm_0 (both n_rows × ·)."""
+    nr = Gs[0].shape[0]
+    Gbar = ca.SX(Gs[0])
+    rows, cols = np.nonzero(mask)
+    for r, c in zip(rows, cols):
+        Gbar[r, c] = sum((w * G[r, c] for w, G in zip(Wm, Gs)), ca.SX(0))
+    W, V = sorted(set(rows.tolist())), sorted(set(cols.tolist()))
+    empty = ca.SX.zeros(nr, 0)
+    if not V:
+        return Gbar @ Tll, empty, empty
+    R_V = tria(Tll[V, :])
+
+    def block(G, w):
+        D = ca.SX.zeros(len(W), len(V))
+        for r, c in zip(rows, cols):
+            D[W.index(r), V.index(c)] = G[r, c] - Gbar[r, c]
+        return np.sqrt(abs(w)) * D @ R_V
+
+    def embed(M):
+        if M.shape[1] > len(W):                  # compress to |W| columns
+            M = tria(M)
+        E = ca.SX.zeros(nr, M.shape[1])
+        E[W, :] = M
+        return E
+
+    pos = [block(G, w) for G, w in zip(Gs, Wm) if w > 0]
+    neg = [block(G, w) for G, w in zip(Gs, Wm) if w < 0]
+    return (Gbar @ Tll, embed(ca.horzcat(*pos)) if pos else empty,
+            embed(ca.horzcat(*neg)) if neg else empty)
 
 
 def _functions(aug, part):
@@ -235,22 +292,34 @@ def _functions(aug, part):
             ca.Function("Hl", args, [aug.h, ca.jacobian(aug.h, zl)]))
 
 
+def _update_partition(aug, part):
+    """The split used by the update: when h is affine in the whole z (its Jacobian is
+    constant), no sigma point is needed — the marginalised update with any split then
+    equals the exact linear (Kalman) update, since the points reproduce the mean and
+    covariance of z_n exactly; otherwise the filter's split."""
+    if not ca.depends_on(ca.jacobian(aug.h, aug.z), aug.z):
+        return Partition(part.names, (), tuple(range(aug.n)), {})
+    return part
+
+
 def mukf_update(aug, part, opts, z, S, u, mem, y, valid):
     """Measurement update. Returns z⁺, S⁺, e, Pyy, Sy (as ukf_update)."""
+    S = ca.tril(S)                        # a lower factor by contract: its upper zeros are structural
+    part = _update_partition(aug, part)
     _, H = _functions(aug, part)
     Wm, Wc, gamma = mukf_weights(len(part.nonlinear), opts)
     X, L, Tll = _conditional(part, z, S, gamma)
     V = ca.diag(valid)
-    Y, Dm = [], []
+    Y, Cs = [], []
     for x in X:
         hx, Cx = H(x, u, mem)
         Y.append(valid * hx)
-        Dm.append(V @ Cx @ Tll)
+        Cs.append(V @ Cx)
     y_hat = sum((w * yi for w, yi in zip(Wm, Y)), ca.SX.zeros(aug.h.shape[0]))
     dY = [yi - y_hat for yi in Y]
-    Sy = _factor(dY, Dm, masked_noise_factor(aug.R, valid), Wm, Wc)
-    D_bar = sum((w * d for w, d in zip(Wm, Dm)), ca.SX.zeros(Dm[0].shape))
-    Pzy = L @ D_bar.T
+    CT, dpos, dneg = _conditional_terms(Cs, _varying(aug, part, aug.h), Wm, Tll)
+    Sy = _factor(dY, CT, dpos, dneg, masked_noise_factor(aug.R, valid), Wc)
+    Pzy = L @ CT.T
     for w, x, d in zip(Wc[1:], X[1:], dY[1:]):
         Pzy += w * (x - z) @ d.T
     K = spd_solve(Sy, Pzy.T).T
@@ -264,14 +333,16 @@ def mukf_update(aug, part, opts, z, S, u, mem, y, valid):
 
 def mukf_predict(aug, part, opts, z, S, u, mem):
     """Time update. Returns z⁻, S⁻."""
+    S = ca.tril(S)
     F, _ = _functions(aug, part)
     Wm, Wc, gamma = mukf_weights(len(part.nonlinear), opts)
     X, _, Tll = _conditional(part, z, S, gamma)
-    M, B = [], []
+    M, As = [], []
     for x in X:
         fx, Ax = F(x, u, mem)
         M.append(fx)
-        B.append(Ax @ Tll)
+        As.append(Ax)
     z_next = sum((w * m for w, m in zip(Wm, M)), ca.SX.zeros(aug.n))
-    S_next = _factor([m - z_next for m in M], B, ca.SX(_sqrt_psd(aug.Q)), Wm, Wc)
+    AT, dpos, dneg = _conditional_terms(As, _varying(aug, part, aug.f), Wm, Tll)
+    S_next = _factor([m - z_next for m in M], AT, dpos, dneg, ca.SX(_sqrt_psd(aug.Q)), Wc)
     return z_next, S_next

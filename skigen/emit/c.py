@@ -68,7 +68,7 @@ def _fields(filt: DerivedFilter) -> list[tuple[str, tuple, str]]:
 
     The int/real work buffers ``iw`` and ``w`` follow them, last, in the struct.
     """
-    d, ski = filt.aug.shapes, filt.kind == "ski"
+    d, ski = filt.aug.shapes, filt.has_ard
     n, ny, nw, nmem = d["n"], d["ny"], d["nw"], d["nmem"]
     cov = "lower Cholesky factor S" if filt.square_root else "covariance P"
     rows = [("z", (n,), "prior mean for the next sample"),
@@ -176,7 +176,8 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
     values = dict(
         prefix=prefix, PREFIX=prefix.upper(), real=real, model=model.name,
         kind_long={"ekf": "augmented EKF", "ukf": "augmented square-root UKF",
-                   "ski": "SKI (square-root UKF with ARD)"}[filt.kind],
+                   "ski": "SKI (square-root UKF with ARD)", "mukf": "marginalised square-root UKF (MUKF)",
+                   "ski_mukf": "SKI on the marginalised UKF (MUKF with ARD)"}[filt.kind],
         s_note=", s" if "s" in fields else "",
         N=d["n"], NX=d["nx"], NW=d["nw"], NU=d["nu"], NY=d["ny"], NMEM=d["nmem"],
         NU1=max(d["nu"], 1), NY1=max(d["ny"], 1), SQUARE_ROOT=int(filt.square_root),
