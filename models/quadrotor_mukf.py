@@ -75,6 +75,10 @@ def build(discretization: str = "euler", name: str | None = None) -> Model:
     return model
 
 
+model = build()                     # Euler: conditionally linear, for the MUKF
+model_rk4 = build("rk4")           # RK4: the full UKF of the tutorial
+
+
 @dataclass(frozen=True)
 class Simulation:
     """One simulated flight: t (N,), F (N, 3) thrust, x (N, 8) true state, y (N, 6)

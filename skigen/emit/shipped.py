@@ -15,7 +15,14 @@ from .c import emit_c
 
 __all__ = ["SHIPPED", "generate_all"]
 
-SHIPPED = {"models.wingrock:model": ("ekf", "ukf", "ski"), "models.wingrock_delay:model": ("ukf", "ski")}
+SHIPPED = {
+    "models.wingrock:model": ("ekf", "ukf", "ski"),
+    "models.wingrock_delay:model": ("ukf", "ski"),
+    "models.quadrotor_spiral:model": ("ukf", "ski"),
+    "models.quadrotor_vertical:model": ("ski",),
+    "models.quadrotor_mukf:model": ("mukf",),
+    "models.quadrotor_mukf:model_rk4": ("ukf",),
+}
 REALS = ("double", "float")
 
 
