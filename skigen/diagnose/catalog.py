@@ -1,0 +1,206 @@
+"""The physics catalog: commonly missing effects, instantiated from a model's roles and inputs.
+
+Additive effects are basis terms φ(x, u) for the rate equation of a velocity
+or rate state, written as formulas in the model's own names (``-tanh(v/0.005)``)
+so that a person can read them and a corrected model file can restate them.
+Structural effects transform the model: the plant sees a delayed, lagged,
+saturated or dead-zoned version of an input; each has one parameter searched
+over a grid.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable
+
+import casadi as ca
+import numpy as np
+
+from ..model import Model
+from . import transform as T
+
+__all__ = ["Additive", "Structural", "EFFECTS", "READINGS", "evaluate", "additive_candidates",
+           "structural_candidates", "user_candidates", "declared_candidates", "rate_equations",
+           "kinematic_equations", "pairs"]
+
+VELOCITY_ROLES = ("velocity", "rate")
+POSITION_ROLES = ("position", "angle", "altitude")
+GROUND_EFFECT_HEIGHTS = (0.05, 0.1, 0.2, 0.4)   # m: about a rotor radius
+LENGTH_UNITS = {"m": 1.0, "cm": 100.0, "mm": 1000.0, "ft": 1 / 0.3048, "": 1.0}
+
+READINGS = {
+    "bias": "a constant offset in the rate (a slope, a mis-trimmed actuator, a wrong weight or hover thrust)",
+    "viscous_damping": "damping proportional to the rate (viscous friction, linear drag)",
+    "quadratic_drag": "drag growing with the square of the speed (aerodynamic or hydrodynamic)",
+    "coulomb_friction": "dry (Coulomb) friction: a constant force opposing the motion",
+    "cubic_stiffness": "a hardening spring: a restoring force growing with the cube of the displacement",
+    "input_gain": "the input acts more or less strongly than modelled (actuator gain, mass or inertia error)",
+    "ground_effect": "extra thrust close to the ground, decaying with height",
+    "input_delay": "the plant responds to the input a few samples late (transport or computation delay)",
+    "actuator_lag": "the actuator follows its command with a first-order lag",
+    "input_saturation": "the actuator cannot deliver more than a limit",
+    "dead_zone": "small commands produce nothing (backlash, stiction in the actuator, an ESC dead band)",
+}
+EFFECTS = tuple(READINGS)
+
+
+def evaluate(model: Model, formula: str) -> ca.SX:
+    """A formula over the model's names as SX (see :func:`transform.formula`)."""
+    return T.formula(model, formula)
+
+
+@dataclass(frozen=True)
+class Additive:
+    """coefficient × formula added to the rate of ``equation``."""
+
+    effect: str
+    equation: str
+    formula: str
+    reading: str
+    variant: str = ""         # e.g. "h = 0.1 m": several variants of one effect compete
+    expr: ca.SX | None = field(default=None, compare=False, repr=False)   # when not a formula
+
+    def sx(self, model: Model) -> ca.SX:
+        """The term as SX over ``model``'s symbols."""
+        return self.expr if self.expr is not None else evaluate(model, self.formula)
+
+
+@dataclass(frozen=True)
+class Structural:
+    """A model transformation with one parameter searched over ``grid``."""
+
+    effect: str
+    input: str
+    parameter: str            # name of the parameter
+    unit: str
+    grid: tuple
+    integer: bool
+    log: bool                 # refine on a log scale
+    build: Callable[[Model, float], Model]
+    describe: Callable[[float], str]   # expression a person reads
+    reading: str
+
+
+def rate_equations(model: Model) -> list[str]:
+    """States whose equation holds the forces: role velocity or rate; without roles, every
+    equation that is not a pure kinematic identity (dx/dt = another state)."""
+    out = [v.name for v in model.states if v.role in VELOCITY_ROLES]
+    if out:
+        return out
+    syms = {v.name: v.sym for v in model.states}
+    return [n for n in model.state_names
+            if not (model.rhs[n].is_symbolic() and model.rhs[n].name() in syms)]
+
+
+def kinematic_equations(model: Model) -> list[str]:
+    """dx/dt = v identities (x a position-type state, v a declared state): exact by definition."""
+    names = set(model.state_names)
+    return [v.name for v in model.states
+            if v.role in POSITION_ROLES and model.rhs[v.name].is_symbolic() and model.rhs[v.name].name() in names]
+
+
+def pairs(model: Model, velocity: str) -> list[str]:
+    """Position-type states whose equation depends on ``velocity`` (ẋ = v)."""
+    vs = T.symbols(model)[velocity]
+    return [v.name for v in model.states
+            if v.role in POSITION_ROLES and ca.depends_on(model.rhs[v.name], vs)]
+
+
+def _inputs_of(model: Model, equation: str) -> list[str]:
+    e = model.rhs[equation]
+    return [v.name for v in model.inputs if ca.depends_on(e, v.sym)]
+
+
+def _num(x: float) -> str:
+    return f"{float(f'{x:.3g}'):g}"
+
+
+def additive_candidates(model: Model, equations, scale: dict[str, float]) -> list[Additive]:
+    """Catalog terms for each listed rate equation. ``scale``: RMS of each state along the
+    recording (sets the Coulomb smoothing ε = 2 % of the RMS rate)."""
+    units = {v.name: v.unit for v in model.states}
+    out = []
+    for eq in equations:
+        add = lambda effect, formula, variant="": out.append(Additive(effect, eq, formula, READINGS[effect], variant))
+        add("bias", "1")
+        rate_like = eq in [v.name for v in model.states if v.role in VELOCITY_ROLES] or not pairs(model, eq)
+        if rate_like:
+            add("viscous_damping", f"-{eq}")
+            add("quadratic_drag", f"-{eq}*abs({eq})")
+            add("coulomb_friction", f"-tanh({eq}/{_num(max(0.02 * scale.get(eq, 1.0), 1e-12))})")
+        for q in pairs(model, eq):
+            add("cubic_stiffness", f"-{q}**3")
+        for u in _inputs_of(model, eq):
+            add("input_gain", u)
+        alt = [q for q in pairs(model, eq) if next(v.role for v in model.states if v.name == q) == "altitude"]
+        for z in alt:
+            per_m = LENGTH_UNITS.get(units[z], 1.0)
+            for u in _inputs_of(model, eq):
+                for h in GROUND_EFFECT_HEIGHTS:
+                    add("ground_effect", f"exp(-{z}/{_num(h * per_m)})*{u}", f"h = {_num(h * per_m)} {units[z]}")
+    return out
+
+
+def user_candidates(model: Model, candidates) -> list[Additive]:
+    """User candidates: (name, equation, formula) tuples or dicts with those keys."""
+    out = []
+    for c in candidates or []:
+        if isinstance(c, dict):
+            name, eq, formula = c["name"], c["equation"], c["formula"]
+        else:
+            name, eq, formula = c
+        if eq not in model.state_names:
+            raise ValueError(f"candidate '{name}': no equation '{eq}' (states: {', '.join(model.state_names)})")
+        evaluate(model, formula)
+        out.append(Additive(name, eq, formula, f"user-supplied candidate '{name}'"))
+    return out
+
+
+def declared_candidates(model: Model) -> list[Additive]:
+    """The basis terms of the model's own unknown term, one candidate per equation they enter
+    (scalar terms only): the user already suspected them."""
+    out = []
+    for b in model.unknowns:
+        for t in b.terms:
+            if t.expr.shape == (1, 1):
+                out += [Additive(t.name, eq, t.name, "a term the model declares as possibly missing", expr=t.expr)
+                        for eq in b.equations]
+    return out
+
+
+def structural_candidates(model: Model, equations, inputs: np.ndarray) -> list[Structural]:
+    """Delay, lag, saturation and dead zone of every input that drives a listed equation.
+    ``inputs``: the recorded inputs (N, nu), for the grids of limits and widths."""
+    dt = model.dt
+    used = sorted({u for eq in equations for u in _inputs_of(model, eq)}, key=model.input_names.index)
+    out = []
+    for u in used:
+        x = inputs[:, model.input_names.index(u)]
+        unit = next(v.unit for v in model.inputs if v.name == u)
+        both = np.mean(x > 0) > 0.1 and np.mean(x < 0) > 0.1
+        centre = 0.0 if both else float(np.median(x))
+        dev = np.abs(x - centre)
+        first = float(x[0])
+
+        out.append(Structural(
+            "input_delay", u, "delay", "samples", tuple(range(1, 16)), True, False,
+            lambda m, d, u=u: T.input_delay(m, u, int(round(d))),
+            lambda d, u=u: f"{u}[k-{int(round(d))}] ({int(round(d)) * dt:g} s)", READINGS["input_delay"]))
+        out.append(Structural(
+            "actuator_lag", u, "tau", "s", tuple(dt * 2.0 ** np.arange(0, 6)), False, True,
+            lambda m, tau, u=u, first=first, s=float(np.std(x)) + 1e-9:
+                T.actuator_lag(m, u, tau, initial=first, std=0.1 * s),
+            lambda tau, u=u: f"{u} through 1/({_num(tau)} s·s + 1)", READINGS["actuator_lag"]))
+        limits = tuple(float(q) for q in np.unique(np.quantile(dev, [0.6, 0.8, 0.9, 0.95, 0.99])) if q > 0)
+        if limits:
+            out.append(Structural(
+                "input_saturation", u, "limit", unit, limits, False, True,
+                lambda m, a, u=u, c=centre: T.input_saturation(m, u, c - a, c + a),
+                lambda a, u=u, c=centre: f"clip({u}, {_num(c - a)}, {_num(c + a)})",
+                READINGS["input_saturation"]))
+        widths = tuple(float(q) for q in np.unique(np.quantile(dev, [0.05, 0.1, 0.2, 0.3, 0.45])) if q > 0)
+        if both and widths:
+            out.append(Structural(
+                "dead_zone", u, "width", unit, widths, False, True,
+                lambda m, a, u=u: T.dead_zone(m, u, a),
+                lambda a, u=u: f"deadzone({u}, ±{_num(a)})", READINGS["dead_zone"]))
+    return out

@@ -1,0 +1,146 @@
+"""Model: write the corrected model as a normal model file and regenerate its filter.
+
+The file is a plain declaration (``Model(...)``, ``model.state(...)``,
+``model.dynamics({...})``, ``model.output(...)``) of the nominal model with
+the found terms, every expression written out in full precision: each rate
+equation reads as the nominal right-hand side followed by one line per added
+term, structural changes appear where the plant sees the input (a delayed
+input from ``model.input_history``, a lag state, a clip or a dead zone).
+The file is read back and checked to give the same model, then the C of its
+EKF is emitted beside it.
+"""
+from __future__ import annotations
+
+import datetime
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from ..derive import augment, derive
+from ..model import Model
+from .name import Correction
+from .source import to_python
+
+__all__ = ["write_model_file", "same_model", "emit_filter"]
+
+
+def _split(expr: ca.SX, k: int):
+    """(nominal part, [(sign, term)] × k) of nominal ± t1 ± … ± tk, or None if not of that shape
+    (CasADi may have folded a + (−b) into a − b)."""
+    parts = []
+    for _ in range(k):
+        if expr.is_symbolic() or expr.is_constant() or expr.op() not in (ca.OP_ADD, ca.OP_SUB):
+            return None
+        parts.insert(0, ("+" if expr.op() == ca.OP_ADD else "-", expr.dep(1)))
+        expr = expr.dep(0)
+    return expr, parts
+
+
+def _value(x) -> str:
+    return repr(float(x))
+
+
+def _state_line(m: Model, i: int, note: str = "") -> str:
+    v = m.states[i]
+    args = [repr(v.name), f"unit={v.unit!r}"] + ([f"role={v.role!r}"] if v.role else [])
+    args += [f"initial={_value(m.x0[i])}", f"std={_value(m.x_std[i])}", f"process_std={_value(m.q_std[i])}"]
+    return f"{v.name} = model.state({', '.join(args)})" + (f"  # {note}" if note else "")
+
+
+def _matrix(M) -> str:
+    return "np.array(" + repr(np.asarray(M, float).tolist()) + ")"
+
+
+def write_model_file(path, nominal: Model, corr: Correction, *, name: str, header: list[str]) -> Model:
+    """Write the corrected model to ``path``; returns the model the file declares."""
+    final = corr.build(nominal, name)
+    nominal_states = set(nominal.state_names)
+    lines = ['"""' + header[0], ""] + header[1:] + ['"""', "import casadi as ca", "import numpy as np", "",
+                                                    "from skigen import Model", "",
+                                                    f"model = Model({final.name!r}, dt={_value(final.dt)}, "
+                                                    f"discretization={final.discretization!r}, "
+                                                    f"substeps={final.substeps})"]
+    for i, v in enumerate(final.states):
+        lines.append(_state_line(final, i, "" if v.name in nominal_states else "added: the lagged actuator"))
+    for v in final.inputs:
+        lines.append(f"{v.name} = model.input({v.name!r}, unit={v.unit!r})")
+    lags: dict[str, int] = {}
+    for mm in final.memory:
+        lags[mm.source] = max(lags.get(mm.source, 0), mm.lag)
+    for u, n in lags.items():
+        names = [f"{u}_d{j}" for j in range(1, n + 1)]
+        lines.append(f"{', '.join(names)}, = model.input_history({u}, {n})  # input history (delay)")
+    lines.append("model.dynamics({")
+    per_eq: dict[str, list] = {}
+    for c, coef, std in corr.additive:
+        per_eq.setdefault(c.equation, []).append((c, coef, std))
+    for eq in final.state_names:
+        terms = per_eq.get(eq, [])
+        split = _split(final.rhs[eq], len(terms))
+        if split is None:
+            lines.append(f"    {eq}: {to_python(final.rhs[eq])},")
+            continue
+        base, parts = split
+        lines.append(f"    {eq}: {to_python(base)}" + ("," if not terms else ""))
+        for j, ((c, coef, std), (sign, part)) in enumerate(zip(terms, parts)):
+            end = "," if j == len(terms) - 1 else ""
+            text = to_python(part)
+            text = f"({text})" if sign == "-" and part.op() in (ca.OP_ADD, ca.OP_SUB) else text
+            lines.append(f"        {sign} {text}{end}  # {c.effect}: {coef:.6g} ± {std:.2g} × ({c.formula})")
+    lines.append("})")
+    for i, v in enumerate(final.outputs):
+        noise = "None" if final.r_std[i] is None else _value(final.r_std[i])
+        lines.append(f"model.output({v.name!r}, {to_python(v.sym)}, unit={v.unit!r}, noise_std={noise})")
+    if any(M is not None for M in (final.Q, final.R, final.P0)):
+        lines.append("model.covariances(" + ", ".join(f"{k}={_matrix(M) if M is not None else 'None'}"
+                                                      for k, M in (("Q", final.Q), ("R", final.R), ("P0", final.P0))) + ")")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text("\n".join(lines) + "\n")
+    from .transform import load_model_file
+    written = load_model_file(str(path))
+    same_model(final, written)
+    return written
+
+
+def same_model(a: Model, b: Model, points: int = 16, tol: float = 1e-9) -> None:
+    """Raise if two models differ in names, sizes, noises, or (at random points) their
+    transition and observation."""
+    A, B = augment(a), augment(b)
+    if A.names != B.names or A.shapes != B.shapes or [m.sym.name() for m in a.memory] != [m.sym.name() for m in b.memory]:
+        raise AssertionError(f"written model differs: {A.names} vs {B.names}")
+    for x, y, what in ((A.Q, B.Q, "Q"), (A.R, B.R, "R"), (A.P0, B.P0, "P0"), (A.z0, B.z0, "x0")):
+        if not np.allclose(x, y, rtol=1e-12, atol=0):
+            raise AssertionError(f"written model differs in {what}")
+    rng = np.random.default_rng(0)
+    d = A.shapes
+    for Aug_a, Aug_b in ((A.f, B.f), (A.h, B.h)):
+        fa = ca.Function("fa", [A.z, A.u, A.mem], [Aug_a])
+        fb = ca.Function("fb", [B.z, B.u, B.mem], [Aug_b])
+        for _ in range(points):
+            args = [rng.normal(size=d["n"]) * 0.5, rng.normal(size=d["nu"]) * 2, rng.normal(size=d["nmem"]) * 2]
+            va, vb = np.asarray(fa(*args)), np.asarray(fb(*args))
+            if not np.allclose(va, vb, rtol=tol, atol=tol):
+                raise AssertionError("written model differs in its dynamics or outputs")
+
+
+def emit_filter(model: Model, out_dir) -> list[Path]:
+    """The C of the corrected model's EKF (``skigen generate MODEL --filter ekf``)."""
+    from ..emit.c import emit_c
+    return emit_c(derive(model, "ekf"), out_dir)
+
+
+def header_lines(nominal_name: str, source: str, recording: str, findings) -> list[str]:
+    """The docstring of a corrected model file."""
+    out = [f"Corrected model: '{nominal_name}' plus what `skigen diagnose` found in {recording}.",
+           f"Written by skigen diagnose on {datetime.date.today().isoformat()} from {source}; the nominal",
+           "dynamics are unchanged, the found terms are added with their identified coefficients as known",
+           "dynamics (the nominal unknown term, if any, is left out). Findings (validation log-likelihood gain):"]
+    for f in findings:
+        out.append(f"  - {f['effect']} on {f['equation']}: {f['expression']}, coefficient "
+                   f"{f['coefficient']:.6g} ± {f['std'] if f['std'] is None else format(f['std'], '.2g')} "
+                   f"(+{f['evidence']:.1f})")
+    out += ["Use it as any model file: skigen run THIS_FILE DATA.csv --filter ekf --out result.csv;",
+            "skigen generate THIS_FILE --filter ekf --out DIR."]
+    return out

@@ -1,0 +1,97 @@
+"""Detect: is the nominal filter consistent with the recording?
+
+Under a right model the normalised innovations ε = e/√Pyy are zero-mean,
+unit-variance and white, so (a) the summed NIS over the recording is χ² with
+as many degrees of freedom as measured values, and (b) per output, the mean of
+ε and its autocorrelations at lags 1…L (taken about zero, the mean the model
+predicts) are small: N·ε̄² + Ljung–Box(L) is χ²(L + 1). The false-alarm rate α
+is split in two: α/2 for the NIS test (two-sided, α/4 per tail) and α/2 for
+whiteness (Bonferroni over the outputs). A significant mismatch is an NIS
+above its upper bound or non-white innovations; an NIS *below* its lower bound
+means the stated noise is larger than the data show — reported, but no
+missing physics can be named from it.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+from ..runtime import RunResult
+
+__all__ = ["Consistency", "consistency", "normalised_innovations", "whiteness", "lags_for"]
+
+
+@dataclass
+class Consistency:
+    nis_mean: float
+    nis_expected: float
+    nis_bounds: tuple[float, float]
+    nis_pvalue: float
+    whiteness_pvalue: float
+    lags: int
+    alpha: float
+    samples: int
+    mismatch: bool
+    outputs: list[dict] = field(default_factory=list)   # per output: name, nis_mean, whiteness_pvalue
+    note: str = ""
+
+    def asdict(self) -> dict:
+        """The ``consistency`` object of report.json."""
+        return {"nis_mean": self.nis_mean, "nis_expected": self.nis_expected,
+                "whiteness_pvalue": self.whiteness_pvalue,
+                "nis_bounds": list(self.nis_bounds), "nis_pvalue": self.nis_pvalue,
+                "alpha": self.alpha, "lags": self.lags, "samples": self.samples,
+                "outputs": self.outputs, "note": self.note}
+
+
+def normalised_innovations(res: RunResult) -> np.ndarray:
+    """ε = e / √diag(Pyy), NaN where not measured."""
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return res.innovation / np.sqrt(res.innovation_var)
+
+
+def lags_for(n: int) -> int:
+    return int(np.clip(n // 50, 5, 20))
+
+
+def whiteness(eps: np.ndarray, lags: int) -> float:
+    """p-value of N·ε̄² + Ljung–Box(lags) about zero mean, χ²(lags + 1), for one output."""
+    ok = np.isfinite(eps)
+    x = np.where(ok, eps, 0.0)
+    n = int(ok.sum())
+    if n <= lags + 1:
+        return 1.0
+    den = float(np.dot(x, x))
+    r = np.array([np.dot(x[:-l], x[l:]) for l in range(1, lags + 1)]) / den
+    q = n * (n + 2) * np.sum(r ** 2 / (n - np.arange(1, lags + 1)))
+    q += n * (x.sum() / n) ** 2 / max(den / n, 1e-300)
+    return float(stats.chi2.sf(q, lags + 1))
+
+
+def consistency(res: RunResult, output_names, alpha: float = 0.01) -> Consistency:
+    """The two tests on a nominal run (see the module docstring)."""
+    eps = normalised_innovations(res)
+    valid = np.isfinite(eps)
+    dof = int(valid.sum())
+    N = len(res.t)
+    nis_sum = float(np.nansum(res.nis))
+    lo, hi = stats.chi2.ppf([alpha / 4, 1 - alpha / 4], dof)
+    cdf = stats.chi2.cdf(nis_sum, dof)
+    p_nis = float(min(1.0, 2 * min(cdf, stats.chi2.sf(nis_sum, dof))))
+    lags = lags_for(N)
+    per = []
+    for i, name in enumerate(output_names):
+        p = whiteness(eps[:, i], lags)
+        per.append({"name": name, "nis_mean": float(np.nanmean(eps[:, i] ** 2)), "whiteness_pvalue": p,
+                    "innovation_mean": float(np.nanmean(eps[:, i]))})
+    p_white = float(min(1.0, len(per) * min(o["whiteness_pvalue"] for o in per)))
+    too_big = nis_sum > hi
+    too_small = nis_sum < lo
+    mismatch = bool(too_big or p_white < alpha / 2)
+    note = ""
+    if too_small and not mismatch:
+        note = ("NIS below its lower bound: the model states more noise than the data show "
+                "(a noise-tuning issue, not missing physics)")
+    return Consistency(nis_sum / N, dof / N, (lo / N, hi / N), p_nis, p_white, lags, alpha, N, mismatch, per, note)

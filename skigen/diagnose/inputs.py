@@ -1,0 +1,70 @@
+"""The user's inputs to a diagnosis, loaded and checked: every problem is one clear sentence."""
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..model import Model
+from ..recording import Recording, read_recording
+from . import transform as T
+from .errors import DiagnosisError
+
+__all__ = ["MIN_SAMPLES", "load", "check"]
+
+MIN_SAMPLES = 300          # 210 to fit, 90 to validate, and ≥ 5 Ljung–Box lags
+
+
+def load(model, recording) -> tuple[Model, str | None, Recording]:
+    """(model, its file or module spec if any, recording) from objects or paths."""
+    if isinstance(model, (str, os.PathLike)):
+        from ..cli import CliError
+        spec = str(model)
+        try:
+            model = T.load_model_file(spec)
+        except CliError as exc:
+            raise DiagnosisError(str(exc)) from None
+        if ":" not in spec or Path(spec).exists():
+            spec = str(Path(spec).resolve())
+    elif isinstance(model, Model):
+        spec = None
+    else:
+        raise DiagnosisError(f"expected a skigen.Model or a model file, got {type(model).__name__}")
+    model.check()
+    if isinstance(recording, (str, os.PathLike)):
+        rec = read_recording(recording, model.input_names, model.output_names)
+    else:
+        rec = recording
+        have = list(rec.input_names) + list(rec.output_names)
+        want = model.input_names + model.output_names
+        if have != want:
+            missing = [n for n in want if n not in have]
+            extra = [n for n in have if n not in want]
+            raise DiagnosisError(
+                f"{rec.path}: recording columns do not match model '{model.name}'"
+                + (f"; missing {', '.join(repr(m) for m in missing)}" if missing else "")
+                + (f"; not in the model {', '.join(repr(e) for e in extra)}" if extra else "")
+                + f" (model inputs {model.input_names}, outputs {model.output_names})")
+    return model, spec, rec
+
+
+def check(model: Model, rec: Recording, validation: float):
+    """Long enough to decide, sampled at the model's dt, every output measured often enough."""
+    N = len(rec.t)
+    if not 0.05 <= validation <= 0.5:
+        raise DiagnosisError(f"validation fraction must be within [0.05, 0.5], got {validation}")
+    need = max(MIN_SAMPLES, int(np.ceil(90 / validation)))
+    if N < need:
+        raise DiagnosisError(
+            f"{rec.path}: {N} samples ({N * model.dt:g} s at dt = {model.dt:g} s) are too few to decide; "
+            f"the diagnosis needs at least {need} ({need * model.dt:g} s): "
+            f"{int((1 - validation) * need)} to fit and {need - int((1 - validation) * need)} to validate")
+    if abs(rec.dt - model.dt) > 0.01 * model.dt:
+        raise DiagnosisError(f"{rec.path}: samples are {rec.dt:g} s apart but model '{model.name}' has "
+                             f"dt = {model.dt:g} s; resample the recording or declare the model's dt")
+    measured = np.isfinite(rec.outputs).sum(axis=0)
+    if measured.min() < 0.5 * need:
+        name = model.output_names[int(np.argmin(measured))]
+        raise DiagnosisError(f"{rec.path}: output '{name}' is measured in only {int(measured.min())} samples; "
+                             f"at least {need // 2} are needed to decide")

@@ -1,0 +1,198 @@
+"""Build new models from a nominal one: copies, added terms and states, input substitutions.
+
+Every function returns a new :class:`~skigen.Model` and leaves its argument
+untouched. The symbols of the nominal model are reused, so expressions written
+against the nominal model stay valid in the transformed one. These are also
+the calls a corrected model file (written by the diagnosis) makes, so the
+file reads as the nominal model plus a few named changes.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import casadi as ca
+import numpy as np
+from scipy.linalg import block_diag
+
+from ..model import Model, Variable
+
+__all__ = ["copy_model", "symbols", "formula", "rate", "add_term", "add_state", "replace_input",
+           "input_delay", "actuator_lag", "input_saturation", "dead_zone", "smooth_dead_zone",
+           "with_disturbance", "memory_values", "load_model_file"]
+
+
+def copy_model(model: Model, name: str | None = None, unknowns: bool = True) -> Model:
+    """An independent copy (same symbols); ``unknowns=False`` drops the unknown term."""
+    return dataclasses.replace(
+        model, name=name or model.name, states=list(model.states), inputs=list(model.inputs),
+        outputs=list(model.outputs), memory=list(model.memory),
+        unknowns=[dataclasses.replace(b, terms=list(b.terms), prior_variance=b.prior_variance.copy(),
+                                      process_std=b.process_std.copy()) for b in model.unknowns] if unknowns else [],
+        x0=list(model.x0), x_std=list(model.x_std), q_std=list(model.q_std), r_std=list(model.r_std),
+        rhs=dict(model.rhs), Q=None if model.Q is None else model.Q.copy(),
+        R=None if model.R is None else model.R.copy(), P0=None if model.P0 is None else model.P0.copy())
+
+
+def symbols(model: Model) -> dict[str, ca.SX]:
+    """Name → symbol of every state and input."""
+    return {v.name: v.sym for v in model.states + model.inputs}
+
+
+_FUNCS = {"tanh": ca.tanh, "exp": ca.exp, "log": ca.log, "sqrt": ca.sqrt, "abs": ca.fabs,
+          "fabs": ca.fabs, "sin": ca.sin, "cos": ca.cos, "tan": ca.tan, "atan": ca.atan,
+          "atan2": ca.atan2, "sign": ca.sign, "fmin": ca.fmin, "fmax": ca.fmax, "pi": np.pi}
+
+
+def formula(model: Model, text: str) -> ca.SX:
+    """A formula over the model's state and input names (with tanh, exp, abs, sign, …) as SX:
+    ``formula(model, "-tanh(v/0.005)")``."""
+    names = symbols(model)
+    try:
+        value = eval(compile(text, "<formula>", "eval"), {"__builtins__": {}}, {**_FUNCS, **names})
+    except NameError as exc:
+        raise ValueError(f"formula '{text}': {exc} (known names: {', '.join(names)})") from None
+    except SyntaxError as exc:
+        raise ValueError(f"formula '{text}' is not an expression: {exc.msg}") from None
+    value = ca.SX(value)
+    if value.shape != (1, 1):
+        raise ValueError(f"formula '{text}' is not a scalar")
+    return value
+
+
+def rate(model: Model, expr) -> ca.SX:
+    """A rate contribution (units of dx/dt) as it enters the model's right-hand side:
+    itself for continuous models, times dt for ``discretization="discrete"``."""
+    expr = ca.SX(expr)
+    return expr * model.dt if model.discretization == "discrete" else expr
+
+
+def add_term(model: Model, equation: str, coefficient: float, expr, name: str | None = None) -> Model:
+    """dx_equation/dt += coefficient · expr (a known term; expr an SX or a formula string)."""
+    m = copy_model(model, name)
+    if equation not in m.rhs:
+        raise ValueError(f"no equation '{equation}' in model '{model.name}' (states: {', '.join(m.state_names)})")
+    expr = formula(m, expr) if isinstance(expr, str) else ca.SX(expr)
+    m.rhs[equation] = m.rhs[equation] + rate(m, float(coefficient) * expr)
+    return m
+
+
+def add_state(model: Model, name: str, rhs, *, unit: str = "", role: str | None = None,
+              initial: float = 0.0, std: float = 1.0, process_std: float = 0.0,
+              sym: ca.SX | None = None) -> tuple[Model, ca.SX]:
+    """A copy with one more state (its covariances extended block-diagonally); returns (model, symbol)."""
+    m = copy_model(model)
+    s = sym if sym is not None else ca.SX.sym(_unique(m, name))
+    m.states.append(Variable(s.name(), s, unit, role))
+    m.x0.append(float(initial))
+    m.x_std.append(float(std))
+    m.q_std.append(float(process_std))
+    m.rhs[s.name()] = ca.SX(rhs(s) if callable(rhs) else rhs)
+    if m.Q is not None:
+        m.Q = block_diag(m.Q, [[process_std ** 2]])
+    if m.P0 is not None:
+        m.P0 = block_diag(m.P0, [[std ** 2]])
+    return m, s
+
+
+def _unique(model: Model, name: str) -> str:
+    out, i = name, 2
+    while out in model.names or out in [ca.SX(mm.sym).name() for mm in model.memory]:
+        out, i = f"{name}{i}", i + 1
+    return out
+
+
+def _input(model: Model, u: str) -> ca.SX:
+    for v in model.inputs:
+        if v.name == u:
+            return v.sym
+    raise ValueError(f"model '{model.name}' has no input '{u}' (inputs: {', '.join(model.input_names)})")
+
+
+def replace_input(model: Model, u: str, new, skip: tuple[str, ...] = ()) -> Model:
+    """Every use of input ``u`` in the dynamics and in the unknown term's basis (not in the
+    outputs) replaced by ``new``, except in the equations listed in ``skip``."""
+    m = copy_model(model)
+    sym, new = _input(m, u), ca.SX(new)
+    m.rhs = {k: e if k in skip else ca.substitute(e, sym, new) for k, e in m.rhs.items()}
+    for b in m.unknowns:   # candidate terms see what the plant sees
+        b.terms = [dataclasses.replace(t, expr=ca.substitute(t.expr, sym, new)) for t in b.terms]
+    return m
+
+
+def input_delay(model: Model, u: str, samples: int) -> Model:
+    """The plant sees u[k − samples] (exact memory carried by the filter)."""
+    if int(samples) < 1:
+        raise ValueError("an input delay needs at least one sample")
+    m = copy_model(model)
+    delayed = m.input_history(_input(m, u), int(samples))[-1]
+    return replace_input(m, u, delayed)
+
+
+def actuator_lag(model: Model, u: str, tau: float, initial: float = 0.0, std: float = 1.0) -> Model:
+    """The plant sees a first-order lag of u with time constant tau (seconds): a new state
+    ``<u>_act`` with d/dt u_act = (u − u_act)/tau, starting at ``initial``."""
+    if not tau > 0:
+        raise ValueError("an actuator lag needs a positive time constant")
+    sym = ca.SX.sym(_unique(model, f"{u}_act"))
+    m = replace_input(model, u, sym)
+    uu = _input(m, u)
+    if m.discretization == "discrete":
+        a = 1.0 - np.exp(-m.dt / tau)
+        rhs = sym + a * (uu - sym)
+    else:
+        rhs = (uu - sym) / tau
+    m, _ = add_state(m, sym.name(), rhs, unit=_unit(m, u), initial=initial, std=std, sym=sym)
+    return m
+
+
+def input_saturation(model: Model, u: str, low: float, high: float) -> Model:
+    """The plant sees clip(u, low, high)."""
+    sym = _input(model, u)
+    return replace_input(model, u, ca.fmin(ca.fmax(sym, float(low)), float(high)))
+
+
+def smooth_dead_zone(x, width: float, smooth: float):
+    """sp(x − a) − sp(−x − a), sp(y) = ε log(1 + e^(y/ε)): zero inside ±a, x ∓ a outside,
+    with corners rounded over about ε."""
+    a, e = float(width), float(smooth)
+    sp = lambda y: e * (ca.fmax(y / e, 0) + ca.log1p(ca.exp(-ca.fabs(y / e))))
+    return sp(x - a) - sp(-x - a)
+
+
+def dead_zone(model: Model, u: str, width: float, smooth: float | None = None) -> Model:
+    """The plant sees nothing of u inside ±width and u ∓ width outside (smoothed over width/10)."""
+    sym = _input(model, u)
+    return replace_input(model, u, smooth_dead_zone(sym, width, smooth or width / 10))
+
+
+def _unit(model: Model, u: str) -> str:
+    return next(v.unit for v in model.inputs if v.name == u)
+
+
+def with_disturbance(model: Model, equations, process_std, std) -> tuple[Model, list[str]]:
+    """The model with a random-walk disturbance d_j added to each listed equation
+    (in units of dx_j/dt); returns it and the disturbance state names."""
+    m, names = copy_model(model, unknowns=False), []
+    for eq, q, s in zip(equations, np.broadcast_to(process_std, (len(equations),)),
+                        np.broadcast_to(std, (len(equations),))):
+        d = ca.SX.sym(_unique(m, f"d_{eq}"))
+        m.rhs[eq] = m.rhs[eq] + rate(m, d)
+        m, _ = add_state(m, d.name(), d if m.discretization == "discrete" else 0,
+                         initial=0.0, std=float(s), process_std=float(q), sym=d)
+        names.append(d.name())
+    return m, names
+
+
+def memory_values(model: Model, rec) -> np.ndarray:
+    """The model's input history at every sample of a recording: u[k − lag] (0 before the start)."""
+    out = np.zeros((len(rec.t), len(model.memory)))
+    for i, m in enumerate(model.memory):
+        j = model.input_names.index(m.source)
+        out[m.lag:, i] = rec.inputs[:len(rec.t) - m.lag, j]
+    return out
+
+
+def load_model_file(spec: str) -> Model:
+    """The ``model`` of a model file, or ``package.module:attribute`` (as the CLI reads them)."""
+    from ..cli import load_model
+    return load_model(spec)

@@ -1,0 +1,335 @@
+"""skigen diagnose: concealed effects found, named, located and fixed; clean data left alone;
+user mistakes reported in one line.
+
+The scenarios (examples/diagnose_scenarios.py) fly a closed-loop cart or a vertical
+quadrotor whose true physics adds one effect the nominal model file leaves out, each
+hidden in a different way. Every diagnosis runs once per module (a fixture) and the
+tests read its report.
+"""
+import json
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from examples.diagnose_scenarios import make, overlap
+from models import cart
+from skigen import derive
+from skigen.cli import load_model, main
+from skigen.diagnose import MIN_SAMPLES, diagnose
+from skigen.diagnose import transform as T
+from skigen.diagnose.correct import same_model
+from skigen.diagnose.fastrun import run_fast
+from skigen.diagnose.source import to_python
+from skigen.emit.c import compile_shared
+from skigen.recording import Recording, write_recording
+from skigen.runtime import run
+
+SEED = 1
+SECONDS = {"quad_ground_effect": 100.0}       # 10 000 samples: the timing requirement
+CONCEALED = {   # scenario: coefficient tolerance (relative)
+    "cart_coulomb": 0.05, "cart_bias": 0.15, "cart_cubic": 0.05, "cart_dead_zone": 0.05,
+    "cart_lag": 0.05, "quad_ground_effect": 0.05, "cart_cogging": 0.05,
+}
+VIA_CLI = {"cart_dead_zone"}                  # diagnosed through `skigen diagnose` in a subprocess
+
+
+def skigen(*args):
+    return subprocess.run([sys.executable, "-m", "skigen", *args], capture_output=True, text=True)
+
+
+@pytest.fixture(scope="module")
+def diagnosed(tmp_path_factory):
+    cache = {}
+
+    def get(name):
+        if name not in cache:
+            sc = make(name, SECONDS.get(name, 60.0), SEED)
+            d = tmp_path_factory.mktemp(name)
+            csv = sc.write_csv(d / f"{name}.csv")
+            out = d / "out"
+            t0 = time.perf_counter()
+            if name in VIA_CLI:
+                r = skigen("diagnose", sc.model_file, str(csv), "--out", str(out))
+                assert r.returncode == 0, r.stderr
+                data = json.loads((out / "report.json").read_text())
+                report = None
+            else:
+                report = diagnose(sc.model_file, csv, out, candidates=list(sc.candidates), show_progress=False)
+                data = report.data
+            cache[name] = dict(scenario=sc, data=data, report=report, seconds=time.perf_counter() - t0,
+                               out=out, csv=csv)
+        return cache[name]
+    return get
+
+
+# ------------------------------------------------------------------ concealed effects
+@pytest.mark.parametrize("name", list(CONCEALED))
+def test_right_effect_on_right_equation(diagnosed, name):
+    r = diagnosed(name)
+    sc, d = r["scenario"], r["data"]
+    assert d["mismatch_detected"]
+    assert d["located"]["equations"] == [sc.equation]
+    assert d["findings"], "no finding"
+    top = d["findings"][0]
+    assert (top["effect"], top["equation"]) == (sc.effect, sc.equation), d["findings"]
+    assert top["coefficient"] == pytest.approx(sc.truth, rel=CONCEALED[name])
+    assert top["std"] > 0 and top["evidence"] > 0
+    assert len(d["findings"]) == 1, d["findings"]            # nothing spurious beside it
+
+
+@pytest.mark.parametrize("name", list(CONCEALED))
+def test_located_window_overlaps_the_true_one(diagnosed, name):
+    r = diagnosed(name)
+    recall, precision = overlap(r["data"]["located"]["windows"], r["scenario"].t, r["scenario"].active)
+    assert recall > 0.8 and precision > 0.5, (recall, precision, r["data"]["located"]["windows"])
+
+
+@pytest.mark.parametrize("name", list(CONCEALED))
+def test_fit_improves_on_validation(diagnosed, name):
+    fit = diagnosed(name)["data"]["fit"]
+    before, after = fit["before"], fit["after"]
+    assert "no coefficient or parameter is fitted on it" in fit["validation"]
+    assert after["loglik"] > before["loglik"] + 50
+    for out, rms in before["innovation_rms"].items():
+        assert after["innovation_rms"][out] < rms
+        assert after["free_run_rmse"][out] < before["free_run_rmse"][out]
+    assert abs(after["nis_mean"] - 1 * len(before["innovation_rms"])) < 0.2 * len(before["innovation_rms"])
+
+
+def _track(run):
+    return np.sqrt(np.mean((run.p - run.reference) ** 2))
+
+
+def test_the_effects_are_concealed():
+    """What the scenarios claim: each effect hides from the usual look at the data."""
+    clean = make("cart_clean", 60.0, SEED).run
+    rms = lambda a: float(np.sqrt(np.mean(np.square(a))))
+    for name in ("cart_coulomb", "cart_dead_zone"):       # the loop keeps tracking as good as without
+        assert _track(make(name, 60.0, SEED).run) < 1.1 * _track(clean)
+    bias = make("cart_bias", 60.0, SEED).run               # below the noise, sample by sample and in total
+    assert bias.parameter * cart.DT ** 2 / (2 * cart.M) < cart.NOISE_STD / 1000
+    assert rms(bias.p - clean.p) < cart.NOISE_STD / 10
+    lag = make("cart_lag", 60.0, SEED).run                 # the force differs a lot, the measured position hardly
+    assert rms(lag.force - lag.F) > 0.5 * rms(lag.F) and rms(lag.p - clean.p) < 3 * cart.NOISE_STD
+    cubic = make("cart_cubic", 60.0, SEED).run             # one regime only
+    small = np.abs(cubic.p) < 0.15
+    assert np.abs(cubic.effect_acc[small]).max() < 0.02 * np.abs(cubic.effect_acc).max()
+    quad, quad_clean = make("quad_ground_effect", 60.0, SEED).run, make("quad_clean", 60.0, SEED).run
+    high = quad.z > 0.3
+    assert np.abs(quad.effect_acc[high]).max() < 0.15 * np.abs(quad.effect_acc).max()
+    assert rms(quad.z - quad.reference) < 1.1 * rms(quad_clean.z - quad_clean.reference)
+
+
+def test_ground_effect_regime_and_timing(diagnosed):
+    r = diagnosed("quad_ground_effect")
+    assert len(r["scenario"].t) == 10_000
+    regime = r["data"]["located"]["regime"]
+    assert regime.startswith("when z < ") and 0.1 < float(regime.split()[3]) < 0.4, regime
+    assert r["seconds"] < 60, f"a 10 000-sample diagnosis took {r['seconds']:.1f} s"
+
+
+def test_cubic_regime_is_large_amplitude(diagnosed):
+    regime = diagnosed("cart_cubic")["data"]["located"]["regime"]
+    assert regime.startswith("when |p| > "), regime
+
+
+# ------------------------------------------------------------------ clean recordings
+@pytest.mark.parametrize("name", ["cart_clean", "quad_clean"])
+def test_clean_recording_has_no_findings(diagnosed, name):
+    d = diagnosed(name)["data"]
+    assert d["mismatch_detected"] is False
+    assert d["findings"] == [] and d["corrected_model"] is None
+    c = d["consistency"]
+    assert c["nis_bounds"][0] < c["nis_mean"] < c["nis_bounds"][1]
+    assert c["whiteness_pvalue"] > c["alpha"] / 2
+
+
+# ------------------------------------------------------------------ report and corrected model
+def test_report_follows_the_contract(diagnosed):
+    r = diagnosed("cart_lag")
+    d = json.loads((r["out"] / "report.json").read_text())
+    assert list(d) == ["mismatch_detected", "consistency", "located", "findings", "fit", "corrected_model"]
+    assert {"nis_mean", "nis_expected", "whiteness_pvalue"} <= set(d["consistency"])
+    assert {"outputs", "equations", "windows"} <= set(d["located"])
+    assert all(len(w) == 2 and w[0] < w[1] for w in d["located"]["windows"])
+    for f in d["findings"]:
+        assert {"effect", "equation", "expression", "coefficient", "std", "evidence"} <= set(f)
+    assert {"before", "after", "validation"} <= set(d["fit"])
+    for name in ("report.md", "residuals.png", "disturbance.png", "fit.png"):
+        assert (r["out"] / name).stat().st_size > 0
+    md = (r["out"] / "report.md").read_text()
+    assert "actuator_lag" in md and "validation" in md
+
+
+def test_corrected_model_file_is_a_normal_model(diagnosed, tmp_path):
+    r = diagnosed("cart_lag")
+    path = r["data"]["corrected_model"]
+    model = load_model(path)                                   # what `skigen run/generate` do
+    assert model.state_names == ["p", "v", "F_act"]
+    same_model(model, r["report"].corrected)
+    generated = sorted((r["out"] / "generated").glob("cart_corrected_ekf*"))
+    assert len(generated) == 4
+    assert compile_shared(generated, cache_dir=tmp_path).exists()        # its C builds, -Werror
+    res = tmp_path / "result.csv"
+    p = skigen("run", path, str(r["csv"]), "--filter", "ekf", "--out", str(res))
+    assert p.returncode == 0, p.stderr
+    assert "F_act" in res.read_text().splitlines()[0]
+
+
+def test_corrected_model_of_a_delay_uses_input_history(tmp_path):
+    nominal = T.copy_model(cart.model, unknowns=False)
+    from skigen.diagnose.catalog import structural_candidates
+    from skigen.diagnose.correct import write_model_file
+    from skigen.diagnose.name import Correction
+    delay = next(s for s in structural_candidates(nominal, ["v"], np.random.default_rng(0).normal(size=(50, 1)))
+                 if s.effect == "input_delay")
+    written = write_model_file(tmp_path / "m.py", nominal, Correction([], [(delay, 3.0, 0.1)]), name="c", header=["x"])
+    assert "model.input_history(F, 3)" in (tmp_path / "m.py").read_text()
+    assert [m.lag for m in written.memory] == [1, 2, 3]
+
+
+# ------------------------------------------------------------------ user errors
+def _cart_csv(path, seconds=10.0, dt=cart.DT, measured=True):
+    sc = make("cart_clean", seconds, SEED)
+    write_recording(path, sc.t * dt / cart.DT, sc.inputs, sc.outputs if measured else {})
+    return path
+
+
+@pytest.mark.parametrize("case, expected", [
+    ("missing_model", ["nope.py", "not found"]),
+    ("broken_model", ["failed to load", "NameError"]),
+    ("no_model", ["defines no skigen.Model"]),
+    ("missing_column", ["missing", "'p_meas'"]),
+    ("too_short", ["too few", f"at least {MIN_SAMPLES}"]),
+    ("wrong_dt", ["0.02 s apart", "dt = 0.01 s"]),
+    ("bad_candidate", ["NAME:EQUATION:FORMULA"]),
+    ("candidate_unknown_name", ["formula", "'q'"]),
+])
+def test_user_errors_are_one_line(tmp_path, capsys, case, expected):
+    model, data, extra = "models/cart.py", tmp_path / "data.csv", []
+    if case == "missing_model":
+        model = str(tmp_path / "nope.py")
+    elif case == "broken_model":
+        model = str(tmp_path / "broken.py")
+        (tmp_path / "broken.py").write_text("from skigen import Model\nmodel = Model('x', dt=0.1)\nundefined_name\n")
+    elif case == "no_model":
+        model = str(tmp_path / "empty.py")
+        (tmp_path / "empty.py").write_text("x = 1\n")
+    _cart_csv(data, seconds=1.0 if case == "too_short" else 10.0, dt=0.02 if case == "wrong_dt" else cart.DT,
+              measured=case != "missing_column")
+    if case == "bad_candidate":
+        extra = ["--candidate", "stiction-tanh(v)"]
+    elif case == "candidate_unknown_name":
+        extra = ["--candidate", "x:v:-q**2"]
+    code = main(["diagnose", model, str(data), "--out", str(tmp_path / "out"), *extra])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.count("\n") == 1 and "Traceback" not in err
+    for piece in expected:
+        assert piece in err, err
+
+
+def test_cli_error_has_no_traceback(tmp_path):
+    data = _cart_csv(tmp_path / "short.csv", seconds=1.0)
+    r = skigen("diagnose", "models/cart.py", str(data), "--out", str(tmp_path / "o"))
+    assert r.returncode == 2 and "Traceback" not in r.stderr and "too few" in r.stderr
+
+
+# ------------------------------------------------------------------ building blocks
+@pytest.mark.parametrize("kind", ["ekf", "ukf", "ski"])
+def test_fast_run_equals_the_runtime(kind):
+    from models.wingrock import build
+    from models.wingrock_sim import simulate
+    sim = simulate(seed=0, duration=4.0)
+    phi = sim.phi.copy()
+    phi[[10, 11, 50]] = np.nan
+    rec = Recording("w", sim.t, sim.delta[:, None], phi[:, None], ("delta",), ("phi",))
+    filt = derive(build(), kind)
+    a, b = run_fast(filt, rec), run(filt, rec, show_progress=False)
+    for f in ("mean", "std", "innovation", "innovation_var", "nis", "loglik", "prior_var"):
+        np.testing.assert_allclose(getattr(a, f), getattr(b, f), rtol=1e-9, atol=1e-12, err_msg=f)
+    np.testing.assert_array_equal(a.code, b.code)
+
+
+def test_python_source_of_expressions_is_exact():
+    v, p, F = ca.SX.sym("v"), ca.SX.sym("p"), ca.SX.sym("F")
+    exprs = [(F - 0.5 * v - 2 * p) / 1.2 - 0.30212345678901234 * ca.tanh(v / 0.005), -p ** 3,
+             -v * ca.fabs(v), ca.exp(-p / 0.1) * F, ca.fmin(ca.fmax(F, -2.5), 2.5),
+             T.smooth_dead_zone(F, 0.3, 0.03), v - (p - F), v / (p / F), 1 / 3 * v, ca.if_else(v > 0, p, F)]
+    x = np.random.default_rng(0).normal(size=(3, 25)) + 0.3
+    for e in exprs:
+        back = eval(to_python(e), {"ca": ca, "v": v, "p": p, "F": F})
+        diff = ca.Function("d", [v, p, F], [e - back]).map(25)(*x)
+        assert np.max(np.abs(np.asarray(diff))) == 0.0, to_python(e)
+
+
+# ------------------------------------------------------------------ laboratory data
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+
+
+@pytest.mark.skipif(not DATA.is_dir(), reason=f"laboratory recordings not found in {DATA} (../shared/data)")
+@pytest.mark.parametrize("name, effect, literature", [
+    ("silverbox", "cubic_stiffness", None),               # a Duffing oscillator modelled as linear
+    ("unbalanced_disk", "coulomb_friction", 6.063),       # Fc in rad/s² (gym-unbalanced-disk)
+])
+def test_real_recordings_name_the_known_missing_physics(tmp_path, name, effect, literature):
+    from examples.diagnose_real import run as diagnose_case
+    rep = diagnose_case(name, tmp_path, 6000, show_progress=False)
+    top = rep.findings[0]
+    assert top["effect"] == effect, rep.findings
+    if literature:
+        assert top["coefficient"] == pytest.approx(literature, rel=0.05)
+    before, after = rep.data["fit"]["before"], rep.data["fit"]["after"]
+    assert after["loglik"] > before["loglik"]
+    assert all(after["free_run_rmse"][k] < v for k, v in before["free_run_rmse"].items())
+
+
+def _planar(tmp_path, seconds=40.0, dt=0.01, seed=3):
+    """A point mass on a plane (two springs, two dampers, two forces), position measured on both
+    axes; the truth adds Coulomb friction on the y axis only."""
+    model_file = tmp_path / "planar.py"
+    model_file.write_text(
+        "from skigen import Model\n"
+        "model = Model('planar', dt=0.01)\n"
+        "px = model.state('px', unit='m', role='position', std=0.01)\n"
+        "vx = model.state('vx', unit='m/s', role='velocity', std=0.01, process_std=3e-4)\n"
+        "py = model.state('py', unit='m', role='position', std=0.01)\n"
+        "vy = model.state('vy', unit='m/s', role='velocity', std=0.01, process_std=3e-4)\n"
+        "Fx, Fy = model.input('Fx', unit='N'), model.input('Fy', unit='N')\n"
+        "model.dynamics({px: vx, vx: Fx - 0.5 * vx - 4 * px, py: vy, vy: Fy - 0.5 * vy - 4 * py})\n"
+        "model.output('x', px, unit='m', noise_std=1e-3)\n"
+        "model.output('y', py, unit='m', noise_std=1e-3)\n")
+    rng = np.random.default_rng(seed)
+    n = int(seconds / dt)
+    F = np.repeat(rng.normal(0, 2.0, (n // 50 + 1, 2)), 50, axis=0)[:n]     # forces held for 0.5 s
+    x, out = np.zeros(4), np.empty((n, 2))
+
+    def f(s, u):
+        px, vx, py, vy = s
+        return np.array([vx, u[0] - 0.5 * vx - 4 * px, vy, u[1] - 0.5 * vy - 4 * py - 0.4 * np.tanh(vy / 2e-3)])
+    for k in range(n):
+        out[k] = x[[0, 2]] + rng.normal(0, 1e-3, 2)
+        for _ in range(4):
+            h = dt / 4
+            k1 = f(x, F[k]); k2 = f(x + h / 2 * k1, F[k]); k3 = f(x + h / 2 * k2, F[k]); k4 = f(x + h * k3, F[k])
+            x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        x[[1, 3]] += rng.normal(0, 3e-4, 2)
+    data = tmp_path / "planar.csv"
+    write_recording(data, np.arange(n) * dt, {"Fx": F[:, 0], "Fy": F[:, 1]}, {"x": out[:, 0], "y": out[:, 1]})
+    return model_file, data
+
+
+def test_the_equation_that_absorbs_the_error_is_the_right_one(tmp_path):
+    model_file, data = _planar(tmp_path)
+    rep = diagnose(str(model_file), data, tmp_path / "out", figures=False, emit=False, show_progress=False)
+    loc = rep.data["located"]
+    assert loc["equations"] == ["vy"] and loc["outputs"] == ["y"], loc
+    assert loc["loglik_gain"]["vy"] > 10 * max(loc["loglik_gain"]["vx"], 1.0)
+    top = rep.findings[0]
+    assert (top["effect"], top["equation"]) == ("coulomb_friction", "vy")
+    assert top["coefficient"] == pytest.approx(0.4, rel=0.05)
