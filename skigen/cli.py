@@ -34,6 +34,7 @@ def load_model(spec: str) -> Model:
             raise CliError(f"model file '{spec}' not found (give a .py file or package.module:attribute)")
         module_spec = importlib.util.spec_from_file_location(f"skigen_user_model_{path.stem}", path)
         module = importlib.util.module_from_spec(module_spec)
+        sys.modules[module_spec.name] = module      # dataclasses and pickling look it up
         try:
             module_spec.loader.exec_module(module)
         except ModelError:

@@ -86,7 +86,10 @@ def write_model_file(path, nominal: Model, corr: Correction, *, name: str, heade
         for j, ((c, coef, std), (sign, part)) in enumerate(zip(terms, parts)):
             end = "," if j == len(terms) - 1 else ""
             text = to_python(part)
-            text = f"({text})" if sign == "-" and part.op() in (ca.OP_ADD, ca.OP_SUB) else text
+            if part.op() in (ca.OP_ADD, ca.OP_SUB):
+                text = f"({text})" if sign == "-" else text
+            elif text.startswith("-"):            # "- -0.8 * w" reads as "+ 0.8 * w"
+                sign, text = ("+" if sign == "-" else "-"), text[1:]
             lines.append(f"        {sign} {text}{end}  # {c.effect}: {coef:.6g} ± {std:.2g} × ({c.formula})")
     lines.append("})")
     for i, v in enumerate(final.outputs):
