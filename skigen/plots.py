@@ -9,7 +9,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-__all__ = ["plot_weights", "plot_ard"]
+__all__ = ["plot_weights", "plot_ard", "save_figure"]
 
 COLORS = {"sindy": "tab:gray", "aekf": "tab:orange", "aukf": "tab:blue", "ski": "tab:green"}
 
@@ -42,7 +42,7 @@ def plot_weights(path, t, estimates: dict, names, truth=None, title="") -> Path:
     for ax in axes[-1]:
         ax.set_xlabel("t [s]")
     fig.suptitle(title or "weight estimates (±2σ)")
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
 def _range(estimates, i, truth):
@@ -67,13 +67,14 @@ def plot_ard(path, names, variances, highlight: int | None = None, title="final 
     ax.set_xticklabels(names, rotation=30, ha="right", fontsize=8)
     ax.set_ylabel("prior variance")
     ax.set_title(title)
-    return _save(fig, path)
+    return save_figure(fig, path)
 
 
-def _save(fig, path) -> Path:
+def save_figure(fig, path, dpi: int = 110) -> Path:
+    """Write a figure (creating its folder) and close it."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=dpi)
     plt.close(fig)
     return path

@@ -49,8 +49,8 @@ import numpy as np
 
 from ..model import ModelError
 from .common import masked_noise_factor
-from .linalg import cholupdate, spd_solve, tria
-from .ukf import _sqrt_psd, merwe_weights
+from .linalg import cholupdate, tria
+from .ukf import _sqrt_psd, gain_update, merwe_weights
 
 __all__ = ["Partition", "partition", "mukf_weights", "mukf_update", "mukf_predict"]
 
@@ -322,13 +322,7 @@ def mukf_update(aug, part, opts, z, S, u, mem, y, valid):
     Pzy = L @ CT.T
     for w, x, d in zip(Wc[1:], X[1:], dY[1:]):
         Pzy += w * (x - z) @ d.T
-    K = spd_solve(Sy, Pzy.T).T
-    e = valid * y - y_hat
-    U = K @ Sy
-    S_post = S
-    for j in range(U.shape[1]):
-        S_post = cholupdate(S_post, U[:, j], -1.0)
-    return z + K @ e, S_post, e, Sy @ Sy.T, Sy
+    return gain_update(z, S, Sy, Pzy, valid * y - y_hat)
 
 
 def mukf_predict(aug, part, opts, z, S, u, mem):

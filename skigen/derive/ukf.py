@@ -13,7 +13,7 @@ import numpy as np
 from .common import innovation_stats, masked_noise_factor, model_functions
 from .linalg import cholupdate, spd_solve, tria
 
-__all__ = ["merwe_weights", "ukf_update", "ukf_predict"]
+__all__ = ["merwe_weights", "ukf_update", "ukf_predict", "gain_update"]
 
 
 def merwe_weights(n: int, alpha: float, beta: float, kappa: float):
@@ -49,8 +49,14 @@ def ukf_update(aug, opts, z, S, u, mem, y, valid):
     y_hat = sum((w * yi for w, yi in zip(Wm, Y)), ca.SX.zeros(aug.h.shape[0]))
     Sy, dY = _spread_factor(Y, y_hat, Wc, masked_noise_factor(aug.R, valid))
     Pzy = sum((w * (x - z) @ d.T for w, x, d in zip(Wc, X, dY)), ca.SX.zeros(aug.n, Sy.shape[0]))
+    return gain_update(z, S, Sy, Pzy, valid * y - y_hat)
+
+
+def gain_update(z, S, Sy, Pzy, e):
+    """The square-root Kalman update from the innovation factor Sy and the
+    cross-covariance Pzy: K by two triangular solves, S⁺ by rank-ny downdates.
+    Returns z⁺, S⁺, e, Pyy, Sy."""
     K = spd_solve(Sy, Pzy.T).T
-    e = valid * y - y_hat
     U = K @ Sy
     S_post = S
     for j in range(U.shape[1]):

@@ -12,6 +12,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 from ..model import Model  # noqa: E402
+from ..plots import save_figure  # noqa: E402
 from ..recording import Recording  # noqa: E402
 from . import transform as T  # noqa: E402
 
@@ -26,12 +27,7 @@ def _shade(ax, windows, t_val):
 
 
 def _save(fig, path) -> Path:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=100)
 
 
 def plot_residuals(path, t, eps, names, windows, t_val, title) -> Path:
