@@ -13,7 +13,7 @@ __all__ = ["to_python", "UnsupportedExpression"]
 
 
 class UnsupportedExpression(ValueError):
-    pass
+    """An SX operation with no Python spelling here (the message names it)."""
 
 
 _BINARY = {ca.OP_ADD: ("+", 1), ca.OP_SUB: ("-", 1), ca.OP_MUL: ("*", 2), ca.OP_DIV: ("/", 2)}
