@@ -26,6 +26,7 @@ bench: $(STAMP)  ## accuracy and speed tables (figures land in benchmarks/figure
 	$(PY) -m skigen bench wingrock --reference staircase
 	$(PY) -m skigen bench delay
 	$(PY) -m skigen bench quadrotor
+	$(PY) -m skigen bench mukf
 	$(PY) -m skigen bench speed
 	$(PY) -m skigen bench footprint
 
