@@ -147,7 +147,7 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--horizon", type=float, default=1.0, help="free-run length in seconds (1)")
     d.add_argument("--no-figures", action="store_true", help="skip the figures")
     d.set_defaults(func=_diagnose)
-    b = sub.add_parser("bench", help="print a benchmark table (wingrock, delay, quadrotor, mukf, speed, footprint)")
+    b = sub.add_parser("bench", help="print a benchmark table (wingrock, delay, quadrotor, mukf, speed, footprint, diagnose)")
     b.add_argument("name")
     b.add_argument("--json", action="store_true", help="print one JSON object")
     b.add_argument("rest", nargs=argparse.REMAINDER)

@@ -9,7 +9,6 @@ tests read its report.
 import json
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import casadi as ca
@@ -52,7 +51,6 @@ def diagnosed(tmp_path_factory):
             d = tmp_path_factory.mktemp(name)
             csv = sc.write_csv(d / f"{name}.csv")
             out = d / "out"
-            t0 = time.perf_counter()
             if name in VIA_CLI:
                 r = skigen("diagnose", sc.model_file, str(csv), "--out", str(out))
                 assert r.returncode == 0, r.stderr
@@ -61,8 +59,7 @@ def diagnosed(tmp_path_factory):
             else:
                 report = diagnose(sc.model_file, csv, out, candidates=list(sc.candidates), show_progress=False)
                 data = report.data
-            cache[name] = dict(scenario=sc, data=data, report=report, seconds=time.perf_counter() - t0,
-                               out=out, csv=csv)
+            cache[name] = dict(scenario=sc, data=data, report=report, out=out, csv=csv)
         return cache[name]
     return get
 
@@ -125,12 +122,11 @@ def test_the_effects_are_concealed():
     assert rms(quad.z - quad.reference) < 1.1 * rms(quad_clean.z - quad_clean.reference)
 
 
-def test_ground_effect_regime_and_timing(diagnosed):
+def test_ground_effect_regime(diagnosed):
     r = diagnosed("quad_ground_effect")
     assert len(r["scenario"].t) == 10_000
     regime = r["data"]["located"]["regime"]
     assert regime.startswith("when z < ") and 0.1 < float(regime.split()[3]) < 0.4, regime
-    assert r["seconds"] < 60, f"a 10 000-sample diagnosis took {r['seconds']:.1f} s"
 
 
 def test_cubic_regime_is_large_amplitude(diagnosed):

@@ -1,5 +1,4 @@
 """Quadrotor simulator, spiral and vertical models, and SKI's term selection on them."""
-import time
 
 import numpy as np
 import pytest
@@ -34,16 +33,13 @@ def vertical0():
 
 
 # ------------------------------------------------------------------ simulator
-def test_simulator_is_deterministic_and_fast():
-    t0 = time.perf_counter()
+def test_simulator_is_deterministic():
     a = qs.spiral(3)
-    elapsed = time.perf_counter() - t0
     b = qs.spiral(3)
     for name in ("pos", "vel", "quat", "pwm", "meas", "gust"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
     c = qs.spiral(4)
     assert not np.allclose(a.meas, c.meas) and not np.allclose(a.pwm, c.pwm)
-    assert elapsed < 1.0, f"a 60 s spiral took {elapsed:.2f} s"
     assert a.t.shape == (3001,) and a.dt == 0.02
     v = qs.vertical(3)
     assert v.t.shape == (4001,) and v.dt == 0.01

@@ -1,5 +1,4 @@
 """WingRock truth simulator (models/wingrock_sim.py) and the SINDy baseline."""
-import time
 
 import numpy as np
 import pytest
@@ -70,12 +69,6 @@ def test_record_layout_and_determinism():
     # noise statistics of the measurement
     assert np.std(a.phi - a.theta) == pytest.approx(0.1, rel=0.15)
 
-
-def test_fast():
-    simulate(seed=0)
-    t0 = time.perf_counter()
-    simulate(seed=1, delay=DELAY)
-    assert time.perf_counter() - t0 < 0.1
 
 
 @pytest.mark.parametrize("noise_std", [0.0, 0.1])
