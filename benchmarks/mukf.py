@@ -27,7 +27,6 @@ the fastest of 7 runs, the filters of a table taking turns (the machine is share
 """
 from __future__ import annotations
 
-import subprocess
 import sys
 import tempfile
 from pathlib import Path
@@ -42,7 +41,6 @@ from models import wingrock, wingrock_delay
 from models.wingrock_sim import L_TRUE, simulate as simulate_wingrock
 from skigen import FilterOptions, Model, derive
 from skigen.discretize import rk4
-from skigen.emit.c import DEFAULT_FLAGS, default_prefix, emit_c
 from skigen.library import abs_products, delayed_inputs, polynomial, term
 from skigen.runtime import run
 
@@ -168,9 +166,7 @@ def _delay_known(theta, p):
 
 def ski_cores(seeds: int, work: Path) -> dict:
     """SKI with the full UKF core vs the MUKF core, WingRock and delay models, per discretisation."""
-    from benchmarks.wingrock import ACCEL, BASIS_RMS
-
-    wr_prior = (ACCEL / BASIS_RMS) ** 2
+    wr_prior = wingrock.PRIOR_VARIANCE
     models = {
         "wingrock": {"rk4": wingrock.build(prior_variance=wr_prior),
                      "euler": _euler(wingrock.build(prior_variance=wr_prior), "wingrock_euler"),

@@ -29,7 +29,7 @@ def main() -> None:
     args = ap.parse_args()
     out = Path(args.out)
 
-    model = wingrock.build(prior_variance=(10.0 / np.array([1.0, 6.1, 8.2, 29.2, 122.4, 315.5])) ** 2)
+    model = wingrock.build(prior_variance=wingrock.PRIOR_VARIANCE)
     print(f"1. declared '{model.name}': states {model.state_names}, input {model.input_names}, "
           f"output {model.output_names}, {len(model.weight_names)} candidate terms, dt = {model.dt} s")
 

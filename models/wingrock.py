@@ -13,6 +13,12 @@ GAIN = 3.0                       # L, deg/s² per deg of aileron
 W_TRUE = np.array([0.8, 0.2314, 0.6918, -0.6245, 0.0095, 0.0214])
 DT = 0.02                        # s (50 Hz)
 NOISE_STD = 0.1                  # deg
+# Scale-aware prior used by the benchmarks and the demo: weight i has prior std
+# PRIOR_ACCEL / rms(φ_i) over a typical flight, so every candidate may contribute
+# about PRIOR_ACCEL deg/s² a priori (ski-math.md §6).
+PRIOR_ACCEL = 10.0               # deg/s²
+BASIS_RMS = np.array([1.0, 6.1, 8.2, 29.2, 122.4, 315.5])
+PRIOR_VARIANCE = (PRIOR_ACCEL / BASIS_RMS) ** 2
 
 
 def build(prior_variance=1.0, process_std=(1e-4, 1e-3), weight_std=0.0, name="wingrock"):

@@ -17,7 +17,7 @@ from .emit.c import Status
 from .progress import progress
 from .recording import Recording, write_table
 
-__all__ = ["RunResult", "FilterDivergedError", "PythonStepper", "run", "Status"]
+__all__ = ["RunResult", "FilterDivergedError", "PythonStepper", "run", "check_columns", "Status"]
 
 MAX_REJECTED_IN_A_ROW = 20
 
@@ -120,6 +120,20 @@ class PythonStepper:
         return np.sqrt(np.sum(C * C, axis=1)) if self.filt.square_root else np.sqrt(np.clip(np.diag(C), 0, None))
 
 
+def check_columns(model, rec: Recording) -> None:
+    """Raise ValueError unless the recording's inputs and outputs are the model's, in order."""
+    have = list(rec.input_names) + list(rec.output_names)
+    want = model.input_names + model.output_names
+    if have != want:
+        missing = [n for n in want if n not in have]
+        extra = [n for n in have if n not in want]
+        raise ValueError(
+            f"{rec.path}: recording columns do not match model '{model.name}'"
+            + (f"; missing {', '.join(repr(m) for m in missing)}" if missing else "")
+            + (f"; not in the model {', '.join(repr(e) for e in extra)}" if extra else "")
+            + f" (model inputs {model.input_names}, outputs {model.output_names})")
+
+
 def run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", real: str = "double",
         show_progress: bool = True, label: str | None = None, cache_dir=None) -> RunResult:
     """Filter the whole recording; returns the posterior at every sample.
@@ -128,10 +142,7 @@ def run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", real: s
     compiled and cached on first use, in ``real`` precision).
     """
     aug, model = filt.aug, filt.aug.model
-    if list(rec.input_names) != model.input_names or list(rec.output_names) != model.output_names:
-        raise ValueError(f"{rec.path}: recording columns {list(rec.input_names) + list(rec.output_names)} "
-                         f"do not match model '{model.name}' (inputs {model.input_names}, "
-                         f"outputs {model.output_names})")
+    check_columns(model, rec)
     if backend == "c":
         from .emit.c import load_c
         stepper = load_c(filt, real, cache_dir=cache_dir)

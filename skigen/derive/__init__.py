@@ -22,7 +22,7 @@ import numpy as np
 
 from ..model import Model
 from .augment import Augmented, augment
-from .common import FilterOptions
+from .common import FilterOptions, innovation_stats
 from .ekf import ekf_predict, ekf_update
 from .mukf import Partition, mukf_predict, mukf_update, partition
 from .ski import ard_step
@@ -100,7 +100,6 @@ def derive(model: Model | Augmented, kind: str, options: FilterOptions | None = 
         if kind == "ski":
             z_post, C_post, s_next = ard_step(aug_b, opts, z_post, C_post, s)
         z_next, C_next = ukf_predict(aug_b, opts, z_post, C_post, u, mem)
-    from .common import innovation_stats
     nis, loglik = innovation_stats(Ly, e, valid)
     mem_next = ca.substitute(aug.mem_next, ca.vertcat(aug.u, aug.mem), ca.vertcat(u, mem))
     ins, outs = [z, C], [z_post, C_post]

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import casadi as ca
 
-from .common import innovation_stats, masked_noise_factor, model_functions
+from .common import masked_noise_factor, model_functions
 from .linalg import chol, spd_solve, symmetrize
 
 __all__ = ["ekf_update", "ekf_predict"]

@@ -10,7 +10,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from .common import innovation_stats, masked_noise_factor, model_functions
+from .common import masked_noise_factor, model_functions
 from .linalg import cholupdate, spd_solve, tria
 
 __all__ = ["merwe_weights", "ukf_update", "ukf_predict", "gain_update"]

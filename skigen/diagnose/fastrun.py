@@ -18,7 +18,7 @@ from ..derive import DerivedFilter, derive
 from ..emit.c import Status
 from ..model import Model
 from ..recording import Recording
-from ..runtime import RunResult, run
+from ..runtime import RunResult, check_columns, run
 
 __all__ = ["Trace", "run_fast", "loglik"]
 
@@ -38,7 +38,7 @@ class Trace:
 def _chain(filt: DerivedFilter, N: int) -> tuple[ca.Function, int]:
     """The step chained over at least N samples, as a mapaccum of B fully unrolled steps repeated
     ⌈N/B⌉ times (B ≈ √N: built ~10× faster than one long mapaccum); returns it and its length."""
-    d, ski = filt.aug.shapes, filt.kind == "ski"
+    d, ski = filt.aug.shapes, filt.has_ard
     z, C = ca.MX.sym("z", d["n"]), ca.MX.sym("C", d["n"], d["n"])
     s, mem = ca.MX.sym("s", d["nw"]), ca.MX.sym("mem", d["nmem"])
     u, y, valid = ca.MX.sym("u", d["nu"]), ca.MX.sym("y", d["ny"]), ca.MX.sym("valid", d["ny"])
@@ -65,10 +65,9 @@ def _blocks(a, N: int, n: int) -> np.ndarray:
 def run_fast(filt: DerivedFilter, rec: Recording, *, trace: bool = False):
     """Filter ``rec``; returns a :class:`RunResult` (or a :class:`Trace` when ``trace``)."""
     aug, model = filt.aug, filt.aug.model
-    if list(rec.input_names) != model.input_names or list(rec.output_names) != model.output_names:
-        raise ValueError(f"{rec.path}: recording columns do not match model '{model.name}'")
-    N, d, ski = len(rec.t), aug.shapes, filt.kind == "ski"
-    n, ny = d["n"], d["ny"]
+    check_columns(model, rec)
+    N, d, ski = len(rec.t), aug.shapes, filt.has_ard
+    n = d["n"]
     init = filt.initial()
     Y = np.asarray(rec.outputs, float)
     valid = np.isfinite(Y)

@@ -8,6 +8,7 @@ import numpy as np
 
 from ..model import Model
 from ..recording import Recording, read_recording
+from ..runtime import check_columns
 from . import transform as T
 from .errors import DiagnosisError
 
@@ -36,16 +37,10 @@ def load(model, recording) -> tuple[Model, str | None, Recording]:
         rec = read_recording(recording, model.input_names, model.output_names)
     else:
         rec = recording
-        have = list(rec.input_names) + list(rec.output_names)
-        want = model.input_names + model.output_names
-        if have != want:
-            missing = [n for n in want if n not in have]
-            extra = [n for n in have if n not in want]
-            raise DiagnosisError(
-                f"{rec.path}: recording columns do not match model '{model.name}'"
-                + (f"; missing {', '.join(repr(m) for m in missing)}" if missing else "")
-                + (f"; not in the model {', '.join(repr(e) for e in extra)}" if extra else "")
-                + f" (model inputs {model.input_names}, outputs {model.output_names})")
+        try:
+            check_columns(model, rec)
+        except ValueError as exc:
+            raise DiagnosisError(str(exc)) from None
     return model, spec, rec
 
 
