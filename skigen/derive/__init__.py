@@ -11,11 +11,13 @@ C is the covariance P for the EKF and its lower Cholesky factor S for every
 other kind. 'mukf' is the marginalised square-root UKF (sigma points over the
 substate z_n only, the conditionally linear z_l integrated exactly; see
 mukf.py), 'ski_mukf' SKI with the MUKF core (MUKF update, ARD, MUKF predict).
-The same Functions feed the Python callables and the C emitter.
+The same Functions feed the Python callables and the C emitter. ``step`` is
+built on first use: the looped C emitter needs only the model's functions.
 """
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import casadi as ca
 import numpy as np
@@ -43,8 +45,21 @@ class DerivedFilter:
     kind: str
     aug: Augmented
     options: FilterOptions
-    step: ca.Function
     partition: Partition | None = None     # MUKF kinds: the z_n / z_l split
+
+    @cached_property
+    def step(self) -> ca.Function:
+        """The step Function (see the module docstring), derived on first use."""
+        return _step(self)
+
+    @property
+    def names_in(self) -> list[str]:
+        return ["z", "C"] + (["s"] if self.has_ard else []) + ["u", "mem", "y", "valid"]
+
+    @property
+    def names_out(self) -> list[str]:
+        return (["z_post", "C_post"] + (["s_next"] if self.has_ard else [])
+                + ["z_next", "C_next", "mem_next", "e", "Pyy", "nis", "loglik"])
 
     @property
     def square_root(self) -> bool:
@@ -81,6 +96,13 @@ def derive(model: Model | Augmented, kind: str, options: FilterOptions | None = 
     if kind in SKI_KINDS and d["nw"] == 0:
         raise ValueError(f"model '{aug.model.name}' declares no unknown term: SKI needs basis weights")
     part = partition(aug, linear) if kind in MUKF_KINDS else None
+    return DerivedFilter(kind, aug, opts, part)
+
+
+def _step(filt: DerivedFilter) -> ca.Function:
+    """Build the step Function of ``filt`` symbolically."""
+    kind, aug, opts, part = filt.kind, filt.aug, filt.options, filt.partition
+    d = aug.shapes
     z, C = ca.SX.sym("z", d["n"]), ca.SX.sym("C", d["n"], d["n"])
     s = ca.SX.sym("s", d["nw"])
     u, mem = ca.SX.sym("u", d["nu"]), ca.SX.sym("mem", d["nmem"])
@@ -102,17 +124,12 @@ def derive(model: Model | Augmented, kind: str, options: FilterOptions | None = 
         z_next, C_next = ukf_predict(aug_b, opts, z_post, C_post, u, mem)
     nis, loglik = innovation_stats(Ly, e, valid)
     mem_next = ca.substitute(aug.mem_next, ca.vertcat(aug.u, aug.mem), ca.vertcat(u, mem))
-    ins, outs = [z, C], [z_post, C_post]
-    names_in, names_out = ["z", "C"], ["z_post", "C_post"]
-    if kind in SKI_KINDS:
-        ins.append(s); outs.append(s_next); names_in.append("s"); names_out.append("s_next")
-    ins += [u, mem, y, valid]
-    names_in += ["u", "mem", "y", "valid"]
-    outs += [z_next, C_next, mem_next, e, Pyy, nis, loglik]
-    names_out += ["z_next", "C_next", "mem_next", "e", "Pyy", "nis", "loglik"]
-    step = ca.Function(f"{aug.model.name}_{kind}_step", ins, [ca.densify(o) for o in outs],
-                       names_in, names_out)
-    return DerivedFilter(kind, aug, opts, step, part)
+    values = dict(z=z, C=C, s=s, u=u, mem=mem, y=y, valid=valid, z_post=z_post, C_post=C_post,
+                  z_next=z_next, C_next=C_next, mem_next=mem_next, e=e, Pyy=Pyy, nis=nis, loglik=loglik)
+    if filt.has_ard:
+        values["s_next"] = s_next
+    return ca.Function(f"{aug.model.name}_{kind}_step", [values[k] for k in filt.names_in],
+                       [ca.densify(values[k]) for k in filt.names_out], filt.names_in, filt.names_out)
 
 
 def _rebind(aug: Augmented, u: ca.SX, mem: ca.SX) -> Augmented:

@@ -1,12 +1,20 @@
 """Emit a derived filter as a self-contained C99 library, build it, drive it from Python.
 
-:func:`emit_c` writes four files per filter (``<prefix>`` defaults to ``<model>_<kind>``):
+:func:`emit_c` writes the files of one filter (``<prefix>`` defaults to ``<model>_<kind>``):
 
-* ``<prefix>_kernel.c/.h``: CasADi's generated code of ``filt.step``, renamed
-  ``<prefix>_kernel``, its helpers made ``static``, every global symbol prefixed;
-  in float builds every maths call and literal is rewritten to single precision.
+* ``<prefix>_kernel.c/.h``: the step ``<prefix>_kernel``, in one of two styles:
+
+  - ``unrolled``: CasADi's generated code of ``filt.step``, one flat sequence of
+    scalar operations (fastest for small models; its size grows as n³);
+  - ``loops`` (UKF and SKI): the filter algebra of ``kernel_loops.c.in`` as loops
+    over compile-time sizes, calling the model functions f, h and the input-history
+    shift that CasADi generates into ``<prefix>_model.c/.h``.
+
+  CasADi's helpers are made ``static`` and every global symbol is prefixed; in float
+  builds every maths call and literal is rewritten to single precision.
 * ``<prefix>.h/.c``: the step API (state struct, init, guarded step, std) from the
-  templates ``filter.h.in`` / ``filter.c.in`` beside this module.
+  templates ``filter.h.in`` / ``filter.c.in`` beside this module; it is the same
+  for both styles.
 
 :func:`compile_shared` builds (and caches) a shared library; :class:`CFilter`
 runs it through ctypes; :func:`load_c` does all three (it is the C backend of
@@ -31,8 +39,8 @@ import numpy as np
 
 from ..derive import DerivedFilter
 
-__all__ = ["DEFAULT_FLAGS", "CFilter", "CompileError", "Status", "compile_shared",
-           "default_prefix", "emit_c", "load_c"]
+__all__ = ["DEFAULT_FLAGS", "LOOPS_KINDS", "STYLES", "CFilter", "CompileError", "Status",
+           "choose_style", "compile_shared", "default_prefix", "emit_c", "load_c"]
 
 REALS = {"double": (ctypes.c_double, np.float64), "float": (ctypes.c_float, np.float32)}
 DEFAULT_FLAGS = ("-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror", "-O2")
@@ -42,6 +50,9 @@ _MATH = ("sqrt cbrt exp expm1 log log1p log2 log10 pow fabs fmax fmin fmod floor
          "copysign hypot erf erfc sin cos tan asin acos atan atan2 sinh cosh tanh asinh acosh atanh")
 _MATH_RE = re.compile(r"\b(%s)\(" % "|".join(_MATH.split()))
 _LITERAL_RE = re.compile(r"(?<![\w.])(\d+\.\d*(?:[eE][+-]?\d+)?|\d+[eE][+-]?\d+)(?![\w.])")
+STYLES = ("auto", "unrolled", "loops")
+LOOPS_KINDS = ("ukf", "ski")        # kinds the looped kernel implements
+AUTO_LOOPS_ABOVE_N = 20             # 'auto' loops above this augmented-state size
 _UPDATES = {"z": "z_next", "C": "C_next", "s": "s_next", "mem": "mem_next"}   # committed on success
 _LOCALS = {"u": "u", "y": "yv", "valid": "valid"}                          # step inputs not in the state
 
@@ -102,20 +113,90 @@ def _c_strings(names) -> str:
     return ", ".join(f'"{s}"' for s in names) or "0"
 
 
-def _kernel(filt: DerivedFilter, prefix: str, real: str) -> tuple[str, str, dict[str, int]]:
-    """CasADi's code of the step as ``<prefix>_kernel``: (c text, h text, work sizes)."""
-    step, name = filt.step, f"{prefix}_kernel"
-    f = ca.Function(name, step.sx_in(), step.call(step.sx_in()), step.name_in(), step.name_out())
+def choose_style(filt: DerivedFilter, style: str = "auto") -> str:
+    """The kernel style emitted for ``style``: 'auto' unrolls small models and loops
+    (where the kind allows it) above :data:`AUTO_LOOPS_ABOVE_N` states."""
+    if style not in STYLES:
+        raise ValueError(f"style must be one of {', '.join(STYLES)}, got '{style}'")
+    if style == "auto":
+        return "loops" if filt.kind in LOOPS_KINDS and filt.aug.n > AUTO_LOOPS_ABOVE_N else "unrolled"
+    if style == "loops" and filt.kind not in LOOPS_KINDS:
+        raise ValueError(f"the looped kernel implements {', '.join(LOOPS_KINDS)}; "
+                         f"emit filter '{filt.kind}' with style 'unrolled'")
+    return style
+
+
+def _casadi_code(functions, name: str, real: str, stamp: str) -> tuple[str, str, dict[str, int]]:
+    """CasADi's code of ``functions`` in one file ``name``.c/.h: (c text, h text, work sizes,
+    the largest over the functions)."""
     cg = ca.CodeGenerator(f"{name}.c", {"with_header": True, "casadi_real": real, "casadi_int": "int",
                                         "prefix": name, "with_mem": False, "with_export": False})
-    cg.add(f)
+    for f in functions:
+        cg.add(f)
     with tempfile.TemporaryDirectory() as tmp:
         cg.generate(tmp + os.sep)
         c, h = (Path(tmp, name + ext).read_text() for ext in (".c", ".h"))
-    sizes = {k: int(re.search(rf"#define {name}_SZ_{k.upper()} (\d+)", h).group(1))
+    sizes = {k: max(int(v) for v in re.findall(rf"#define \w+_SZ_{k.upper()} (\d+)", h))
              for k in ("arg", "res", "iw", "w")}
-    stamp = f"/* {name}: {filt.kind} step of model '{filt.aug.model.name}' ({real}), generated by skigen. */\n"
     return stamp + _tidy(c, name, real), stamp + h, sizes
+
+
+def _kernel(filt: DerivedFilter, prefix: str, real: str) -> tuple[dict[str, str], dict[str, int]]:
+    """The unrolled step: CasADi's code of ``filt.step`` as ``<prefix>_kernel``."""
+    step, name = filt.step, f"{prefix}_kernel"
+    f = ca.Function(name, step.sx_in(), step.call(step.sx_in()), step.name_in(), step.name_out())
+    stamp = f"/* {name}: {filt.kind} step of model '{filt.aug.model.name}' ({real}), generated by skigen. */\n"
+    c, h, sizes = _casadi_code([f], name, real, stamp)
+    return {f"{name}.c": c, f"{name}.h": h}, sizes
+
+
+def _kernel_loops(filt: DerivedFilter, prefix: str, real: str) -> tuple[dict[str, str], dict[str, int]]:
+    """The looped step: ``kernel_loops.c.in`` around CasADi's code of f, h and the
+    input-history shift (``<prefix>_model.c/.h``)."""
+    from ..derive.ukf import _sqrt_psd, merwe_weights
+
+    aug, opts, d = filt.aug, filt.options, filt.aug.shapes
+    n, ny, nw, ard = d["n"], d["ny"], d["nw"], int(filt.has_ard)
+    model = f"{prefix}_model"
+    zum = [aug.z, aug.u, aug.mem]
+    functions = [ca.Function(f"{model}_f", zum, [ca.densify(aug.f)]),
+                 ca.Function(f"{model}_h", zum, [ca.densify(aug.h)])]
+    if d["nmem"]:
+        functions.append(ca.Function(f"{model}_mem_next", [aug.u, aug.mem], [ca.densify(aug.mem_next)]))
+    stamp = f"/* {model}: model functions of '{aug.model.name}' ({real}), generated by skigen. */\n"
+    mc, mh, msz = _casadi_code(functions, model, real, stamp)
+    Wm, Wc, gamma = merwe_weights(n, opts.alpha, opts.beta, opts.kappa)
+    Qf = _sqrt_psd(aug.Q)
+    nq, nsig = Qf.shape[1], 2 * n + 1
+    lit = lambda x: _literal(x, real)
+    array = lambda a: ", ".join(lit(x) for x in np.ravel(a, order="F")) or lit(0.0)
+    buffers = [("X", n * nsig), ("Xf", n * nsig), ("Y", ny * nsig),
+               ("A", max((2 * n + 2 * ny) * ny, (2 * n + nq) * n)), ("Sy", ny * ny), ("y_hat", ny),
+               ("noise", 2 * ny * ny), ("K", ny * n), ("x_col", n), ("a_col", ny)]
+    if ard:   # F_ww, then the larger of ard_optimise's and ard_correct's scratch
+        buffers += [("F_ww", nw * n), ("ard_work", max(6 * nw + 2 * n * n + n + n * nw,
+                                                       n * nw + 3 * nw + 3 * n * n + 2 * n))]
+    buffers.append(("model_w", max(msz["w"], 1)))
+    offsets = np.concatenate([[0], np.cumsum([size for _, size in buffers])])
+    work = "\n".join(f"    real* {b} = w + {o};" for (b, _), o in zip(buffers, offsets))
+    values = dict(
+        prefix=prefix, kind=filt.kind, model=aug.model.name, real=real, N=n, NX=d["nx"], NW=nw, NY=ny,
+        NQ=nq, NMEM=d["nmem"], QF_SIZE=max(n * nq, 1), ARD=ard, ARD_STEPS=opts.ard_steps, BACKTRACKS=opts.backtracks,
+        WM0=lit(Wm[0]), WM1=lit(Wm[1]), WC0=lit(Wc[0]), WC1=lit(Wc[1]), SQRT_WC1=lit(np.sqrt(Wc[1])),
+        SQRT_WC0=lit(np.sqrt(abs(Wc[0]))), WC0_SIGN=lit(np.sign(Wc[0])), GAMMA=lit(gamma),
+        LOG_2PI=lit(np.log(2 * np.pi)), ETA=lit(opts.eta), MAX_STEP=lit(opts.max_step),
+        MARGIN=lit(opts.margin), S_MIN=lit(opts.s_min), S_MAX=lit(opts.s_max),
+        LR=array(np.linalg.cholesky(aug.R)), QF=array(Qf), work=work)
+    kc = string.Template((_HERE / "kernel_loops.c.in").read_text()).substitute(values)
+    if real == "float":
+        kc = _LITERAL_RE.sub(r"\1f", _MATH_RE.sub(r"\1f(", kc))
+    name, guard = f"{prefix}_kernel", f"{prefix.upper()}_KERNEL_H"
+    sizes = dict(arg=len(filt.names_in), res=len(filt.names_out), iw=msz["iw"], w=int(offsets[-1]))
+    kh = (f"/* {name}.h: {filt.kind} step of model '{aug.model.name}' ({real}), the filter algebra as "
+          f"loops, generated by skigen. */\n#ifndef {guard}\n#define {guard}\n\n"
+          + "".join(f"#define {name}_SZ_{k.upper()} {v}\n" for k, v in sizes.items())
+          + f"\nint {name}(const {real}** arg, {real}** res, int* iw, {real}* w, int mem);\n\n#endif\n")
+    return {f"{name}.c": kc, f"{name}.h": kh, f"{model}.c": mc, f"{model}.h": mh}, sizes
 
 
 def _tidy(c: str, name: str, real: str) -> str:
@@ -135,8 +216,12 @@ def _tidy(c: str, name: str, real: str) -> str:
     return c
 
 
-def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | None = None) -> list[Path]:
-    """Write ``<prefix>.h/.c`` and ``<prefix>_kernel.h/.c`` to ``out_dir``; return their paths."""
+def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | None = None,
+           style: str = "auto") -> list[Path]:
+    """Write ``<prefix>.h/.c`` and the kernel's files to ``out_dir``; return their paths.
+
+    style: 'unrolled', 'loops' or 'auto' (see :func:`choose_style`).
+    """
     if real not in REALS:
         raise ValueError(f"real must be one of {', '.join(REALS)}, got '{real}'")
     prefix = prefix or default_prefix(filt)
@@ -144,17 +229,18 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
         raise ValueError(f"prefix '{prefix}' is not a C identifier")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    kc, kh, sz = _kernel(filt, prefix, real)
-    d, step = filt.aug.shapes, filt.step
+    kernel = _kernel_loops if choose_style(filt, style) == "loops" else _kernel
+    kernel_files, sz = kernel(filt, prefix, real)
+    d = filt.aug.shapes
     fields = {name: shape for name, shape, _ in _fields(filt)}
     dim = lambda shape: "" if shape == () else f"[{max(_size(shape), 1)}]"
     ref = lambda name: f"&st->{name}" if fields[name] == () else f"st->{name}"
     struct = [f"    {prefix}_real {name}{dim(shape)}; /* {doc} */" for name, shape, doc in _fields(filt)]
     struct += [f"    int iw[{max(sz['iw'], 1)}]; /* kernel work */",
                f"    {prefix}_real w[{max(sz['w'], 1)}]; /* kernel work */"]
-    wiring = [f"    arg[{i}] = {ref(k) if k in fields else _LOCALS[k]};" for i, k in enumerate(step.name_in())]
-    wiring += [f"    res[{i}] = {ref(k)};" for i, k in enumerate(step.name_out())]
-    finite = [f"    failed = failed || !all_finite({ref(k)}, {_size(fields[k])});" for k in step.name_out()]
+    wiring = [f"    arg[{i}] = {ref(k) if k in fields else _LOCALS[k]};" for i, k in enumerate(filt.names_in)]
+    wiring += [f"    res[{i}] = {ref(k)};" for i, k in enumerate(filt.names_out)]
+    finite = [f"    failed = failed || !all_finite({ref(k)}, {_size(fields[k])});" for k in filt.names_out]
     commit = [f"    copy_n(st->{a}, st->{b}, {_size(fields[a])});" for a, b in _UPDATES.items() if a in fields]
     # Initial values: nonzero z, C (column-major), s as constants; posterior = prior; the rest 0.
     start = {k: np.ravel(v, order="F") for k, v in filt.initial().items()}
@@ -188,7 +274,7 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
         output_names=_c_strings(v.name for v in model.outputs))
     texts = {f"{prefix}.h": string.Template((_HERE / "filter.h.in").read_text()).substitute(values),
              f"{prefix}.c": string.Template((_HERE / "filter.c.in").read_text()).substitute(values),
-             f"{prefix}_kernel.h": kh, f"{prefix}_kernel.c": kc}
+             **kernel_files}
     paths = []
     for fname, text in texts.items():
         (out / fname).write_text(text, newline="\n")
@@ -306,9 +392,9 @@ class CFilter:
 
 
 def load_c(filt: DerivedFilter, real: str = "double", prefix: str | None = None, cache_dir=None,
-           cc: str = "gcc", flags=DEFAULT_FLAGS) -> CFilter:
+           cc: str = "gcc", flags=DEFAULT_FLAGS, style: str = "auto") -> CFilter:
     """Emit, compile (cached) and load ``filt`` as a :class:`CFilter`."""
     with tempfile.TemporaryDirectory() as tmp:
-        paths = emit_c(filt, tmp, real, prefix)
+        paths = emit_c(filt, tmp, real, prefix, style)
         lib = compile_shared(paths, cc=cc, flags=flags, cache_dir=cache_dir)
     return CFilter(lib, filt, real, prefix)
