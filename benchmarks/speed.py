@@ -58,11 +58,11 @@ int main(void) {
 """
 
 
-def build_c_bench(filt, rec, real: str, work: Path, opt: str = "-O2") -> Path:
+def build_c_bench(filt, rec, real: str, work: Path, opt: str = "-O2", style: str = "auto") -> Path:
     """Compile the timing program of the generated C; it prints ns per step."""
     prefix = default_prefix(filt)
-    out = work / f"{prefix}_{real}"
-    files = emit_c(filt, out, real=real)
+    out = work / f"{prefix}_{real}_{style}"
+    files = emit_c(filt, out, real=real, style=style)
     fmt = lambda a: ", ".join(f"{v:.17g}" for v in np.ravel(a))
     (out / "bench.c").write_text(HARNESS % dict(prefix=prefix, real=real, n=len(rec.t), nu=rec.inputs.shape[1],
                                                 ny=rec.outputs.shape[1], u=fmt(rec.inputs), y=fmt(rec.outputs)))
@@ -84,9 +84,9 @@ def fastest_ns_per_step(programs: dict, rounds: int = 1) -> dict:
     return best
 
 
-def c_ns_per_step(filt, rec, real: str, work: Path, opt: str = "-O2") -> float:
+def c_ns_per_step(filt, rec, real: str, work: Path, opt: str = "-O2", style: str = "auto") -> float:
     """Nanoseconds per step of the generated C, timed in C."""
-    return fastest_ns_per_step({0: build_c_bench(filt, rec, real, work, opt)})[0]
+    return fastest_ns_per_step({0: build_c_bench(filt, rec, real, work, opt, style)})[0]
 
 
 def python_us_per_step(filt, rec) -> float:

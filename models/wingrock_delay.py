@@ -27,3 +27,5 @@ def build(prior_variance=1.0, process_std=(1e-4, 1e-3), window=WINDOW, name="win
 
 
 model = build()
+# Forty-eight candidate delays (n = 50): too large to unroll, emitted with the looped C kernel.
+wide = build(window=48, name="wingrock_delay48")

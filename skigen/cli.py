@@ -67,7 +67,10 @@ def _generate(args) -> int:
     from .emit.c import emit_c
 
     model = load_model(args.model)
-    files = emit_c(derive(model, args.filter), args.out, real=args.real)
+    try:
+        files = emit_c(derive(model, args.filter), args.out, real=args.real, style=args.style)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
     for f in files:
         print(f)
     return 0
@@ -133,6 +136,10 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("model")
     g.add_argument("--filter", choices=FILTERS, default="ski")
     g.add_argument("--real", choices=["double", "float"], default="double")
+    g.add_argument("--style", choices=["auto", "unrolled", "loops"], default="auto",
+                   help="kernel: 'unrolled' (flat scalar code, fastest for small models), 'loops' "
+                        "(filter algebra as loops; ukf and ski; small code at any size) or 'auto' "
+                        "(loops above 20 augmented states)")
     g.add_argument("--out", required=True, help="output directory")
     g.set_defaults(func=_generate)
     d = sub.add_parser("diagnose", help="find, name and correct what the model misses in a recording")

@@ -1,5 +1,8 @@
 """The emitted C library: equal to the derived step, guarded against bad data, portable.
 
+Every test runs on each kernel: the unrolled EKF, UKF and SKI and the looped UKF and SKI
+(``ukf_loops``, ``ski_loops``: the same filters, the algebra written as C loops).
+
 Float builds are held to FLOAT_RTOL of the state scale against the double Python step on
 the 750-sample WingRock run (measured max |z_float - z_double| / max(|z|, 1): EKF 1.3e-4,
 UKF 4e-5, SKI 1.1e-5) and to FLOAT_IN_STD of the posterior standard deviation (measured:
@@ -23,7 +26,9 @@ from skigen.recording import Recording
 from skigen.runtime import run
 from skigen.emit.c import DEFAULT_FLAGS
 
-KINDS = ("ekf", "ukf", "ski")
+VARIANTS = {"ekf": ("ekf", "unrolled"), "ukf": ("ukf", "unrolled"), "ski": ("ski", "unrolled"),
+            "ukf_loops": ("ukf", "loops"), "ski_loops": ("ski", "loops")}    # name: (kind, style)
+KINDS = tuple(VARIANTS)
 REALS = ("double", "float")
 RTOL = 1e-9
 FLOAT_RTOL = 1e-3
@@ -63,13 +68,14 @@ def _close(a, b, rtol=RTOL):
 
 @pytest.fixture(scope="module")
 def filters():
-    return {k: derive(build(), k) for k in KINDS}
+    derived = {kind: derive(build(), kind) for kind, _ in VARIANTS.values()}
+    return {v: derived[kind] for v, (kind, _) in VARIANTS.items()}
 
 
 @pytest.fixture(scope="module")
 def emitted(filters, tmp_path_factory):
     root = tmp_path_factory.mktemp("emit")
-    return {(k, r): emit_c(filters[k], root / f"{k}_{r}", r) for k in KINDS for r in REALS}
+    return {(v, r): emit_c(filters[v], root / f"{v}_{r}", r, style=VARIANTS[v][1]) for v in KINDS for r in REALS}
 
 
 @pytest.fixture(scope="module")
@@ -216,7 +222,7 @@ def test_missing_measurement_skips_update_but_predicts(kind, filters, libs, reco
     r, nxt = _py_step(d, prior, [1.5], [np.nan])
     # The posterior is the prior mean (for SKI: the prior after its ARD re-weighing, which
     # runs every step, as in the derived step).
-    _close(cf.z_post, prior["z"] if kind != "ski" else r["z_post"].ravel())
+    _close(cf.z_post, prior["z"] if d.kind != "ski" else r["z_post"].ravel())
     assert cf.e[0] == 0 and cf.nis == 0 and cf.loglik == 0
     _close(cf.z, nxt["z"])
     assert not np.allclose(cf.z, prior["z"])                 # it did predict
@@ -258,37 +264,45 @@ def test_numerical_failure_is_rejected(kind, real, filters, libs, record):
 
 # ---------------------------------------------------------------------------- generated text
 
-def test_emission_is_deterministic_and_path_free(filters, tmp_path):
-    a = emit_c(filters["ski"], tmp_path / "a", "float")
-    b = emit_c(filters["ski"], tmp_path / "b", "float")
-    assert [p.name for p in a] == ["wingrock_ski.h", "wingrock_ski.c",
-                                   "wingrock_ski_kernel.h", "wingrock_ski_kernel.c"]
+@pytest.mark.parametrize("style", ["unrolled", "loops"])
+def test_emission_is_deterministic_and_path_free(style, filters, tmp_path):
+    a = emit_c(filters["ski"], tmp_path / "a", "float", style=style)
+    b = emit_c(filters["ski"], tmp_path / "b", "float", style=style)
+    names = ["wingrock_ski.h", "wingrock_ski.c", "wingrock_ski_kernel.c", "wingrock_ski_kernel.h"]
+    names += ["wingrock_ski_model.c", "wingrock_ski_model.h"] if style == "loops" else []
+    assert sorted(p.name for p in a) == sorted(names)
     for p, q in zip(a, b):
         assert p.read_bytes() == q.read_bytes()
         assert str(tmp_path) not in p.read_text()
-    kernel = a[3].read_text()
-    assert not re.search(r"\b(sqrt|exp|log|fabs|fmax|fmin|expm1|log1p)\(", kernel)
-    assert not re.search(r"\d\.\d*e[+-]\d+(?!f)\b", kernel)          # every literal is float
+        if p.suffix == ".c":
+            code = p.read_text()
+            assert not re.search(r"\b(sqrt|exp|log|fabs|fmax|fmin|expm1|log1p)\(", code), p.name
+            assert not re.search(r"(?<![\w.])\d+\.\d*(e[+-]?\d+)?(?![\w.])", code), p.name  # float literals
 
 
 def test_filters_link_into_one_program(filters, emitted, tmp_path):
-    """Three kinds plus a float copy under another prefix in one binary, headers together."""
+    """Three kinds, a looped float SKI and a float copy under other prefixes in one binary,
+    headers together."""
     f32 = emit_c(filters["ski"], tmp_path / "f32", "float", prefix="wingrock_ski_f32")
-    sources = [p for k in KINDS for p in emitted[k, "double"]] + f32
+    loops = emit_c(filters["ski"], tmp_path / "loops", "float", prefix="wingrock_ski_loops", style="loops")
+    sources = [p for k in ("ekf", "ukf", "ski") for p in emitted[k, "double"]] + f32 + loops
     main = tmp_path / "main.c"
     main.write_text("""#include <stdio.h>
 #include "wingrock_ekf.h"
 #include "wingrock_ukf.h"
 #include "wingrock_ski.h"
 #include "wingrock_ski_f32.h"
+#include "wingrock_ski_loops.h"
 int main(void)
 {
     static wingrock_ekf_state a; static wingrock_ukf_state b;
-    static wingrock_ski_state c; static wingrock_ski_f32_state d;
+    static wingrock_ski_state c; static wingrock_ski_f32_state d; static wingrock_ski_loops_state e;
     double u = 1.0, y = 0.1; float uf = 1.0f, yf = 0.1f;
     wingrock_ekf_init(&a); wingrock_ukf_init(&b); wingrock_ski_init(&c); wingrock_ski_f32_init(&d);
-    printf("%d %d %d %d\\n", wingrock_ekf_step(&a, &u, &y), wingrock_ukf_step(&b, &u, &y),
-           wingrock_ski_step(&c, &u, &y), wingrock_ski_f32_step(&d, &uf, &yf));
+    wingrock_ski_loops_init(&e);
+    printf("%d %d %d %d %d\\n", wingrock_ekf_step(&a, &u, &y), wingrock_ukf_step(&b, &u, &y),
+           wingrock_ski_step(&c, &u, &y), wingrock_ski_f32_step(&d, &uf, &yf),
+           wingrock_ski_loops_step(&e, &uf, &yf));
     return 0;
 }
 """)
@@ -296,7 +310,7 @@ int main(void)
     exe = tmp_path / "together"
     _run(["gcc", *(f for f in DEFAULT_FLAGS if not f.startswith("-O")), "-O0", *dirs, main, *[p for p in sources if p.suffix == ".c"],
           "-o", exe, "-lm"])
-    assert _run([exe]).split() == ["0"] * 4
+    assert _run([exe]).split() == ["0"] * 5
 
 
 # --------------------------------------------------------------------------- cross toolchains

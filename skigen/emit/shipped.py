@@ -2,8 +2,9 @@
 
     python -m skigen.emit.shipped generated      (what `make generate` runs)
 
-Each filter lands in ``generated/<model>_<kind>_<real>/``; a test regenerates
-them into a temporary folder and fails on any difference.
+Each filter lands in ``generated/<model>_<kind>_<real>/`` in the default
+('auto') kernel style; a test regenerates them into a temporary folder and
+fails on any difference.
 """
 from __future__ import annotations
 
@@ -18,6 +19,7 @@ __all__ = ["SHIPPED", "generate_all"]
 SHIPPED = {
     "models.wingrock:model": ("ekf", "ukf", "ski"),
     "models.wingrock_delay:model": ("ukf", "ski"),
+    "models.wingrock_delay:wide": ("ukf", "ski"),       # n = 50: the looped kernel
     "models.quadrotor_spiral:model": ("ukf", "ski"),
     "models.quadrotor_vertical:model": ("ski",),
     "models.quadrotor_mukf:model": ("mukf",),

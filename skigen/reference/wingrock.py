@@ -32,3 +32,16 @@ def wingrock_f(z, delta, dt=DT):
 
 def wingrock_h(z):
     return z[:1]
+
+
+def wingrock_delay_f(z, inputs, known, dt=DT):
+    """One RK4 step of the delay model's z = [theta, p, w(m)]: the roll acceleration is
+    Σ_j w_j δ[k−j] + Σ known_i φ_i(θ, p); ``inputs`` = δ[k], δ[k−1], …, δ[k−m+1]."""
+    x, w = z[:2], z[2:]
+    drive = sum(wj * dj for wj, dj in zip(w, inputs))
+    f = lambda xi: wingrock_rhs(xi, known, 0.0) + np.array([0.0, drive], dtype=object)
+    k1 = f(x)
+    k2 = f(x + dt / 2 * k1)
+    k3 = f(x + dt / 2 * k2)
+    k4 = f(x + dt * k3)
+    return np.concatenate([x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4), w]).astype(z.dtype)

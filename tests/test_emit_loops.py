@@ -1,0 +1,110 @@
+"""The looped C kernel against the NumPy reference, on models the WingRock tests do not
+reach: several outputs with some missing (quadrotor spiral), exact input memory and
+n = 50 (48 candidate delays, a model whose unrolled step is ~3 M operations)."""
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from benchmarks.common import recording
+from models import quadrotor_sim, quadrotor_spiral, wingrock_delay
+from models.wingrock import W_TRUE
+from models.wingrock_sim import simulate
+from skigen import derive
+from skigen.emit import Status, emit_c
+from skigen.emit.c import choose_style, load_c
+from skigen.reference import filters as ref
+from skigen.reference.quadrotor import spiral_f, spiral_h
+from skigen.reference.wingrock import wingrock_delay_f, wingrock_h
+from skigen.runtime import run
+
+RTOL = 1e-9
+
+
+def _close(ours, theirs, rtol=RTOL):
+    theirs = np.asarray(theirs, float)
+    np.testing.assert_allclose(ours, theirs, rtol=0, atol=rtol * max(1.0, np.abs(theirs).max()))
+
+
+def _ref_ski(filt, st, y, valid, f, h):
+    aug, o = filt.aug, filt.options
+    return ref.ski_step(st["z"], st["S"], st["s"], y, valid, f, h, aug.Q, aug.R, aug.w_index,
+                        o.alpha, o.beta, o.kappa, o.eta, o.ard_steps, o.margin, o.s_min, o.s_max,
+                        o.max_step, o.backtracks)
+
+
+def _compare_to_reference(filt, inputs, outputs, valid, f_of, h, cache):
+    """Two looped C filters against the reference SKI: one reseeded from the reference's prior
+    every sample (per step), one left to run on its own (whole run)."""
+    per_step = load_c(filt, style="loops", cache_dir=cache)
+    whole = load_c(filt, style="loops", cache_dir=cache)
+    init = filt.initial()
+    st = dict(z=init["z"], S=init["C"], s=init["s"])
+    for k in range(len(inputs)):
+        y = np.where(valid[k], outputs[k], np.nan)
+        per_step.set("z", st["z"]), per_step.set("C", st["S"]), per_step.set("s", st["s"])
+        codes = {per_step.step(inputs[k], y), whole.step(inputs[k], y)}
+        assert codes == {Status.OK if valid[k].all() else Status.MEASUREMENT_SKIPPED}
+        q = _ref_ski(filt, st, outputs[k], valid[k], f_of(k), h)
+        for cf in (per_step, whole):
+            _close(cf.z_post, q["z_post"])
+            _close(cf.z, q["z"])
+            _close(cf.C, q["S"])
+            _close(cf.s, q["s"])
+        st = dict(z=q["z"], S=q["S"], s=q["s"])
+
+
+def test_looped_spiral_ski_equals_reference(tmp_path):
+    """Three outputs, each missing on its own schedule: the masked update of the loops."""
+    rec = quadrotor_spiral.recording(quadrotor_sim.spiral(seed=2)).slice(0, 300)
+    filt = derive(quadrotor_spiral.model, "ski")
+    k = np.arange(len(rec.t))[:, None]
+    valid = np.hstack([k % 9 != 4, k % 5 != 2, k % 9 != 4])
+    _compare_to_reference(filt, rec.inputs, rec.outputs, valid,
+                          lambda i: (lambda z: spiral_f(z, rec.inputs[i])), spiral_h, tmp_path)
+
+
+def _delay_window(deltas, k, m):
+    return [deltas[k - j] if k >= j else 0.0 for j in range(m)]
+
+
+def test_looped_wide_delay_ski_equals_reference(tmp_path):
+    """n = 50 with 48 delayed inputs carried as memory: the shipped looped filter's model."""
+    sim = simulate(seed=3, delay=wingrock_delay.TRUE_DELAY, duration=3)
+    filt = derive(wingrock_delay.wide, "ski")
+    assert choose_style(filt) == "loops"
+    m, deltas = filt.aug.shapes["nw"], sim.delta
+    valid = (np.arange(len(sim.t)) % 7 != 3)[:, None]
+    _compare_to_reference(filt, deltas[:, None], sim.phi[:, None], valid,
+                          lambda k: (lambda z: wingrock_delay_f(z, _delay_window(deltas, k, m), W_TRUE)),
+                          wingrock_h, tmp_path)
+
+
+def test_looped_delay_ski_equals_python_runtime(tmp_path):
+    """Input memory and the ARD through the looped kernel = the derived step via the runtime."""
+    rec = recording(simulate(seed=1, delay=wingrock_delay.TRUE_DELAY))
+    filt = derive(wingrock_delay.model, "ski")
+    python = run(filt, rec, show_progress=False)
+    c = load_c(filt, style="loops", cache_dir=tmp_path).run(rec.inputs, rec.outputs)
+    _close(c["z_post"], python.mean)
+    _close(c["std"], python.std)
+
+
+def test_style_choice_and_errors(tmp_path):
+    small, wide = derive(wingrock_delay.model, "ski"), derive(wingrock_delay.wide, "ski")
+    assert choose_style(small) == "unrolled" and choose_style(wide) == "loops"
+    assert choose_style(derive(wingrock_delay.wide, "ekf")) == "unrolled"      # no looped EKF
+    with pytest.raises(ValueError, match="style 'unrolled'"):
+        choose_style(derive(wingrock_delay.model, "ekf"), "loops")
+    with pytest.raises(ValueError, match="style must be one of"):
+        choose_style(small, "fast")
+    r = subprocess.run([sys.executable, "-m", "skigen", "generate", "models.wingrock:model", "--filter", "ekf",
+                        "--style", "loops", "--out", str(tmp_path)], capture_output=True, text=True)
+    assert r.returncode == 2 and "style 'unrolled'" in r.stderr and "Traceback" not in r.stderr
+
+
+def test_looped_code_stays_small(tmp_path):
+    """n = 50: kilobytes of C where the unrolled step would be ~69 MB."""
+    files = emit_c(derive(wingrock_delay.wide, "ski"), tmp_path)
+    assert sum(p.stat().st_size for p in files) < 100_000
