@@ -27,7 +27,7 @@ const unsigned long skigen_state_bytes = sizeof(%s_state);
 
 def measure(folder: Path, work: Path) -> dict:
     """Compile one generated filter folder for the Cortex-M7 and size it."""
-    prefix = next(p.stem for p in folder.glob("*.h") if not p.stem.endswith("_kernel"))
+    prefix = next(p.stem.removesuffix("_kernel") for p in folder.glob("*_kernel.h"))
     probe = work / f"{folder.name}_size.c"
     probe.write_text(STATE_SIZE % (prefix, prefix))
     objs = []

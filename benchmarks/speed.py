@@ -1,6 +1,7 @@
 """Time per filter step: generated C (double, float), the Python callables,
 and filterpy's UKF on the same augmented WingRock model, plus how the C SKI
-step scales with the number of basis functions m (delayed-input windows).
+step scales with the number of basis functions m (delayed-input windows), for
+both kernel styles (unrolled, loops) and the one ``skigen generate`` picks.
 
 C is timed by a small C program (the filter's own sources, -O2) that replays a
 simulated flight many times; no Python is in the loop.
@@ -19,13 +20,13 @@ from benchmarks.common import emit, parser, recording
 from models import wingrock, wingrock_delay
 from models.wingrock_sim import simulate
 from skigen import derive
-from skigen.emit.c import DEFAULT_FLAGS, default_prefix, emit_c
+from skigen.emit.c import DEFAULT_FLAGS, choose_style, default_prefix, emit_c
 from skigen.reference.wingrock import wingrock_f
 from skigen.runtime import run
 
 KINDS = ("ekf", "ukf", "ski")
 SCALING_M = (6, 12, 24, 48)
-LARGEST_BUILT = 24     # the step is emitted fully unrolled: m = 48 is ~3 M operations, ~69 MB of C
+LARGEST_UNROLLED = 24  # unrolled, m = 48 is ~3 M operations, ~69 MB of C: gcc takes >20 min and ~8 GB
 
 HARNESS = r"""
 #define _POSIX_C_SOURCE 199309L
@@ -110,11 +111,27 @@ def filterpy_us_per_step(aug, rec) -> float:
     return 1e6 * (time.perf_counter() - t0) / len(rec.t)
 
 
+def _scaling_row(m: int, rec, work: Path, largest_unrolled: int) -> dict:
+    """C SKI ns/step for m delayed-input windows: both styles where built, and the default."""
+    filt = derive(wingrock_delay.build(window=m, name=f"wingrock_delay{m}"), "ski")
+    row = {"m": m, "n": filt.aug.n, "style": choose_style(filt),
+           "loops_ns_per_step": c_ns_per_step(filt, rec, "double", work, style="loops"),
+           "unrolled_ns_per_step": None, "unrolled_operations": filt.step.n_instructions()}
+    if m <= largest_unrolled:
+        opt = "-O2" if m <= LARGEST_UNROLLED else "-O1"       # -O2 on millions of lines: hours
+        row["unrolled_ns_per_step"] = c_ns_per_step(filt, rec, "double", work, opt, style="unrolled")
+    else:
+        row["unrolled_not_built"] = (f"{row['unrolled_operations']} operations; "
+                                     f"rerun with --largest-unrolled {m} to compile it")
+    row["c_ns_per_step"] = row[f"{row['style']}_ns_per_step"]
+    return row
+
+
 def main(argv=None) -> int:
     p = parser("speed", seeds=1)
-    p.add_argument("--largest", type=int, default=LARGEST_BUILT,
-                   help="largest m whose unrolled C is compiled (above 24 with -O1; m = 48 takes gcc "
-                        "a long time and ~10 GB)")
+    p.add_argument("--largest-unrolled", type=int, default=LARGEST_UNROLLED,
+                   help=f"largest m whose unrolled C is compiled ({LARGEST_UNROLLED}; m = 48 takes gcc "
+                        "well over 20 minutes and ~8 GB)")
     args = p.parse_args(argv)
     rec = recording(simulate(seed=0))
     delay_rec = recording(simulate(seed=0, delay=wingrock_delay.TRUE_DELAY))
@@ -125,33 +142,31 @@ def main(argv=None) -> int:
         report = {"wingrock": {
             "c_double_ns_per_step": {k: c_ns_per_step(f, rec, "double", work) for k, f in filters.items()},
             "c_float_ns_per_step": {k: c_ns_per_step(f, rec, "float", work) for k, f in filters.items()},
+            "c_double_loops_ns_per_step": {k: c_ns_per_step(filters[k], rec, "double", work, style="loops")
+                                           for k in ("ukf", "ski")},
             "python_us_per_step": {k: python_us_per_step(f, rec) for k, f in filters.items()},
             "filterpy_ukf_us_per_step": filterpy_us_per_step(filters["ukf"].aug, rec)}}
         scaling = []
         for m in SCALING_M:
-            filt = derive(wingrock_delay.build(window=m, name=f"wingrock_delay{m}"), "ski")
-            row = {"m": m, "n": filt.aug.n, "operations": filt.step.n_instructions(), "c_ns_per_step": None}
-            if m <= args.largest:
-                opt = "-O2" if m <= LARGEST_BUILT else "-O1"
-                row.update(c_ns_per_step=c_ns_per_step(filt, delay_rec, "double", work, opt), gcc=opt)
-            else:
-                row["not_built"] = (f"the unrolled step has {row['operations']} operations; "
-                                    f"rerun with --largest {m} to compile it")
-            scaling.append(row)
+            scaling.append(_scaling_row(m, delay_rec, work, args.largest_unrolled))
             print(f"scaling m = {m} done", file=sys.stderr)
         report["scaling"] = scaling
     w = report["wingrock"]
     report["wingrock"]["c_ukf_speedup_over_filterpy"] = 1e3 * w["filterpy_ukf_us_per_step"] / w["c_double_ns_per_step"]["ukf"]
+    loops = w["c_double_loops_ns_per_step"]
     rows = ["WingRock time per step (augmented state n = 8; C -O2 on this machine)",
-            f"{'filter':6s} {'C double ns':>12s} {'C float ns':>11s} {'Python us':>10s}"]
+            f"{'filter':6s} {'C double ns':>12s} {'C float ns':>11s} {'C loops ns':>11s} {'Python us':>10s}"]
     rows += [f"{k:6s} {w['c_double_ns_per_step'][k]:12.0f} {w['c_float_ns_per_step'][k]:11.0f} "
-             f"{w['python_us_per_step'][k]:10.1f}" for k in KINDS]
+             f"{loops.get(k, float('nan')):11.0f} {w['python_us_per_step'][k]:10.1f}" for k in KINDS]
     rows += [f"filterpy UKF (NumPy): {w['filterpy_ukf_us_per_step']:.1f} us/step; "
              f"generated C UKF is {w['c_ukf_speedup_over_filterpy']:.0f}x faster",
-             "", "C SKI step vs number of basis functions (delayed-input windows)",
-             f"{'m':>4s} {'n':>4s} {'ns/step':>10s} {'operations':>11s}"]
-    rows += [f"{s['m']:4d} {s['n']:4d} {s['c_ns_per_step'] or float('nan'):10.0f} {s['operations']:11d}"
-             f"  {s.get('not_built', s.get('gcc', ''))}" for s in scaling]
+             "", "C SKI step (double) vs number of basis functions m (delayed-input windows)",
+             f"{'m':>4s} {'n':>4s} {'default ns':>11s} {'style':>9s} {'unrolled ns':>12s} {'loops ns':>10s} "
+             f"{'unrolled ops':>13s}"]
+    nan = float("nan")
+    rows += [f"{s['m']:4d} {s['n']:4d} {s['c_ns_per_step']:11.0f} {s['style']:>9s} "
+             f"{s['unrolled_ns_per_step'] or nan:12.0f} {s['loops_ns_per_step']:10.0f} {s['unrolled_operations']:13d}"
+             for s in scaling]
     return emit(report, args.json, "\n".join(rows))
 
 

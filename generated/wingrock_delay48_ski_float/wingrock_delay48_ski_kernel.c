@@ -166,6 +166,8 @@ static void spread(real* P, int rows, const real* extra, int n_extra, real* mean
 
 /* ---- ARD on the weights' prior variances (skigen/derive/ard.py) ---------------------- */
 #if ARD
+#define FIRST(a) ((a) > NX ? (a) - NX : 0)   /* first weight row r with F[r, a] != 0 */
+
 /* ARD options (see skigen.derive.FilterOptions). */
 static const real ETA = 0.3f, MAX_STEP = 1.0f, MARGIN = 0.9f, S_MIN = 1e-10f, S_MAX = 1000000.0f;
 
@@ -193,7 +195,8 @@ static real softplus_inv(real s) { return s + logf(-expm1f(-s)); }
 static real sigmoid(real x) { return 1 / (1 + expf(-x)); }
 
 /* D = 1/s_new - 1/s_old; Lb = chol(I + F^T diag(D) F); c = Lb^-1 F^T (D mu);
- * G = Lb^-1 F^T when G is not null. F is NW x N. */
+ * G = Lb^-1 F^T when G is not null. F = S[NX:, :] (NW x N) is lower trapezoidal:
+ * F[r, a] = 0 for a > NX + r, so sums over r start at FIRST(a). */
 static void ard_pieces(const real* s_new, const real* s_old, const real* mu, const real* F,
                        real* D, real* Lb, real* c, real* G, real* B)
 {
@@ -202,13 +205,13 @@ static void ard_pieces(const real* s_new, const real* s_old, const real* mu, con
     for (b = 0; b < N; ++b)
         for (a = b; a < N; ++a) {                 /* the lower triangle: all chol reads */
             real t = 0;
-            for (r = 0; r < NW; ++r) t += F[r + a * NW] * D[r] * F[r + b * NW];
+            for (r = FIRST(a); r < NW; ++r) t += F[r + a * NW] * D[r] * F[r + b * NW];
             B[a + b * N] = (a == b) + t;
         }
     chol(B, Lb, N);
     for (a = 0; a < N; ++a) {
         real t = 0;
-        for (r = 0; r < NW; ++r) t += F[r + a * NW] * (D[r] * mu[r]);
+        for (r = FIRST(a); r < NW; ++r) t += F[r + a * NW] * (D[r] * mu[r]);
         c[a] = t;
     }
     forward(Lb, c, N, 1);
@@ -259,7 +262,7 @@ static real gershgorin(const real* F)
         real row = 0;
         for (c = 0; c < NW; ++c) {
             real t = 0;
-            for (a = 0; a < N; ++a) t += F[r + a * NW] * F[c + a * NW];
+            for (a = 0; a <= NX + (r < c ? r : c); ++a) t += F[r + a * NW] * F[c + a * NW];
             row += fabsf(t);
         }
         g = r == 0 || row > g ? row : g;
