@@ -354,18 +354,18 @@ int wingrock_delay48_ski_kernel(const real** arg, real** res, int* iw, real* w, 
     real *nis = res[ARD + 7], *loglik = res[ARD + 8];
     int i, j, r;
     real* X = w + 0;
-    real* Xf = w + 5050;
-    real* Y = w + 10100;
-    real* A = w + 10201;
-    real* Sy = w + 15301;
-    real* y_hat = w + 15302;
-    real* noise = w + 15303;
-    real* K = w + 15305;
-    real* x_col = w + 15355;
-    real* a_col = w + 15405;
-    real* F_ww = w + 15406;
-    real* ard_work = w + 17806;
-    real* model_w = w + 27950;
+    real* Y = w + 5050;
+    real* Sy = w + 5151;
+    real* y_hat = w + 5152;
+    real* noise = w + 5153;
+    real* K = w + 5155;
+    real* x_col = w + 5205;
+    real* a_col = w + 5255;
+    real* model_w = w + 5256;
+    real* Xf = w + 5257;
+    real* A = w + 10307;
+    real* F_ww = w + 5257;
+    real* ard_work = w + 7657;
     (void)mem;
 
     /* Update with y: sigma points through h, innovation factor Sy, gain by two solves. */
