@@ -409,18 +409,17 @@ int wingrock_delay48_ski_kernel(const real** arg, real** res, int* iw, real* w, 
             for (i = 0; i < NY; ++i) t += Sy[r + i * NY] * Sy[j + i * NY];
             Pyy[r + j * NY] = t;
         }
-    copy(a_col, e, NY);
-    forward(Sy, a_col, NY, 1);
-    *nis = 0;
-    *loglik = 0;
-    for (r = 0; r < NY; ++r) {
-        *nis += a_col[r] * a_col[r];
-        *loglik += log(Sy[r + r * NY]);
-    }
-    {
-        real n_valid = 0;
-        for (r = 0; r < NY; ++r) n_valid += valid[r];
-        *loglik = -0.5 * (*nis + 2 * *loglik + n_valid * LOG_2PI);
+    {                                             /* NIS and log N(e; 0, Pyy) over valid outputs */
+        real log_det = 0, n_valid = 0;
+        copy(a_col, e, NY);
+        forward(Sy, a_col, NY, 1);
+        *nis = 0;
+        for (r = 0; r < NY; ++r) {
+            *nis += a_col[r] * a_col[r];
+            log_det += log(Sy[r + r * NY]);
+            n_valid += valid[r];
+        }
+        *loglik = -0.5 * (*nis + 2 * log_det + n_valid * LOG_2PI);
     }
 
 #if ARD

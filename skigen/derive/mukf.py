@@ -50,7 +50,7 @@ import numpy as np
 from ..model import ModelError
 from .common import masked_noise_factor
 from .linalg import cholupdate, tria
-from .ukf import _sqrt_psd, gain_update, merwe_weights
+from .ukf import sqrt_psd, gain_update, merwe_weights
 
 __all__ = ["Partition", "partition", "mukf_weights", "mukf_update", "mukf_predict"]
 
@@ -338,5 +338,5 @@ def mukf_predict(aug, part, opts, z, S, u, mem):
         As.append(Ax)
     z_next = sum((w * m for w, m in zip(Wm, M)), ca.SX.zeros(aug.n))
     AT, dpos, dneg = _conditional_terms(As, _varying(aug, part, aug.f), Wm, Tll)
-    S_next = _factor([m - z_next for m in M], AT, dpos, dneg, ca.SX(_sqrt_psd(aug.Q)), Wc)
+    S_next = _factor([m - z_next for m in M], AT, dpos, dneg, ca.SX(sqrt_psd(aug.Q)), Wc)
     return z_next, S_next

@@ -13,7 +13,7 @@ import numpy as np
 from .common import masked_noise_factor, model_functions
 from .linalg import cholupdate, spd_solve, tria
 
-__all__ = ["merwe_weights", "ukf_update", "ukf_predict", "gain_update"]
+__all__ = ["merwe_weights", "sqrt_psd", "ukf_update", "ukf_predict", "gain_update"]
 
 
 def merwe_weights(n: int, alpha: float, beta: float, kappa: float):
@@ -70,11 +70,11 @@ def ukf_predict(aug, opts, z, S, u, mem):
     Wm, Wc, gamma = merwe_weights(aug.n, opts.alpha, opts.beta, opts.kappa)
     Xf = [F(x, u, mem) for x in sigma_points(z, S, gamma)]
     z_next = sum((w * x for w, x in zip(Wm, Xf)), ca.SX.zeros(aug.n))
-    S_next, _ = _spread_factor(Xf, z_next, Wc, ca.SX(_sqrt_psd(aug.Q)))
+    S_next, _ = _spread_factor(Xf, z_next, Wc, ca.SX(sqrt_psd(aug.Q)))
     return z_next, S_next
 
 
-def _sqrt_psd(Q: np.ndarray) -> np.ndarray:
+def sqrt_psd(Q: np.ndarray) -> np.ndarray:
     """A factor G with G Gᵀ = Q for a positive semi-definite Q (zero columns dropped)."""
     lam, V = np.linalg.eigh(Q)
     keep = lam > 1e-15 * max(lam.max(initial=0), 1e-300)
