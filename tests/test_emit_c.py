@@ -399,6 +399,17 @@ def test_flight_computer_example_matches_ctypes(example, filters, libs, record):
     _close(table[:, 1:], ref["z_post"])
 
 
+def test_flight_computer_example_with_the_looped_kernel(example, filters, tmp_path):
+    """The same example built from `--style loops` sources prints the same table."""
+    _, host, csv = example
+    emit_c(filters["ski"], tmp_path / "gen", "double", style="loops")
+    looped = _make_example(tmp_path / "gen", tmp_path / "build")
+    h, ours = _table(_run([host, csv]))
+    lh, theirs = _table(_run([looped, csv]))
+    assert h == lh
+    _close(theirs, ours)
+
+
 def test_flight_computer_example_under_qemu_aarch64(example, tmp_path):
     _need("aarch64-linux-gnu-gcc", "qemu-aarch64")
     gen, host, csv = example
