@@ -6,6 +6,20 @@ import sys
 import time
 
 
+def shown(stream=sys.stderr) -> bool:
+    """True when progress goes to ``stream``: a terminal, or ``SKIGEN_PROGRESS=1``."""
+    env = os.environ.get("SKIGEN_PROGRESS")
+    tty = getattr(stream, "isatty", None)
+    return env == "1" or (env != "0" and tty is not None and tty())
+
+
+def note(text: str, stream=None) -> None:
+    """One line about slow work ahead, where progress is shown (default: sys.stderr now)."""
+    stream = stream or sys.stderr
+    if shown(stream):
+        print(text, file=stream, flush=True)
+
+
 def progress(iterable, total, label, stream=sys.stderr, min_seconds=1.0):
     """Yield from ``iterable``, showing ``label: 45% (6750/15000) 1.2 s, eta 1.5 s``.
 
@@ -13,9 +27,7 @@ def progress(iterable, total, label, stream=sys.stderr, min_seconds=1.0):
     ``=0`` disables it), only once the work has taken ``min_seconds``, at most
     ~10 times per second, and is finished with a newline at the end.
     """
-    env = os.environ.get("SKIGEN_PROGRESS")
-    tty = getattr(stream, "isatty", None)
-    if not (env == "1" or (env != "0" and tty is not None and tty())):
+    if not shown(stream):
         yield from iterable
         return
 

@@ -14,12 +14,13 @@ import numpy as np
 
 from .derive import DerivedFilter
 from .emit.c import Status
-from .progress import progress
+from .progress import note, progress
 from .recording import Recording, write_table
 
 __all__ = ["RunResult", "FilterDivergedError", "PythonStepper", "run", "check_columns", "Status"]
 
 MAX_REJECTED_IN_A_ROW = 20
+SLOW_DERIVATION_N = 20      # above this augmented-state size, say that the symbolic step takes a while
 
 
 class FilterDivergedError(RuntimeError):
@@ -147,6 +148,9 @@ def run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", real: s
         from .emit.c import load_c
         stepper = load_c(filt, real, cache_dir=cache_dir)
     elif backend == "python":
+        if show_progress and "step" not in filt.__dict__ and aug.n > SLOW_DERIVATION_N:
+            note(f"deriving the {filt.kind} step of '{model.name}' symbolically (n = {aug.n}: this "
+                 f"takes a while; the C backend does not need it)")
         stepper = PythonStepper(filt)
     else:
         raise ValueError(f"unknown backend '{backend}'; choose python or c")

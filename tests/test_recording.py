@@ -148,3 +148,19 @@ def test_progress_quiet_when_fast(monkeypatch):
     out = FakeTTY()
     list(progress(range(5), 5, "quick", stream=out, min_seconds=10))
     assert out.getvalue() == ""
+
+
+def test_slow_symbolic_derivation_is_announced(monkeypatch, capsys):
+    """Above SLOW_DERIVATION_N states the Python backend says it is deriving; only once."""
+    from benchmarks.common import recording
+    from models.wingrock import build
+    from models.wingrock_sim import simulate
+    from skigen import derive, runtime
+
+    monkeypatch.setenv("SKIGEN_PROGRESS", "1")
+    monkeypatch.setattr(runtime, "SLOW_DERIVATION_N", 7)           # WingRock SKI has n = 8
+    filt, rec = derive(build(), "ski"), recording(simulate(seed=0, duration=0.1))
+    runtime.run(filt, rec)
+    assert "deriving the ski step of 'wingrock' symbolically (n = 8" in capsys.readouterr().err
+    runtime.run(filt, rec)
+    assert "deriving" not in capsys.readouterr().err
