@@ -122,11 +122,37 @@ def _scaling_row(m: int, rec, work: Path, largest_unrolled: int) -> dict:
         opt = "-O2" if m <= LARGEST_UNROLLED else "-O1"       # -O2 on millions of lines: hours
         programs["unrolled"] = build_c_bench(filt, rec, "double", work, opt, style="unrolled")
     row.update({f"{k}_ns_per_step": v for k, v in fastest_ns_per_step(programs, rounds=3).items()})
+    row.update({f"{k}_c_bytes": sum(f.stat().st_size for f in exe.parent.glob(f"{default_prefix(filt)}*.[ch]"))
+                for k, exe in programs.items()})
     if m > largest_unrolled:
         row["unrolled_not_built"] = (f"{row['unrolled_operations']} operations; "
                                      f"rerun with --largest-unrolled {m} to compile it")
     row["c_ns_per_step"] = row[f"{row['style']}_ns_per_step"]
     return row
+
+
+def _scaling_figure(path: Path, scaling: list[dict]) -> Path:
+    """ns per step and C source size of both kernel styles against the augmented-state size."""
+    import matplotlib.pyplot as plt
+    from skigen.plots import save_figure
+
+    fig, (time_ax, size_ax) = plt.subplots(1, 2, figsize=(10, 3.8))
+    for style, color in (("unrolled", "tab:orange"), ("loops", "tab:blue")):
+        rows = [r for r in scaling if r.get(f"{style}_ns_per_step")]
+        n = [r["n"] for r in rows]
+        time_ax.loglog(n, [r[f"{style}_ns_per_step"] / 1e3 for r in rows], "o-", color=color, label=style)
+        size_ax.loglog(n, [r[f"{style}_c_bytes"] / 1e3 for r in rows], "o-", color=color, label=style)
+    for ax, label in ((time_ax, "C SKI step, µs (double, -O2)"), (size_ax, "C sources, kB")):
+        ax.set_xticks([r["n"] for r in scaling], [str(r["n"]) for r in scaling])
+        ax.minorticks_off()
+        ax.set_xlabel("augmented state n (= m + 2)")
+        ax.set_ylabel(label)
+        ax.grid(True, which="both", alpha=0.3)
+        ax.legend()
+    unbuilt = [r["n"] for r in scaling if not r.get("unrolled_ns_per_step")]
+    if unbuilt:
+        time_ax.set_title(f"unrolled not built at n = {', '.join(map(str, unbuilt))}", fontsize=9)
+    return save_figure(fig, path)
 
 
 def main(argv=None) -> int:
@@ -153,6 +179,7 @@ def main(argv=None) -> int:
             scaling.append(_scaling_row(m, delay_rec, work, args.largest_unrolled))
             print(f"scaling m = {m} done", file=sys.stderr)
         report["scaling"] = scaling
+    print(f"figure: {_scaling_figure(Path(args.out) / 'speed_scaling.png', scaling)}", file=sys.stderr)
     w = report["wingrock"]
     report["wingrock"]["c_ukf_speedup_over_filterpy"] = 1e3 * w["filterpy_ukf_us_per_step"] / w["c_double_ns_per_step"]["ukf"]
     loops = w["c_double_loops_ns_per_step"]
