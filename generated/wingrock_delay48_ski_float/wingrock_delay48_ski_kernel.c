@@ -286,7 +286,7 @@ static void ard_project(real* s, const real* s_old, real g)
 /* s_new <- ARD_STEPS clipped, projected, backtracked gradient steps on xi = softplus^-1(s). */
 static void ard_optimise(const real* s_old, const real* mu, const real* F, real* s_new, real* work)
 {
-    real *xi = work, *step = xi + NW, *trial = step + NW, *best = trial + NW, *scratch = best + NW;
+    real *xi = work, *step = xi + NW, *trial = step + NW, *scratch = trial + NW;
     real g = gershgorin(F);
     int r, i, j;
     for (r = 0; r < NW; ++r) {
@@ -298,14 +298,16 @@ static void ard_optimise(const real* s_old, const real* mu, const real* F, real*
         ard_grad(xi, s_old, mu, F, step, scratch);
         for (r = 0; r < NW; ++r) step[r] = fminf(fmaxf(ETA * step[r], -MAX_STEP), MAX_STEP);
         loss = ard_loss(s_new, s_old, mu, F, scratch);
-        copy(best, s_new, NW);
-        for (j = 0; j < BACKTRACKS; ++j) scale = scale / 2;
-        for (j = BACKTRACKS; j >= 0; --j, scale = scale * 2) {
+        /* The longest of the steps 2^-j step (j = 0 ... BACKTRACKS) that lowers the loss,
+         * else none: the derivation tries all and keeps that one; here the search stops there. */
+        for (j = 0; j <= BACKTRACKS; ++j, scale = scale / 2) {
             for (r = 0; r < NW; ++r) trial[r] = softplus(xi[r] - scale * step[r]);
             ard_project(trial, s_old, g);
-            if (ard_loss(trial, s_old, mu, F, scratch) < loss) copy(best, trial, NW);
+            if (ard_loss(trial, s_old, mu, F, scratch) < loss) {
+                copy(s_new, trial, NW);
+                break;
+            }
         }
-        copy(s_new, best, NW);
         for (r = 0; r < NW; ++r) xi[r] = softplus_inv(s_new[r]);
     }
 }
