@@ -20,7 +20,7 @@ from .recording import Recording, write_table
 __all__ = ["RunResult", "FilterDivergedError", "PythonStepper", "run", "check_columns", "Status"]
 
 MAX_REJECTED_IN_A_ROW = 20
-SLOW_DERIVATION_N = 20      # above this augmented-state size, say that the symbolic step takes a while
+SLOW_DERIVATION_N = 80      # above this augmented-state size the symbolic step takes seconds: say so
 
 
 class FilterDivergedError(RuntimeError):
