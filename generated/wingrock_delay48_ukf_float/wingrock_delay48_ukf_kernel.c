@@ -142,7 +142,7 @@ static int map_points(int (*fn)(const real**, real**, int*, real*, int), int row
 
 /* mean (rows) <- sum_i Wm_i P[:, i]; A (k x rows) <- [sqrtf(WC1) (P[:, i] - mean), i >= 1]^T
  * followed by `extra` (rows x n_extra)^T; S (rows x rows) <- tria(A) updated with the centre
- * point. P is overwritten with the deviations. */
+ * point. P is overwritten with the deviations, its column 0 then used up by the update. */
 static void spread(real* P, int rows, const real* extra, int n_extra, real* mean, real* A, real* S)
 {
     int i, r, k = 2 * N + n_extra;
