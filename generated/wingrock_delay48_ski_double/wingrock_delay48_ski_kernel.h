@@ -5,7 +5,7 @@
 #define wingrock_delay48_ski_kernel_SZ_ARG 7
 #define wingrock_delay48_ski_kernel_SZ_RES 10
 #define wingrock_delay48_ski_kernel_SZ_IW 0
-#define wingrock_delay48_ski_kernel_SZ_W 17801
+#define wingrock_delay48_ski_kernel_SZ_W 15407
 
 int wingrock_delay48_ski_kernel(const double** arg, double** res, int* iw, double* w, int mem);
 

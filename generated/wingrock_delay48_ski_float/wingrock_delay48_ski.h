@@ -46,7 +46,7 @@ typedef float wingrock_delay48_ski_real;
 #define WINGROCK_DELAY48_SKI_SZ_ARG 7
 #define WINGROCK_DELAY48_SKI_SZ_RES 10
 #define WINGROCK_DELAY48_SKI_SZ_IW 0
-#define WINGROCK_DELAY48_SKI_SZ_W 17801
+#define WINGROCK_DELAY48_SKI_SZ_W 15407
 
 typedef struct {
     wingrock_delay48_ski_real z[50]; /* prior mean for the next sample */
@@ -64,7 +64,7 @@ typedef struct {
     wingrock_delay48_ski_real s_next[48]; /* scratch */
     wingrock_delay48_ski_real mem_next[47]; /* scratch */
     int iw[1]; /* kernel work */
-    wingrock_delay48_ski_real w[17801]; /* kernel work */
+    wingrock_delay48_ski_real w[15407]; /* kernel work */
 } wingrock_delay48_ski_state;
 
 /* Names of the augmented state entries, the inputs and the outputs, in order. */

@@ -5,7 +5,7 @@
 #define wingrock_delay48_ski_kernel_SZ_ARG 7
 #define wingrock_delay48_ski_kernel_SZ_RES 10
 #define wingrock_delay48_ski_kernel_SZ_IW 0
-#define wingrock_delay48_ski_kernel_SZ_W 17801
+#define wingrock_delay48_ski_kernel_SZ_W 15407
 
 int wingrock_delay48_ski_kernel(const float** arg, float** res, int* iw, float* w, int mem);
 

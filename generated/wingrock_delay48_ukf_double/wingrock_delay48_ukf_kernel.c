@@ -312,14 +312,12 @@ static void ard_optimise(const real* s_old, const real* mu, const real* F, real*
     }
 }
 
-/* (z, S) <- the posterior under the prior variances s_new instead of s_old. */
-static void ard_correct(real* z, real* S, const real* s_new, const real* s_old, real* work)
+/* (z, S) <- the posterior under the prior variances s_new instead of s_old; F = S[NX:, :]. */
+static void ard_correct(real* z, real* S, const real* F, const real* s_new, const real* s_old, real* work)
 {
-    real *F = work, *mu = F + NW * N, *D = mu + NW, *Lb = D + NW, *c = Lb + N * N, *B = c + N;
+    real *mu = work, *D = mu + NW, *Lb = D + NW, *c = Lb + N * N, *B = c + N;
     real *x = B + N * N, *Ftx = x + NW, *A = Ftx + N;
     int a, b, r;
-    for (a = 0; a < N; ++a)
-        for (r = 0; r < NW; ++r) F[r + a * NW] = S[NX + r + a * N];
     copy(mu, z + NX, NW);
     ard_pieces(s_new, s_old, mu, F, D, Lb, c, 0, B);
     backward_t(Lb, c, N);
@@ -430,7 +428,7 @@ int wingrock_delay48_ukf_kernel(const real** arg, real** res, int* iw, real* w, 
         for (i = 0; i < N; ++i)
             for (r = 0; r < NW; ++r) F_ww[r + i * NW] = S_post[NX + r + i * N];
         ard_optimise(s, z_post + NX, F_ww, s_next, ard_work);
-        ard_correct(z_post, S_post, s_next, s, ard_work);
+        ard_correct(z_post, S_post, F_ww, s_next, s, ard_work);
     }
 #endif
 

@@ -162,7 +162,7 @@ def _work_layout(n: int, ny: int, nw: int, nq: int, model_w: int) -> tuple[str, 
               [("Xf", n * nsig), ("A", max((2 * n + 2 * ny) * ny, (2 * n + nq) * n))]]
     if nw:   # F_ww, then the larger of ard_optimise's (3 nw + ard_grad's) and ard_correct's scratch
         grad = 2 * nw + 2 * n * n + n + n * nw
-        groups.append([("F_ww", nw * n), ("ard_work", max(3 * nw + grad, n * nw + 3 * nw + 3 * n * n + 2 * n))])
+        groups.append([("F_ww", nw * n), ("ard_work", max(3 * nw + grad, 3 * nw + 3 * n * n + 2 * n))])
     lines, base = [], sum(size for _, size in groups[0])
     for group, start in zip(groups, [0] + [base] * (len(groups) - 1)):
         for name, size in group:
