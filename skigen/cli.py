@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from .derive import FILTERS
+from .emit.c import AUTO_LOOPS_ABOVE_N, LOOPS_KINDS, STYLES
 from .model import Model, ModelError
 from .recording import RecordingError
 
@@ -136,10 +137,10 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("model")
     g.add_argument("--filter", choices=FILTERS, default="ski")
     g.add_argument("--real", choices=["double", "float"], default="double")
-    g.add_argument("--style", choices=["auto", "unrolled", "loops"], default="auto",
+    g.add_argument("--style", choices=STYLES, default="auto",
                    help="kernel: 'unrolled' (flat scalar code, fastest for small models), 'loops' "
-                        "(filter algebra as loops; ukf and ski; small code at any size) or 'auto' "
-                        "(loops above 20 augmented states)")
+                        f"(filter algebra as loops; {', '.join(LOOPS_KINDS)}; small code at any size) or "
+                        f"'auto' (loops above {AUTO_LOOPS_ABOVE_N} augmented states)")
     g.add_argument("--out", required=True, help="output directory")
     g.set_defaults(func=_generate)
     d = sub.add_parser("diagnose", help="find, name and correct what the model misses in a recording")

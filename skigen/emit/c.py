@@ -202,7 +202,7 @@ def _kernel_loops(filt: DerivedFilter, prefix: str, real: str) -> tuple[dict[str
         LR=array(np.linalg.cholesky(aug.R)), QF=array(Qf), work=work)
     kc = string.Template((_HERE / "kernel_loops.c.in").read_text()).substitute(values)
     if real == "float":
-        kc = _LITERAL_RE.sub(r"\1f", _MATH_RE.sub(r"\1f(", kc))
+        kc = _single_precision(kc)
     name, guard = f"{prefix}_kernel", f"{prefix.upper()}_KERNEL_H"
     sizes = dict(arg=len(filt.names_in), res=len(filt.names_out), iw=msz["iw"], w=work_size)
     kh = (f"/* {name}.h: {filt.kind} step of model '{aug.model.name}' ({real}), the filter algebra as "
@@ -223,10 +223,12 @@ def _tidy(c: str, name: str, real: str) -> str:
         params = [p.replace("*", " ").split()[-1] for p in m.group(1).split(",") if p.strip() != "void"]
         return m.group(0) + "".join(f"\n  (void){p};" for p in params if p in ("iw", "w", "mem"))
     c = re.sub(r"^[^\s#/][^;\n]*\b\w+\(([^()]*)\)\s*\{", void_casts, c, flags=re.M)
-    if real == "float":
-        c = _MATH_RE.sub(r"\1f(", c)
-        c = _LITERAL_RE.sub(r"\1f", c)
-    return c
+    return _single_precision(c) if real == "float" else c
+
+
+def _single_precision(c: str) -> str:
+    """Every maths call and floating literal of C text in its float form (sqrtf, 0.5f)."""
+    return _LITERAL_RE.sub(r"\1f", _MATH_RE.sub(r"\1f(", c))
 
 
 def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | None = None,
