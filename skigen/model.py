@@ -20,10 +20,11 @@ import numpy as np
 
 from .library import Term
 
-__all__ = ["Model", "ModelError", "ROLES", "DISCRETIZATIONS"]
+__all__ = ["Model", "ModelError", "Parameter", "ROLES", "DISCRETIZATIONS", "INPUT_HOLDS"]
 
 ROLES = ("position", "velocity", "angle", "rate", "altitude")
 DISCRETIZATIONS = ("rk4", "euler", "discrete")
+INPUT_HOLDS = ("zoh", "foh")     # input held over the sample, or interpolated linearly to the next
 
 
 class ModelError(ValueError):
@@ -49,6 +50,18 @@ class Memory:
     lag: int
 
 
+@dataclass(frozen=True)
+class Parameter:
+    """A constant the user is unsure of: its value, and optionally a prior std and bounds."""
+
+    name: str
+    sym: ca.SX
+    value: float
+    unit: str = ""
+    std: float | None = None
+    bounds: tuple[float, float] = (-np.inf, np.inf)
+
+
 @dataclass
 class UnknownBlock:
     """Weights of basis terms entering the listed state equations."""
@@ -65,17 +78,22 @@ class Model:
 
     dt: sample time (s). discretization: ``"rk4"`` or ``"euler"`` for
     continuous dynamics (dx/dt), ``"discrete"`` when :meth:`dynamics` gives
-    x[k+1] directly. substeps: integration steps per sample.
+    x[k+1] directly. substeps: integration steps per sample. input_hold:
+    ``"zoh"`` holds each input over the sample; ``"foh"`` interpolates it
+    linearly from u[k] to u[k+1] (the filter step then takes both, see
+    :func:`skigen.derive.step_inputs`).
     """
 
     name: str
     dt: float
     discretization: str = "rk4"
     substeps: int = 1
+    input_hold: str = "zoh"
     states: list[Variable] = field(default_factory=list)
     inputs: list[Variable] = field(default_factory=list)
     outputs: list[Variable] = field(default_factory=list)
     memory: list[Memory] = field(default_factory=list)
+    parameters: list[Parameter] = field(default_factory=list)
     unknowns: list[UnknownBlock] = field(default_factory=list)
     x0: list[float] = field(default_factory=list)
     x_std: list[float] = field(default_factory=list)
@@ -92,6 +110,15 @@ class Model:
         if self.discretization not in DISCRETIZATIONS:
             raise ModelError(f"model '{self.name}': discretization must be one of "
                              f"{DISCRETIZATIONS}, got '{self.discretization}'")
+        if self.input_hold not in INPUT_HOLDS:
+            raise ModelError(f"model '{self.name}': input_hold must be one of {INPUT_HOLDS}, "
+                             f"got '{self.input_hold}'")
+        if self.input_hold == "foh" and self.discretization == "discrete":
+            raise ModelError(f"model '{self.name}': input_hold='foh' interpolates inputs within the "
+                             f"sample, which needs continuous dynamics (rk4 or euler), not 'discrete'")
+        if not (isinstance(self.substeps, int) and self.substeps >= 1):
+            raise ModelError(f"model '{self.name}': substeps must be a positive integer, "
+                             f"got {self.substeps!r}")
 
     # ----------------------------------------------------------- declaration
     def _fresh(self, name: str, what: str) -> ca.SX:
@@ -119,6 +146,51 @@ class Model:
         sym = self._fresh(name, "input")
         self.inputs.append(Variable(name, sym, unit))
         return sym
+
+    def parameter(self, name: str, value: float, *, unit: str = "", std: float | None = None,
+                  bounds: tuple[float, float] | None = None) -> ca.SX:
+        """Declare a constant the user is unsure of; returns its symbol, usable in the
+        dynamics, outputs and basis terms. value: its current value (units ``unit``);
+        std: prior standard deviation; bounds: (low, high), either may be ±inf.
+        Filters use the current value unless asked to estimate it
+        (``derive(..., estimate=[name])``); ``skigen fit`` estimates it offline."""
+        value = _finite(value, f"parameter '{name}': value")
+        if std is not None:
+            std = _finite(std, f"parameter '{name}': std")
+            if std <= 0:
+                raise ModelError(f"parameter '{name}': std must be positive, got {std}")
+        lo, hi = (-np.inf, np.inf) if bounds is None else _bounds(bounds, name)
+        if not lo <= value <= hi:
+            raise ModelError(f"parameter '{name}': value {value} is outside its bounds [{lo}, {hi}]")
+        sym = self._fresh(name, "parameter")
+        self.parameters.append(Parameter(name, sym, value, unit, std, (lo, hi)))
+        return sym
+
+    def set_parameters(self, values: dict[str, float], std: dict[str, float] | None = None) -> "Model":
+        """Change parameters' values (and prior std) in place, by name; returns the model."""
+        std = std or {}
+        for key in list(values) + list(std):
+            self.parameter_named(key)
+        for i, p in enumerate(self.parameters):
+            if p.name in values or p.name in std:
+                value = _finite(values.get(p.name, p.value), f"parameter '{p.name}': value")
+                if not p.bounds[0] <= value <= p.bounds[1]:
+                    raise ModelError(f"parameter '{p.name}': value {value} is outside its bounds "
+                                     f"[{p.bounds[0]}, {p.bounds[1]}]")
+                s = std.get(p.name, p.std)
+                if s is not None and not (np.isfinite(s) and s > 0):
+                    raise ModelError(f"parameter '{p.name}': std must be positive and finite, got {s}")
+                self.parameters[i] = Parameter(p.name, p.sym, value, p.unit,
+                                               None if s is None else float(s), p.bounds)
+        return self
+
+    def parameter_named(self, name: str) -> Parameter:
+        """The declared parameter ``name``; ModelError naming the known ones otherwise."""
+        for p in self.parameters:
+            if p.name == name:
+                return p
+        raise ModelError(f"model '{self.name}' has no parameter '{name}' (parameters: "
+                         f"{', '.join(self.parameter_names) or 'none'})")
 
     def output(self, name: str, expr, unit: str = "", *, noise_std: float | None = None):
         """Declare a measured output y = h(x, u) with its noise standard deviation."""
@@ -184,7 +256,11 @@ class Model:
     # ---------------------------------------------------------------- views
     @property
     def names(self) -> list[str]:
-        return self.state_names + self.input_names + [v.name for v in self.outputs]
+        return self.state_names + self.input_names + [v.name for v in self.outputs] + self.parameter_names
+
+    @property
+    def parameter_names(self) -> list[str]:
+        return [p.name for p in self.parameters]
 
     @property
     def state_names(self) -> list[str]:
@@ -232,7 +308,8 @@ class Model:
         missing = [n for n in self.state_names if n not in self.rhs]
         if missing:
             raise ModelError(f"no dynamics for state(s) {', '.join(missing)}")
-        known = set(self.state_names + self.input_names + [_sym_name(m.sym) for m in self.memory])
+        known = set(self.state_names + self.input_names + self.parameter_names
+                    + [_sym_name(m.sym) for m in self.memory])
         for name, expr in self.rhs.items():
             _check_scalar(expr, f"dynamics of '{name}'")
             _check_symbols(expr, known, f"dynamics of '{name}'")
@@ -283,6 +360,26 @@ def _sym_name(s) -> str:
     return s.name()
 
 
+def _finite(value, what: str) -> float:
+    try:
+        value = float(value)
+    except (TypeError, ValueError):
+        raise ModelError(f"{what} must be a number, got {value!r}") from None
+    if not np.isfinite(value):
+        raise ModelError(f"{what} must be finite, got {value}")
+    return value
+
+
+def _bounds(bounds, name: str) -> tuple[float, float]:
+    try:
+        lo, hi = (float(b) for b in bounds)
+    except (TypeError, ValueError):
+        raise ModelError(f"parameter '{name}': bounds must be (low, high), got {bounds!r}") from None
+    if np.isnan(lo) or np.isnan(hi) or not lo < hi:
+        raise ModelError(f"parameter '{name}': bounds must satisfy low < high, got ({lo}, {hi})")
+    return lo, hi
+
+
 def _per_weight(value, count: int, what: str) -> np.ndarray:
     arr = np.broadcast_to(np.asarray(value, float), (count,)) if np.ndim(value) == 0 else np.asarray(value, float)
     if arr.shape != (count,):
@@ -303,7 +400,7 @@ def _check_symbols(expr: ca.SX, known: set[str], what: str):
     for s in ca.symvar(expr):
         if s.name() not in known:
             raise ModelError(f"{what} uses symbol '{s.name()}', which is not a declared state, "
-                             f"input or input history")
+                             f"input, parameter or input history")
 
 
 def _check_covariance(M: np.ndarray, what: str, labels: list[str], definite: bool = True):

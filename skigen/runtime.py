@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .derive import DerivedFilter
+from .derive import DerivedFilter, step_inputs
 from .emit.c import Status
 from .progress import note, progress
 from .recording import Recording, write_table
@@ -159,9 +159,10 @@ def run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", real: s
            dict(mean=(N, n), std=(N, n), e=(N, ny), ev=(N, ny), nis=(N,), ll=(N,),
                 s=(N, len(aug.w_index) if ski else 0)).items()}
     code, rejected = np.zeros(N, dtype=int), 0
+    inputs = step_inputs(model, rec.inputs)
     label = label or f"{model.name} {filt.kind} ({backend})"
     for k in progress(range(N), N, label) if show_progress else range(N):
-        code[k] = c = stepper.step(rec.inputs[k], rec.outputs[k])
+        code[k] = c = stepper.step(inputs[k], rec.outputs[k])
         if c == Status.BAD_INPUT:
             continue
         rejected = rejected + 1 if c == Status.NUMERICAL_FAILURE else 0

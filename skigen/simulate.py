@@ -4,14 +4,15 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from .derive.augment import augment
+from .derive.augment import augment, step_inputs
 from .model import Model
 
 __all__ = ["free_run"]
 
 
 def free_run(model: Model, inputs: np.ndarray, x0=None, weights=None) -> tuple[np.ndarray, np.ndarray]:
-    """Simulate the discrete model from x0 over the input rows (N × nu).
+    """Simulate the discrete model from x0 over the input rows (N × nu), with the
+    model's input hold and its parameters at their values.
 
     weights: values of the unknown-term weights (zeros by default, i.e. the
     nominal model). Returns (states (N × nx), outputs (N × ny)) at the sample
@@ -21,7 +22,7 @@ def free_run(model: Model, inputs: np.ndarray, x0=None, weights=None) -> tuple[n
     nx = len(model.states)
     z0 = np.concatenate([np.asarray(model.x0 if x0 is None else x0, float),
                          np.zeros(len(aug.w_index)) if weights is None else np.asarray(weights, float)])
-    inputs = np.atleast_2d(np.asarray(inputs, float).T).T
+    inputs = step_inputs(model, np.atleast_2d(np.asarray(inputs, float).T).T)
     N = len(inputs)
     state = ca.vertcat(aug.z, aug.mem)
     step = ca.Function("step", [state, aug.u], [ca.vertcat(aug.f, aug.mem_next)])

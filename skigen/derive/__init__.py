@@ -2,7 +2,8 @@
 
 :func:`derive` returns a :class:`DerivedFilter` whose ``step`` is a CasADi
 ``Function`` (SX, dense outputs). One step at sample k takes the prior for k,
-updates with y[k] (h at u[k]), runs ARD for SKI, and predicts to k+1 with u[k]:
+updates with y[k] (h at u[k]), runs ARD for SKI, and predicts to k+1 with u[k]
+(with a first-order hold, u is [u[k]; u[k+1]]: see :func:`step_inputs`):
 
     inputs : z (n), C (n×n), [s (nw), SKI kinds only], u, mem, y, valid (1/0 per output)
     outputs: z_post, C_post, [s_next], z_next, C_next, mem_next, e, Pyy, nis, loglik
@@ -23,7 +24,7 @@ import casadi as ca
 import numpy as np
 
 from ..model import Model
-from .augment import Augmented, augment
+from .augment import Augmented, augment, step_inputs
 from .common import FilterOptions, innovation_stats
 from .ekf import ekf_predict, ekf_update
 from .mukf import Partition, mukf_predict, mukf_update, partition
@@ -31,7 +32,7 @@ from .ski import ard_step
 from .ukf import ukf_predict, ukf_update
 
 __all__ = ["FILTERS", "SKI_KINDS", "MUKF_KINDS", "DerivedFilter", "FilterOptions", "Partition",
-           "augment", "derive", "partition"]
+           "augment", "derive", "partition", "step_inputs"]
 
 FILTERS = ("ekf", "ukf", "ski", "mukf", "ski_mukf")
 SKI_KINDS = ("ski", "ski_mukf")      # steps with the ARD prior variances s as input and output
@@ -80,17 +81,21 @@ class DerivedFilter:
 
 
 def derive(model: Model | Augmented, kind: str, options: FilterOptions | None = None, *,
-           linear=None) -> DerivedFilter:
+           linear=None, estimate=()) -> DerivedFilter:
     """Derive the step Function of filter ``kind`` (one of :data:`FILTERS`).
 
     linear: MUKF kinds only, the names of the states/weights to treat as the
     conditionally linear substate z_l (default: the largest one detected).
+    estimate: names of declared parameters to estimate online, augmented into
+    the state after the weights (the others stay constants at their value).
     """
     if kind not in FILTERS:
         raise ValueError(f"unknown filter '{kind}'; choose one of {', '.join(FILTERS)}")
     if linear is not None and kind not in MUKF_KINDS:
         raise ValueError(f"'linear' chooses the MUKF's linear substate; filter '{kind}' has none")
-    aug = model if isinstance(model, Augmented) else augment(model)
+    if isinstance(model, Augmented) and estimate:
+        raise ValueError("estimate= applies to a Model; this one is already augmented")
+    aug = model if isinstance(model, Augmented) else augment(model, estimate)
     opts = options or FilterOptions()
     d = aug.shapes
     if kind in SKI_KINDS and d["nw"] == 0:

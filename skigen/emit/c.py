@@ -54,6 +54,9 @@ STYLES = ("auto", "unrolled", "loops")
 LOOPS_KINDS = ("ukf", "ski")        # kinds the looped kernel implements
 AUTO_LOOPS_ABOVE_N = 20             # 'auto' loops above this augmented-state size
 _UPDATES = {"z": "z_next", "C": "C_next", "s": "s_next", "mem": "mem_next"}   # committed on success
+_FOH_NOTE = (" * First-order input hold: u holds u_k then u_{k+1} (NU values), and the prediction\n"
+             " * interpolates the input linearly between them. On a vehicle, where u_{k+1} is known\n"
+             " * one sample later, call the step one sample late: step(u_k, u_{k+1}, y_k) at time k+1.\n")
 _LOCALS = {"u": "u", "y": "yv", "valid": "valid"}                          # step inputs not in the state
 
 
@@ -285,7 +288,9 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
         SZ_ARG=max(sz["arg"], 1), SZ_RES=max(sz["res"], 1), SZ_IW=sz["iw"], SZ_W=sz["w"],
         fields="\n".join(struct), wiring="\n".join(wiring), finite="\n".join(finite), commit="\n".join(commit),
         initial="\n".join(consts), init="\n".join(init), sqrt="sqrtf" if real == "float" else "sqrt",
-        state_names=_c_strings(filt.aug.names), input_names=_c_strings(v.name for v in model.inputs),
+        state_names=_c_strings(filt.aug.names), input_names=_c_strings(filt.aug.u_names),
+        hold_note=_FOH_NOTE if model.input_hold == "foh" else "",
+        nu_note=" per step: u_k, then u_{k+1} (first-order hold)" if model.input_hold == "foh" else "",
         output_names=_c_strings(v.name for v in model.outputs))
     texts = {f"{prefix}.h": string.Template((_HERE / "filter.h.in").read_text()).substitute(values),
              f"{prefix}.c": string.Template((_HERE / "filter.c.in").read_text()).substitute(values),
