@@ -60,16 +60,17 @@ class Augmented:
                     nu=self.u.shape[0], ny=self.h.shape[0], nmem=self.mem.shape[0])
 
 
-def augment(model: Model, estimate=()) -> Augmented:
+def augment(model: Model, estimate=(), *, online: bool = True) -> Augmented:
     """Build the augmented model once, after validating the declaration.
 
     estimate: names of declared parameters to augment into the state (after
-    the weights), as random constants with their prior std.
+    the weights), as random constants with their prior std (which ``online``
+    filtering needs; an offline fit uses the symbols only).
     """
     model.check()
     estimated = [model.parameter_named(name) for name in dict.fromkeys(estimate)]
     for p in estimated:
-        if p.std is None:
+        if online and p.std is None:
             raise ModelError(f"parameter '{p.name}' is estimated online but declares no std: "
                              f"give model.parameter('{p.name}', ..., std=...) its prior")
     x = ca.vertcat(*[v.sym for v in model.states])
@@ -108,7 +109,8 @@ def augment(model: Model, estimate=()) -> Augmented:
                      np.zeros((len(estimated), len(estimated)))),
         R=model.measurement_noise(),
         z0=np.concatenate([model.x0, np.zeros(nw), [p.value for p in estimated]]),
-        P0=block_diag(model.initial_covariance(), np.diag(s0), np.diag([p.std ** 2 for p in estimated])),
+        P0=block_diag(model.initial_covariance(), np.diag(s0),
+                      np.diag([(p.std or 0.0) ** 2 for p in estimated])),
         s0=s0, w_index=np.arange(nx, nx + nw),
         names=model.state_names + [name for name, *_ in weights] + [p.name for p in estimated],
         p_index=np.arange(nx + nw, nx + nw + len(estimated)))

@@ -6,7 +6,7 @@ from dataclasses import dataclass, asdict
 import casadi as ca
 import numpy as np
 
-from .linalg import forward
+from .linalg import chol, forward
 
 __all__ = ["FilterOptions", "masked_noise_factor", "innovation_stats", "model_functions"]
 
@@ -44,8 +44,9 @@ def masked_noise_factor(R: np.ndarray, valid: ca.SX) -> ca.SX:
     Invalid (missing) outputs become decoupled unit-variance rows whose
     innovation is forced to zero, so one branch-free update serves every
     pattern of missing outputs and equals the update on the valid subset.
+    R may be numeric or an SX expression (a fitted noise scale).
     """
-    Lr = ca.SX(np.linalg.cholesky(R))
+    Lr = chol(R) if isinstance(R, ca.SX) else ca.SX(np.linalg.cholesky(R))
     return ca.horzcat(ca.diag(valid) @ Lr, ca.diag(1 - valid))
 
 

@@ -1,0 +1,359 @@
+"""Grey-box fitting: a model's declared parameters, unknown-term weights, initial
+states and (filter error) noise intensities from one or several recordings.
+
+    result = fit(model, [recording, ...], method="output-error")
+    result.parameters["k"]  # {"value", "std", "initial", "bounds"}
+    result.model            # a copy of the model at the fitted values, std as prior
+
+See :mod:`skigen.fit.problem` for the likelihood and :mod:`skigen.fit.uncertainty`
+for the error bars.
+"""
+from __future__ import annotations
+
+import copy
+import time
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+from ..model import Model, ModelError
+from ..progress import note
+from ..recording import Recording
+from .problem import METHODS, Problem, build_problem, data_matrix
+from .uncertainty import covariance, unidentified
+
+__all__ = ["FitError", "FitResult", "fit", "METHODS"]
+
+_IPOPT_WORDS = {
+    "Solve_Succeeded": "converged",
+    "Solved_To_Acceptable_Level": "converged to the acceptable tolerance",
+    "Maximum_Iterations_Exceeded": "stopped at the iteration limit before converging (raise max_iter, "
+                                   "or start nearer: are the declared values of the right order?)",
+    "Maximum_CpuTime_Exceeded": "ran out of time before converging",
+    "Infeasible_Problem_Detected": "found the constraints infeasible (multiple shooting could not be "
+                                   "made continuous: try longer shooting intervals)",
+    "Restoration_Failed": "could not make progress (restoration failed): the likelihood may be flat "
+                          "or not smooth near the start; check units and initial values",
+    "Error_In_Step_Computation": "failed to compute a step (the problem is numerically singular)",
+    "Invalid_Number_Detected": "met a non-finite value (the simulation diverges for some trial "
+                               "parameters: add bounds, or use shorter shooting intervals)",
+    "Diverging_Iterates": "diverged (a parameter grew without bound: is it identifiable? add bounds)",
+}
+
+
+class FitError(ValueError):
+    """A fit that cannot be done or did not succeed; the message says why and names the culprit."""
+
+
+@dataclass
+class FitResult:
+    """What :func:`fit` found. Values in the model's units; std from the covariance."""
+
+    method: str
+    model: Model                              # the fitted model (parameters at their values, std as prior)
+    parameters: dict                          # name → {value, std, initial, bounds}
+    weights: dict                             # name → {value, std}
+    initial_states: list[dict]                # per recording: state name → {value, std}
+    noise: dict                               # method-dependent: residual std, or Q/R scales
+    correlation: dict                         # {"names": [...], "matrix": [[...]]}
+    recordings: list[dict]                    # per recording: file, rmse per output, loglik, samples
+    converged: bool
+    status: str
+    iterations: int
+    seconds: float
+    objective: float
+    covariance_note: str
+    predictions: list[np.ndarray] = field(repr=False, default_factory=list)   # (N, ny) per recording
+
+    def asdict(self) -> dict:
+        """The fit.json contract."""
+        return {k: getattr(self, k) for k in ("method", "parameters", "weights", "initial_states", "noise",
+                                              "correlation", "recordings", "converged", "status",
+                                              "iterations", "seconds", "objective", "covariance_note")}
+
+
+_CACHE: dict = {}
+
+
+def _problem(model, lengths, method, estimate, shooting, max_iter) -> Problem:
+    key = (id(model), tuple(lengths), method, tuple(estimate), shooting, max_iter,
+           tuple((p.name, p.value, p.std, p.bounds) for p in model.parameters), tuple(model.x0),
+           tuple(model.x_std))
+    if key not in _CACHE:
+        if len(_CACHE) > 16:
+            _CACHE.clear()
+        prob = build_problem(model, lengths, method, estimate, shooting)
+        prob.progress = _Progress(prob.nlp["x"].shape[0], prob.nlp["g"].shape[0])
+        solver = ca.nlpsol("fit", "ipopt", {k: prob.nlp[k] for k in ("x", "p", "f", "g")},
+                           {"hess_lag": prob.nlp["hess"], "print_time": False,
+                            "iteration_callback": prob.progress,
+                            "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.tol": 1e-9,
+                            "ipopt.max_iter": max_iter, "ipopt.mu_strategy": "adaptive"})
+        jac_g = ca.Function("jac_g", [prob.nlp["x"], prob.nlp["p"]], [ca.jacobian(prob.nlp["g"], prob.nlp["x"])])
+        _CACHE[key] = (prob, solver, jac_g, model)      # keep the model alive: its id is in the key
+    return _CACHE[key][:3]
+
+
+def _check_estimate(model: Model, estimate) -> list[str]:
+    known = model.parameter_names + model.weight_names
+    names = known if estimate is None else list(dict.fromkeys(estimate))
+    for n in names:
+        if n not in known:
+            raise ModelError(f"cannot estimate '{n}': model '{model.name}' has no parameter or weight of "
+                             f"that name (parameters: {', '.join(model.parameter_names) or 'none'}; "
+                             f"weights: {', '.join(model.weight_names) or 'none'})")
+    return names
+
+
+def _check_recording(model: Model, rec: Recording):
+    from ..runtime import check_columns
+    check_columns(model, rec)
+    if not np.isfinite(rec.inputs).all():
+        i = int(np.argwhere(~np.isfinite(rec.inputs))[0, 0])
+        raise FitError(f"{rec.path}: input missing at t = {rec.t[i]:g} s; a fit needs every input")
+    if not np.isfinite(rec.outputs).any():
+        raise FitError(f"{rec.path}: no output is measured")
+
+
+def _first_bad(values: np.ndarray, lengths: list[int], recs) -> str | None:
+    bad = ~np.all(np.isfinite(values), axis=0)
+    if not bad.any():
+        return None
+    k = int(np.argmax(bad))
+    for r, n in enumerate(lengths):
+        if k < n:
+            return f"{recs[r].path} at t = {recs[r].t[k]:g} s (sample {k})"
+        k -= n
+    return "an unknown sample"
+
+
+class _Progress(ca.Callback):
+    """IPOPT's iterations as a line each, where progress is shown."""
+
+    def __init__(self, nx: int, ng: int):
+        ca.Callback.__init__(self)
+        self.nx, self.ng, self.label, self.iteration, self.t0 = nx, ng, "fit", 0, time.perf_counter()
+        self.construct("fit_progress", {})
+
+    def start(self, label: str):
+        self.label, self.iteration, self.t0 = label, 0, time.perf_counter()
+
+    def get_n_in(self):
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self):
+        return 1
+
+    def get_name_in(self, i):
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i):
+        return "ret"
+
+    def get_sparsity_in(self, i):
+        n = ca.nlpsol_out(i)
+        if n == "f":
+            return ca.Sparsity.scalar()
+        if n in ("x", "lam_x"):
+            return ca.Sparsity.dense(self.nx)
+        if n in ("g", "lam_g"):
+            return ca.Sparsity.dense(self.ng)
+        return ca.Sparsity(0, 0)
+
+    def eval(self, arg):
+        if self.label:
+                note(f"{self.label}: iteration {self.iteration}, -log L {float(arg[1]):.7g} "
+                 f"({time.perf_counter() - self.t0:.1f} s)")
+        self.iteration += 1
+        return [0]
+
+
+def fit(model: Model, recordings, *, method: str = "output-error", estimate=None,
+        shooting: int | None = None, max_iter: int = 200, show_progress: bool = True) -> FitResult:
+    """Fit ``model`` to ``recordings`` (Recording objects) by ``method``.
+
+    estimate: names of parameters and weights to estimate (default: all of
+    them); the rest stay at their declared values (weights at 0). shooting:
+    output error only, samples per shooting interval (default: one simulation
+    per recording; give a few hundred samples when a free run diverges).
+    """
+    t0 = time.perf_counter()
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {', '.join(METHODS)}, got '{method}'")
+    model.check()
+    recs = list(recordings)
+    if not recs:
+        raise FitError("no recording to fit")
+    for rec in recs:
+        _check_recording(model, rec)
+    estimate = _check_estimate(model, estimate)
+    if shooting is not None and (method != "output-error" or int(shooting) < 2):
+        raise ValueError("shooting applies to output error and needs at least 2 samples per interval")
+    lengths = [len(r.t) for r in recs]
+    prob, solver, jac_g = _problem(model, lengths, method, estimate, shooting, max_iter)
+    V = prob.variables
+    data = np.concatenate([np.ravel(data_matrix(model, r), order="F") for r in recs])
+    theta0 = np.array(prob.solver_inputs["x0"], float)
+    if method == "output-error" and shooting:
+        theta0 = _node_guess(model, prob, recs, theta0)
+    scale = _scales(prob, theta0, data)
+    p = np.r_[scale, data]
+    rho0, _ = (np.asarray(v) for v in prob.residuals(theta0 / scale, p))
+    where = _first_bad(rho0, lengths, recs)
+    if where:
+        hint = ("; use shorter shooting intervals" if shooting else
+                "; give a shooting interval (shooting=... samples, --shooting) to fit it by multiple shooting")
+        raise FitError(f"the simulation of '{model.name}' at the initial values diverges in {where}{hint}")
+    J0, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(theta0 / scale, p))
+    lost = unidentified(J0, prior.ravel(), V.names, _dense(jac_g(theta0 / scale, p)))
+    if lost:
+        raise FitError(f"the recordings cannot identify every quantity of '{model.name}': " + "; ".join(lost)
+                       + ". Fix these (estimate=...), give them a prior std, or record richer excitation")
+    inputs = dict(prob.solver_inputs, x0=theta0 / scale, lbx=prob.solver_inputs["lbx"] / scale,
+                  ubx=prob.solver_inputs["ubx"] / scale, p=p)
+    if show_progress:
+        note(f"fitting '{model.name}' by {method}: {len(V)} unknowns, {sum(lengths)} samples")
+    prob.progress.start(f"fit {model.name}" if show_progress else None)
+    sol = solver(**inputs)
+    stats = solver.stats()
+    status = stats["return_status"]
+    if status not in ("Solve_Succeeded", "Solved_To_Acceptable_Level"):
+        raise FitError(f"IPOPT {_IPOPT_WORDS.get(status, status)} (status {status}, "
+                       f"{stats['iter_count']} iterations)")
+    xi = np.asarray(sol["x"]).ravel()
+    rho, nll = (np.asarray(v) for v in prob.residuals(xi, p))
+    J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(xi, p))
+    G = _dense(jac_g(xi, p))
+    robust = method == "output-error"
+    C, info = covariance(J, rho, prob.n_rho, lengths, prior.ravel(), G, robust=robust)
+    value = xi * scale
+    std = np.sqrt(np.clip(np.diag(C), 0, None)) * scale
+    C = C * np.outer(scale, scale)
+    fitted_at = [i for i, k in enumerate(V.kinds) if k in ("parameter", "weight")
+                 and V.names[i] in estimate]
+    Y = np.asarray(prob.predict(xi, p)).T
+    return _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_at, rho,
+                   nll, Y, stats, status, time.perf_counter() - t0, float(sol["f"]), info, robust)
+
+
+def _scales(prob: Problem, theta0: np.ndarray, data: np.ndarray) -> np.ndarray:
+    """IPOPT's unit of each unknown: its magnitude, or where it starts at 0, one standard
+    error as the Fisher information at the start sees it."""
+    V = prob.variables
+    nominal = np.array(V.scale)
+    J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(theta0 / nominal, np.r_[nominal, data]))
+    info = np.sum(J * J, axis=0) + prior.ravel()
+    scale = nominal.copy()
+    for i, kind in enumerate(V.kinds):
+        if kind in ("parameter", "weight") and theta0[i] == 0 and info[i] > 0:
+            scale[i] = nominal[i] / np.sqrt(info[i])
+    return scale
+
+
+
+
+def _dense(M) -> np.ndarray:
+    return np.asarray(ca.DM(M).full()) if M is not None else None
+
+
+def _node_guess(model, prob, recs, x0):
+    """Multiple shooting: start each node from a free run at the declared values, where it stays finite."""
+    from ..simulate import free_run
+    V, out = prob.variables, x0.copy()
+    runs = [free_run(model, rec.inputs)[0] for rec in recs]
+    M = prob.shooting
+    for i, name in enumerate(V.names):
+        if V.kinds[i] == "initial":
+            state, rest = name.split("@")
+            r, j = (int(v) for v in (rest.split("#") + ["0"])[:2])
+            value = runs[r][j * M, model.state_names.index(state)]
+            if np.isfinite(value) and abs(value) < 1e6 * V.scale[i]:
+                out[i] = value
+    return out
+
+
+def _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_at, rho, nll, Y,
+            stats, status, seconds, objective, info, robust) -> FitResult:
+    V = prob.variables
+    ny = len(model.output_names)
+    fitted = copy.copy(model)
+    fitted.parameters = list(model.parameters)
+    params, weights = {}, {}
+    for i, name in enumerate(V.names):
+        if V.kinds[i] == "parameter" and name in estimate:
+            p = model.parameter_named(name)
+            params[name] = dict(value=float(value[i]), std=float(std[i]), initial=p.value,
+                                bounds=[_num(b) for b in p.bounds], unit=p.unit)
+        elif V.kinds[i] == "weight" and name in estimate:
+            weights[name] = dict(value=float(value[i]), std=float(std[i]))
+    if params:
+        fitted.set_parameters({n: v["value"] for n, v in params.items()},
+                              std={n: v["std"] for n, v in params.items() if v["std"] > 0})
+    init = [dict() for _ in recs]
+    for i, name in enumerate(V.names):
+        if V.kinds[i] == "initial":
+            state, rest = name.split("@")
+            r = int(rest.split("#")[0])
+            if "#" not in rest or rest.endswith("#0"):
+                init[r][state] = dict(value=float(value[i]), std=float(std[i]))
+    noise = _noise(model, V, value, std, rho, Y, recs, method)
+    if noise.get("Q") is not None:
+        fitted.covariances(Q=noise.pop("Q"), R=noise.pop("R"), P0=model.initial_covariance())
+    else:
+        noise.pop("Q", None), noise.pop("R", None)
+    corr_idx = fitted_at + [i for i, k in enumerate(V.kinds) if k == "noise"]
+    sub = C[np.ix_(corr_idx, corr_idx)]
+    d = np.sqrt(np.clip(np.diag(sub), 1e-300, None))
+    reports, start, predictions = [], 0, []
+    for r, (rec, n) in enumerate(zip(recs, lengths)):
+        e = rec.outputs - Y[start:start + n]
+        predictions.append(Y[start:start + n])
+        reports.append(dict(file=str(rec.path), samples=int(n),
+                            rmse={o: float(np.sqrt(np.nanmean(e[:, j] ** 2))) for j, o in enumerate(model.output_names)},
+                            loglik=float(-np.sum(nll[:, start:start + n]))))
+        start += n
+    note_text = ("sandwich covariance: inverse Fisher information around the Newey-West long-run covariance "
+                 f"of the per-sample scores (Bartlett kernel, Andrews bandwidth {', '.join(f'{b:.0f}' for b in info['bandwidth'])} samples)"
+                 if robust else "inverse Fisher information of the innovations' likelihood")
+    return FitResult(method, fitted, params, weights, init, noise,
+                     dict(names=[V.names[i] for i in corr_idx], matrix=(sub / np.outer(d, d)).tolist()),
+                     reports, True, status, int(stats["iter_count"]), seconds, objective, note_text, predictions)
+
+
+def _num(x: float):
+    return None if not np.isfinite(x) else float(x)
+
+
+def _noise(model, V, value, std, rho, Y, recs, method) -> dict:
+    """Output error: the residual std per output against the declared one; filter error: the fitted
+    Q and R scales (value ± std of the scale, not of its log) and the fitted Q and R."""
+    out = {}
+    declared = np.sqrt(np.diag(model.measurement_noise()))
+    if method == "output-error":
+        res = np.concatenate([rec.outputs for rec in recs]) - Y
+        out["residual_std"] = {o: float(np.sqrt(np.nanmean(res[:, j] ** 2))) for j, o in enumerate(model.output_names)}
+        out["declared_std"] = {o: float(declared[j]) for j, o in enumerate(model.output_names)}
+        return out
+    q = np.ones(len(model.states))
+    r = np.ones(len(model.output_names))
+    scales = {}
+    for i, name in enumerate(V.names):
+        if V.kinds[i] != "noise":
+            continue
+        s = float(np.exp(value[i]))
+        scales[name] = dict(value=s, std=float(s * std[i]))
+        target = name.split("_", 2)[2]
+        if name.startswith("Q_"):
+            q[model.state_names.index(target)] = s
+        else:
+            r[model.output_names.index(target)] = s
+    Dq, Dr = np.diag(np.sqrt(q)), np.diag(np.sqrt(r))
+    Q, R = Dq @ model.process_noise() @ Dq, Dr @ model.measurement_noise() @ Dr
+    out["scales"] = scales
+    out["declared"] = dict(process_std=dict(zip(model.state_names, np.sqrt(np.diag(model.process_noise())).tolist())),
+                           measurement_std=dict(zip(model.output_names, declared.tolist())))
+    out["calibrated"] = dict(process_std=dict(zip(model.state_names, np.sqrt(np.diag(Q)).tolist())),
+                             measurement_std=dict(zip(model.output_names, np.sqrt(np.diag(R)).tolist())))
+    out["Q"], out["R"] = Q, R
+    return out

@@ -1,0 +1,270 @@
+"""The likelihood of a model's free quantities given recordings, as one CasADi NLP.
+
+The free quantities θ are the estimated parameters and unknown-term weights
+(shared by every recording), the initial state of each recording (output
+error: at every shooting node) and the log noise scales (filter error: one per
+state equation with process noise, one per output). IPOPT works on scaled
+variables ξ = θ / scale, the scale being part of the NLP's parameter (see
+:func:`skigen.fit.fit` for how it is chosen), so parameters of very different
+sizes are equally conditioned.
+
+Both methods are a Gaussian likelihood of per-sample residuals e_k with
+covariance S_k, −log L = ½ Σ (e_kᵀ S_k⁻¹ e_k + log det 2π S_k):
+
+- output error: e_k = y_k − h(x_k) of the free-run simulation, S = R as
+  declared (multiple shooting: one simulation per interval, continuity as
+  equality constraints);
+- filter error: e_k is the EKF innovation and S_k its covariance, with Q
+  and R scaled per equation and per output.
+
+A declared parameter std adds its prior ½ ((p − value)/std)². IPOPT gets the
+Fisher-scoring (Gauss-Newton) Hessian J_ρᵀ J_ρ of whitened pseudo-residuals
+ρ_k = [L̄⁻¹ e_k; vec(L̄⁻¹ S_k L̄⁻ᵀ)/√2] (L̄ the Cholesky factor of S_k, held
+constant): positive semi-definite, exact in expectation, and a few forward
+sweeps per iteration instead of a second-order sweep over the recording.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from types import SimpleNamespace
+
+import casadi as ca
+import numpy as np
+
+from ..derive.augment import augment, step_inputs
+from ..derive.common import innovation_stats, masked_noise_factor
+from ..derive.ekf import ekf_predict, ekf_update
+from ..derive.linalg import chol, forward
+from ..model import Model
+
+__all__ = ["METHODS", "Variables", "Problem", "build_problem", "data_matrix"]
+
+METHODS = ("output-error", "filter-error")
+LOG_SCALE_BOUND = 25.0      # noise scales stay within e^±25 of the declared variances
+
+
+@dataclass
+class Variables:
+    """The free quantities in IPOPT's order: name, kind, scale, bounds (unscaled) and initial value."""
+
+    names: list[str] = field(default_factory=list)
+    kinds: list[str] = field(default_factory=list)     # parameter, weight, initial, noise
+    scale: list[float] = field(default_factory=list)
+    lower: list[float] = field(default_factory=list)
+    upper: list[float] = field(default_factory=list)
+    initial: list[float] = field(default_factory=list)
+    prior_std: list[float | None] = field(default_factory=list)
+    recording: list[int | None] = field(default_factory=list)
+
+    def add(self, name, kind, scale, initial, lower=-np.inf, upper=np.inf, prior_std=None, recording=None):
+        self.names.append(name)
+        self.kinds.append(kind)
+        self.scale.append(float(scale))
+        self.initial.append(float(initial))
+        self.lower.append(float(lower))
+        self.upper.append(float(upper))
+        self.prior_std.append(prior_std)
+        self.recording.append(recording)
+
+    def __len__(self) -> int:
+        return len(self.names)
+
+    def index(self, kind: str) -> np.ndarray:
+        return np.array([i for i, k in enumerate(self.kinds) if k == kind], dtype=int)
+
+
+@dataclass
+class Problem:
+    """The NLP and the functions the fit needs around it."""
+
+    method: str
+    variables: Variables
+    solver_inputs: dict            # lbx, ubx, lbg, ubg, x0 (unscaled)
+    nlp: dict                      # x (scaled), p = [scale; data], f, g (MX)
+    residuals: ca.Function         # (ξ, data) → ρ (pseudo-residuals, one column per sample), nll per sample
+    fisher: ca.Function            # (ξ, data) → J_ρ (rows: samples × residuals), prior precision
+    predict: ca.Function           # (ξ, data) → predicted outputs, one column per sample
+    lengths: list[int]             # samples per recording
+    n_rho: int                     # pseudo-residuals per sample
+    shooting: int                  # samples per shooting interval (output error)
+    progress: object = None        # the solver's iteration callback
+
+
+def _scale_of(value: float, std: float | None) -> float:
+    return abs(value) if value != 0 else (std or 1.0)
+
+
+def _plant(model: Model, estimate: list[str]):
+    """x, θ = [weights; estimated parameters], the step's data symbols and f_x, h as SX."""
+    aug = augment(model, [n for n in estimate if n in model.parameter_names], online=False)
+    nx = len(model.states)
+    x, theta = aug.z[:nx], aug.z[nx:]
+    return aug, x, theta
+
+
+def data_matrix(model: Model, rec) -> np.ndarray:
+    """One column per sample: [step inputs; input history; y (0 where missing); valid (1/0)]."""
+    aug = augment(model, online=False)
+    U = step_inputs(model, rec.inputs)
+    N = len(U)
+    mem = np.zeros((N, aug.mem.shape[0]))
+    if aug.mem.shape[0]:
+        shift = ca.Function("shift", [aug.u, aug.mem], [aug.mem_next])
+        for k in range(1, N):
+            mem[k] = np.asarray(shift(U[k - 1], mem[k - 1])).ravel()
+    Y = np.asarray(rec.outputs, float)
+    valid = np.isfinite(Y)
+    return np.hstack([U, mem, np.where(valid, Y, 0.0), valid.astype(float)]).T
+
+
+def _split_data(aug, d):
+    nu, nmem, ny = aug.u.shape[0], aug.mem.shape[0], aug.h.shape[0]
+    return d[:nu], d[nu:nu + nmem], d[nu + nmem:nu + nmem + ny], d[nu + nmem + ny:]
+
+
+def _output_error_step(aug, x, theta):
+    """(x, d, θ) → (x_next, ρ, nll, ŷ): one sample of the free-run simulation."""
+    d = ca.SX.sym("d", aug.u.shape[0] + aug.mem.shape[0] + 2 * aug.h.shape[0])
+    u, mem, y, valid = _split_data(aug, d)
+    sub = lambda e: ca.substitute(e, ca.vertcat(aug.u, aug.mem), ca.vertcat(u, mem))
+    y_hat = sub(aug.h)
+    e = valid * (y - y_hat)
+    Rf = masked_noise_factor(aug.R, valid)
+    Lr = chol(Rf @ Rf.T)
+    _, loglik = innovation_stats(Lr, e, valid)
+    return ca.Function("oe_step", [x, d, theta], [sub(aug.f[:x.shape[0]]), forward(Lr, e), -loglik, y_hat])
+
+
+def _filter_error_step(model, aug, x, theta, lam_q, lam_r, q_rows):
+    """(s = [x; vec P], d, θ, λ) → (s_next, e, vec S, nll, ŷ): one EKF sample with scaled noise."""
+    nx, ny = x.shape[0], aug.h.shape[0]
+    d = ca.SX.sym("d", aug.u.shape[0] + aug.mem.shape[0] + 2 * ny)
+    u, mem, y, valid = _split_data(aug, d)
+    Dq = np.ones(nx, dtype=object)
+    for j, row in enumerate(q_rows):
+        Dq[row] = ca.exp(lam_q[j] / 2)
+    Dq = ca.diag(ca.vertcat(*[ca.SX(v) for v in Dq]))
+    Dr = ca.diag(ca.exp(lam_r / 2))
+    Q0, R0 = model.process_noise(), model.measurement_noise()
+    ext = ca.vertcat(aug.u, theta)
+    plant = SimpleNamespace(z=x, u=ext, mem=aug.mem, f=aug.f[:nx], h=aug.h, n=nx,
+                            Q=Dq @ ca.SX(Q0) @ Dq, R=Dr @ ca.SX(R0) @ Dr)
+    P = ca.SX.sym("P", nx, nx)
+    uth = ca.vertcat(u, theta)
+    x_post, P_post, e, Pyy, Ly = ekf_update(plant, x, P, uth, mem, y, valid)
+    x_next, P_next = ekf_predict(plant, x_post, P_post, uth, mem)
+    _, loglik = innovation_stats(Ly, e, valid)
+    y_hat = ca.substitute(aug.h, ca.vertcat(aug.u, aug.mem, x), ca.vertcat(u, mem, x))
+    s = ca.vertcat(x, ca.vec(P))
+    return ca.Function("fe_step", [s, d, theta, ca.vertcat(lam_q, lam_r)],
+                       [ca.vertcat(x_next, ca.vec(P_next)), e, ca.vec(Pyy), -loglik, y_hat])
+
+
+def _pseudo_residuals(ny: int) -> ca.Function:
+    """(e, vec S, vec L̄) → [L̄⁻¹ e; vec(L̄⁻¹ S L̄⁻ᵀ)/√2]: their Gram matrix is the Fisher information."""
+    e, S, L = ca.SX.sym("e", ny), ca.SX.sym("S", ny * ny), ca.SX.sym("L", ny * ny)
+    Lm, Sm = ca.reshape(L, ny, ny), ca.reshape(S, ny, ny)
+    W = forward(Lm, forward(Lm, Sm).T)
+    return ca.Function("rho", [e, S, L], [ca.vertcat(forward(Lm, e), ca.vec(W) / np.sqrt(2))])
+
+
+def build_problem(model: Model, lengths: list[int], method: str, estimate: list[str],
+                  shooting: int | None = None) -> Problem:
+    """The NLP for recordings of the given lengths (their data enter as the NLP's parameter)."""
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {', '.join(METHODS)}, got '{method}'")
+    aug, x, theta = _plant(model, estimate)
+    nx, ny = x.shape[0], aug.h.shape[0]
+    nd = aug.u.shape[0] + aug.mem.shape[0] + 2 * ny
+    theta_names = aug.names[nx:]
+    V = Variables()
+    weight_var = dict(zip(model.weight_names, model.prior_variances()))
+    for name in theta_names:
+        if name in weight_var:
+            V.add(name, "weight", np.sqrt(weight_var[name]), 0.0)
+        else:
+            p = model.parameter_named(name)
+            V.add(name, "parameter", _scale_of(p.value, p.std), p.value, *p.bounds, prior_std=p.std)
+    free = [name in estimate for name in theta_names]
+    fixed_weights = [i for i, n in enumerate(theta_names) if not free[i]]   # weights not estimated stay 0
+    n_theta = len(theta_names)
+
+    xi = ca.MX.sym("xi", 0)
+    data = [ca.MX.sym(f"data{r}", nd, n) for r, n in enumerate(lengths)]
+    parts, g = [], []
+    rho_all, nll_all, yhat_all = [], [], []
+    if method == "output-error":
+        step = _output_error_step(aug, x, theta)
+        M = shooting or max(lengths)
+        for r, n in enumerate(lengths):
+            K = int(np.ceil(n / M))
+            for j in range(K):
+                for i, v in enumerate(model.states):
+                    V.add(f"{v.name}@{r}" + (f"#{j}" if K > 1 else ""), "initial",
+                          model.x_std[i] or 1.0, model.x0[i], recording=r)
+        xi, sc = ca.MX.sym("xi", len(V)), ca.MX.sym("scale", len(V))
+        th = xi[:n_theta] * sc[:n_theta]
+        offset = n_theta
+        for r, n in enumerate(lengths):
+            K = int(np.ceil(n / M))
+            X0 = ca.reshape(xi[offset:offset + K * nx] * sc[offset:offset + K * nx], nx, K)
+            offset += K * nx
+            D = ca.horzcat(data[r], ca.repmat(ca.vertcat(data[r][:-2 * ny, -1], ca.DM.zeros(2 * ny)),
+                                               1, K * M - n)) if K * M > n else data[r]
+            sim = step.mapaccum("sim", M, [0], [0]).map(K, "thread", 2)
+            X_end, rho, nll, y_hat = sim(X0, D, th)
+            g += [X0[:, 1:] - X_end[:, :-1]] if K > 1 else []
+            rho_all.append(rho[:, :n])
+            nll_all.append(nll[:, :n])
+            yhat_all.append(y_hat[:, :n])
+        n_rho = ny
+    else:
+        q_rows = [i for i in range(nx) if model.process_noise()[i, i] > 0]
+        for i in q_rows:
+            V.add(f"Q_scale_{model.state_names[i]}", "noise", 1.0, 0.0, -LOG_SCALE_BOUND, LOG_SCALE_BOUND)
+        for name in model.output_names:
+            V.add(f"R_scale_{name}", "noise", 1.0, 0.0, -LOG_SCALE_BOUND, LOG_SCALE_BOUND)
+        lam_q, lam_r = ca.SX.sym("lam_q", len(q_rows)), ca.SX.sym("lam_r", ny)
+        step = _filter_error_step(model, aug, x, theta, lam_q, lam_r, q_rows)
+        xi, sc = ca.MX.sym("xi", len(V)), ca.MX.sym("scale", len(V))
+        th = xi[:n_theta] * sc[:n_theta]
+        lam = xi[n_theta:] * sc[n_theta:]
+        s0 = ca.DM(np.r_[model.x0, np.ravel(model.initial_covariance(), order="F")])
+        rho_fn, chol_fn = _pseudo_residuals(ny), _chol_function(ny)
+        for r, n in enumerate(lengths):
+            _, e, S, nll, y_hat = step.mapaccum("filter", n, [0], [0])(s0, data[r], th, lam)
+            L = ca.stop_diff(chol_fn.map(n)(S), 1)
+            rho_all.append(rho_fn.map(n)(e, S, L))
+            nll_all.append(nll)
+            yhat_all.append(y_hat)
+        n_rho = ny + ny * ny
+    rho, nll = ca.horzcat(*rho_all), ca.horzcat(*nll_all)
+    prior_idx = [i for i, s in enumerate(V.prior_std) if s is not None]
+    prior_sd = ca.DM([V.prior_std[i] for i in prior_idx])
+    prior_res = (xi[prior_idx] * sc[prior_idx] - ca.DM([V.initial[i] for i in prior_idx])) / prior_sd \
+        if prior_idx else ca.MX(0, 1)
+    f = ca.sum2(nll) + 0.5 * ca.sumsqr(prior_res)
+    p = ca.vertcat(sc, *[ca.vec(d) for d in data])
+    gg = ca.vertcat(*[ca.vec(c) for c in g]) if g else ca.MX(0, 1)
+    J = ca.jacobian(ca.vec(rho), xi)
+    prior_prec = ca.MX.zeros(len(V))
+    for j, i in enumerate(prior_idx):
+        prior_prec[i] = (sc[i] / prior_sd[j]) ** 2
+    lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", gg.shape[0])
+    hess = ca.Function("nlp_hess_l", [xi, p, lam_f, lam_g],
+                       [ca.triu(lam_f * (ca.mtimes(J.T, J) + ca.diag(prior_prec)))],
+                       ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
+    lbx, ubx = np.array(V.lower), np.array(V.upper)
+    for i in fixed_weights:
+        lbx[i] = ubx[i] = 0.0
+    inputs = dict(lbx=lbx, ubx=ubx, lbg=np.zeros(gg.shape[0]), ubg=np.zeros(gg.shape[0]), x0=np.array(V.initial))
+    return Problem(method, V, inputs, dict(x=xi, p=p, f=f, g=gg, hess=hess),
+                   ca.Function("residuals", [xi, p], [rho, nll]),
+                   ca.Function("fisher", [xi, p], [J, prior_prec]),
+                   ca.Function("predict", [xi, p], [ca.horzcat(*yhat_all)]),
+                   list(lengths), n_rho, shooting or max(lengths))
+
+
+def _chol_function(ny: int) -> ca.Function:
+    S = ca.SX.sym("S", ny * ny)
+    return ca.Function("chol", [S], [ca.vec(chol(ca.reshape(S, ny, ny)))])
