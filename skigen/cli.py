@@ -1,9 +1,8 @@
-"""Command line: ``skigen run | generate | diagnose | bench`` (also ``python -m skigen``)."""
+"""Command line: ``skigen run | generate | fit | diagnose | bench`` (also ``python -m skigen``)."""
 from __future__ import annotations
 
 import argparse
 import importlib
-import importlib.util
 import sys
 from pathlib import Path
 
@@ -12,6 +11,7 @@ import numpy as np
 from .derive import FILTERS
 from .emit.c import AUTO_LOOPS_ABOVE_N, LOOPS_KINDS, STYLES
 from .model import Model, ModelError
+from .modelfile import ModelFileError, load_model as _load_model
 from .recording import RecordingError
 
 __all__ = ["main", "load_model"]
@@ -23,29 +23,10 @@ class CliError(Exception):
 
 def load_model(spec: str) -> Model:
     """A model from ``path/to/file.py`` (its ``model``) or ``package.module:attribute``."""
-    if ":" in spec and not Path(spec).exists():
-        module_name, attr = spec.split(":", 1)
-        try:
-            module = importlib.import_module(module_name)
-        except ImportError as exc:
-            raise CliError(f"cannot import model module '{module_name}': {exc}") from None
-    else:
-        path, attr = Path(spec), "model"
-        if not path.is_file():
-            raise CliError(f"model file '{spec}' not found (give a .py file or package.module:attribute)")
-        module_spec = importlib.util.spec_from_file_location(f"skigen_user_model_{path.stem}", path)
-        module = importlib.util.module_from_spec(module_spec)
-        sys.modules[module_spec.name] = module      # dataclasses and pickling look it up
-        try:
-            module_spec.loader.exec_module(module)
-        except ModelError:
-            raise
-        except Exception as exc:  # the user's file failed to run: say where, briefly
-            raise CliError(f"model file '{spec}' failed to load: {type(exc).__name__}: {exc}") from None
-    model = getattr(module, attr, None)
-    if not isinstance(model, Model):
-        raise CliError(f"'{spec}' defines no skigen.Model named '{attr}'")
-    return model.check()
+    try:
+        return _load_model(spec)
+    except ModelFileError as exc:
+        raise CliError(str(exc)) from None
 
 
 def _run(args) -> int:
@@ -114,6 +95,34 @@ def _diagnose(args) -> int:
     return 0
 
 
+def _fit(args) -> int:
+    from .fit import FitError, fit
+    from .fit.output import validate, write_outputs
+    from .recording import read_recording
+
+    model = load_model(args.model)
+    read = lambda path: read_recording(path, model.input_names, model.output_names)
+    recs, held_out = [read(p) for p in args.data], [read(p) for p in args.validate]
+    try:
+        result = fit(model, recs, method=args.method, estimate=args.estimate or None,
+                     shooting=args.shooting, max_iter=args.max_iter)
+        checks = validate(result, held_out, init_samples=args.init_samples)
+    except FitError as exc:
+        raise CliError(str(exc)) from None
+    spec = args.model if ":" in args.model and not Path(args.model).exists() else str(Path(args.model).resolve())
+    write_outputs(result, args.out, recs, model_spec=spec, validation=checks, validation_recordings=held_out,
+                  figures=not args.no_figures)
+    print(f"{model.name} fitted by {args.method}: {result.status.replace('_', ' ').lower()} in "
+          f"{result.iterations} iterations ({result.seconds:.1f} s)")
+    for name, p in {**result.parameters, **result.weights}.items():
+        print(f"  {name:>12} = {p['value']:.6g} ± {p['std']:.2g}" + (f" {p['unit']}" if p.get("unit") else ""))
+    for r in result.recordings + checks:
+        kind = "validation" if r in checks else "fit"
+        print(f"  {kind} {Path(r['file']).name}: RMSE " + ", ".join(f"{o} {v:.4g}" for o, v in r["rmse"].items()))
+    print(f"results: {Path(args.out) / 'fit.json'}, {Path(args.out) / 'report.md'}")
+    return 0
+
+
 def _bench(args) -> int:
     try:
         bench = importlib.import_module(f"benchmarks.{args.name}")
@@ -155,6 +164,25 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--horizon", type=float, default=1.0, help="free-run length in seconds (1)")
     d.add_argument("--no-figures", action="store_true", help="skip the figures")
     d.set_defaults(func=_diagnose)
+    f = sub.add_parser("fit", help="fit a model's parameters, weights and initial states to recordings")
+    f.add_argument("model", help="model file (.py exposing `model`) or package.module:attribute")
+    f.add_argument("data", nargs="+", help="recording CSV(s): t, inputs, outputs")
+    f.add_argument("--out", required=True, help="output directory (fit.json, fitted_model.py, report.md, figures)")
+    f.add_argument("--method", choices=["output-error", "filter-error"], default="output-error",
+                   help="output-error: free-run simulation error; filter-error: maximum likelihood of the "
+                        "EKF innovations, also calibrating the noise (default output-error)")
+    f.add_argument("--estimate", action="append", default=[], metavar="NAME",
+                   help="a parameter or weight to estimate (repeatable; default: all of them)")
+    f.add_argument("--validate", action="append", default=[], metavar="FILE",
+                   help="a held-out recording scored by free-run simulation (repeatable)")
+    f.add_argument("--shooting", type=int, default=None, metavar="SAMPLES",
+                   help="output error by multiple shooting with intervals of this many samples "
+                        "(for models whose free run diverges)")
+    f.add_argument("--init-samples", type=int, default=50,
+                   help="samples of a --validate recording used to estimate its initial state (50)")
+    f.add_argument("--max-iter", type=int, default=200, help="IPOPT iteration limit (200)")
+    f.add_argument("--no-figures", action="store_true", help="skip the figures")
+    f.set_defaults(func=_fit)
     b = sub.add_parser("bench", help="print a benchmark table (wingrock, delay, quadrotor, mukf, speed, footprint, diagnose)")
     b.add_argument("name")
     b.add_argument("--json", action="store_true", help="print one JSON object")

@@ -20,11 +20,11 @@ MIN_SAMPLES = 300          # 210 to fit, 90 to validate, and ≥ 5 Ljung–Box l
 def load(model, recording) -> tuple[Model, str | None, Recording]:
     """(model, its file or module spec if any, recording) from objects or paths."""
     if isinstance(model, (str, os.PathLike)):
-        from ..cli import CliError
+        from ..modelfile import ModelFileError
         spec = str(model)
         try:
             model = T.load_model_file(spec)
-        except CliError as exc:
+        except ModelFileError as exc:
             raise DiagnosisError(str(exc)) from None
         if ":" not in spec or Path(spec).exists():
             spec = str(Path(spec).resolve())
@@ -33,6 +33,13 @@ def load(model, recording) -> tuple[Model, str | None, Recording]:
     else:
         raise DiagnosisError(f"expected a skigen.Model or a model file, got {type(model).__name__}")
     model.check()
+    if model.input_hold != "zoh":
+        raise DiagnosisError(f"model '{model.name}' interpolates its inputs (input_hold='{model.input_hold}'); "
+                             f"the diagnosis handles zero-order-hold models only so far")
+    if model.parameters:
+        raise DiagnosisError(f"model '{model.name}' declares parameters ({', '.join(model.parameter_names)}); "
+                             f"the diagnosis takes them as constants only once `skigen fit` has fixed them: "
+                             f"fit first, or declare them as numbers")
     if isinstance(recording, (str, os.PathLike)):
         rec = read_recording(recording, model.input_names, model.output_names)
     else:

@@ -194,5 +194,5 @@ def memory_values(model: Model, rec) -> np.ndarray:
 
 def load_model_file(spec: str) -> Model:
     """The ``model`` of a model file, or ``package.module:attribute`` (as the CLI reads them)."""
-    from ..cli import load_model
+    from ..modelfile import load_model
     return load_model(spec)

@@ -1,0 +1,160 @@
+"""What a fit leaves behind: fit.json, fitted_model.py, report.md and figures."""
+from __future__ import annotations
+
+import datetime
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from ..simulate import free_run
+from . import FitResult, fit
+
+__all__ = ["validate", "write_outputs"]
+
+
+def validate(result: FitResult, recordings, init_samples: int = 50) -> list[dict]:
+    """Free-run simulation RMSE of the fitted model on held-out recordings.
+
+    The initial state of each is estimated from its first ``init_samples``
+    samples (parameters fixed), then the model runs free over the whole
+    recording; the RMSE counts the samples after those. Returns one dict per
+    recording: file, samples, rmse per output, and the simulated outputs.
+    """
+    model = result.model
+    weights = [result.weights.get(n, {}).get("value", 0.0) for n in model.weight_names]
+    out = []
+    for rec in recordings:
+        n0 = min(init_samples, len(rec.t) - 1)
+        head = fit(model, [rec.slice(0, max(n0, 2))], estimate=[], show_progress=False) if not model.weight_names \
+            else None
+        x0 = [head.initial_states[0][s]["value"] for s in model.state_names] if head else model.x0
+        _, Y = free_run(model, rec.inputs, x0=x0, weights=weights)
+        e = rec.outputs[n0:] - Y[n0:]
+        out.append(dict(file=str(rec.path), samples=int(len(rec.t) - n0),
+                        rmse={o: float(np.sqrt(np.nanmean(e[:, j] ** 2))) for j, o in enumerate(model.output_names)},
+                        simulated=Y))
+    return out
+
+
+def write_outputs(result: FitResult, out_dir, recordings, *, model_spec: str | None = None,
+                  validation: list[dict] = (), validation_recordings=(), figures: bool = True) -> list[Path]:
+    """Write ``fit.json``, ``fitted_model.py`` (when the model came from a file or module),
+    ``report.md`` and the figures to ``out_dir``; returns the paths written."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    data = result.asdict()
+    data["validation"] = [{k: v for k, v in d.items() if k != "simulated"} for d in validation]
+    paths = [out / "fit.json"]
+    paths[0].write_text(json.dumps(data, indent=2, allow_nan=False, default=_json) + "\n")
+    if model_spec:
+        paths.append(_write_model_file(out / "fitted_model.py", result, model_spec, recordings))
+    if figures:
+        from .figures import correlation_figure, recording_figure
+        names = result.model.output_names
+        for r, (rec, Y) in enumerate(zip(recordings, result.predictions)):
+            paths.append(recording_figure(out / f"fit_{r}.png", f"fitted: {Path(rec.path).name}", rec, Y, names))
+        for r, (rec, v) in enumerate(zip(validation_recordings, validation)):
+            paths.append(recording_figure(out / f"validation_{r}.png", f"validation (free run): "
+                                          f"{Path(rec.path).name}", rec, v["simulated"], names))
+        if result.correlation["names"]:
+            paths.append(correlation_figure(out / "correlation.png", result))
+    paths.append(_write_report(out / "report.md", result, validation, [p.name for p in paths if p.suffix == ".png"]))
+    return paths
+
+
+def _json(x):
+    if isinstance(x, (np.floating, np.integer)):
+        return x.item()
+    raise TypeError(f"cannot write {type(x).__name__} to JSON")
+
+
+def _write_model_file(path: Path, result: FitResult, spec: str, recordings) -> Path:
+    """A model file that loads the original declaration and sets the fitted values."""
+    if ":" in spec and not Path(spec).exists():
+        where = repr(spec)
+    else:
+        rel = os.path.relpath(Path(spec).resolve(), path.parent.resolve())
+        where = f'str(Path(__file__).resolve().parent / {rel!r})'
+    values = {n: v["value"] for n, v in result.parameters.items()}
+    std = {n: v["std"] for n, v in result.parameters.items() if v["std"] > 0}
+    files = ", ".join(Path(r.path).name for r in recordings)
+    lines = ['"""' + f"{result.model.name}: fitted by `skigen fit` ({result.method}) on {files}, "
+             f"{datetime.date.today().isoformat()}.", "",
+             "The declaration is the original model file's; the parameters are set to their fitted",
+             "values, with their standard deviations as the prior for the next fit."
+             + (" The noise covariances are the calibrated ones." if "scales" in result.noise else ""),
+             '"""', "from pathlib import Path", "", "import numpy as np  # noqa: F401", "",
+             "from skigen.modelfile import load_model", "",
+             f"model = load_model({where})",
+             f"model.set_parameters({_dict(values)},", f"                     std={_dict(std)})"]
+    if "scales" in result.noise:
+        M = result.model
+        lines.append(f"model.covariances(Q=np.array({np.asarray(M.process_noise()).tolist()!r}),")
+        lines.append(f"                  R=np.array({np.asarray(M.measurement_noise()).tolist()!r}),")
+        lines.append(f"                  P0=np.array({np.asarray(M.initial_covariance()).tolist()!r}))")
+    if result.weights:
+        lines += ["", "# Fitted unknown-term weights (the filters start from 0; SKI/UKF estimate them):",
+                  f"FITTED_WEIGHTS = {_dict({n: v['value'] for n, v in result.weights.items()})}"]
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def _dict(d: dict) -> str:
+    return "{" + ", ".join(f"{k!r}: {float(v)!r}" for k, v in d.items()) + "}"
+
+
+def _fmt(x: float | None) -> str:
+    return "–" if x is None else f"{x:.6g}"
+
+
+def _write_report(path: Path, result: FitResult, validation, figures) -> Path:
+    r = result
+    lines = [f"# Fit of `{r.model.name}` by {r.method}", "",
+             f"IPOPT {r.status.replace('_', ' ').lower()} in {r.iterations} iterations, {r.seconds:.1f} s; "
+             f"−log-likelihood {r.objective:.6g}.", ""]
+    if r.parameters or r.weights:
+        lines += ["| quantity | unit | initial | fitted | std | 2σ interval | bounds |", "|---|---|---|---|---|---|---|"]
+        for name, p in r.parameters.items():
+            lo, hi = p["value"] - 2 * p["std"], p["value"] + 2 * p["std"]
+            lines.append(f"| {name} | {p['unit']} | {_fmt(p['initial'])} | {_fmt(p['value'])} | {p['std']:.2g} | "
+                         f"[{lo:.6g}, {hi:.6g}] | [{_fmt(p['bounds'][0])}, {_fmt(p['bounds'][1])}] |")
+        for name, w in r.weights.items():
+            lines.append(f"| {name} | | 0 | {_fmt(w['value'])} | {w['std']:.2g} | "
+                         f"[{w['value'] - 2 * w['std']:.6g}, {w['value'] + 2 * w['std']:.6g}] | |")
+        lines += ["", f"Standard deviations: {r.covariance_note}.", ""]
+    names, C = r.correlation["names"], np.array(r.correlation["matrix"])
+    strong = [(names[i], names[j], C[i, j]) for i in range(len(names)) for j in range(i) if abs(C[i, j]) > 0.9]
+    if strong:
+        lines += ["Strongly correlated estimates (|r| > 0.9): "
+                  + "; ".join(f"{a} and {b} ({c:+.3f})" for a, b, c in strong) + ".", ""]
+    if "scales" in r.noise:
+        lines += ["## Noise", "", "| quantity | declared std | calibrated std | scale on the variance |",
+                  "|---|---|---|---|"]
+        dec, cal = r.noise["declared"], r.noise["calibrated"]
+        for kind, group in (("process_std", "Q"), ("measurement_std", "R")):
+            for name in dec[kind]:
+                s = r.noise["scales"].get(f"{group}_scale_{name}")
+                lines.append(f"| {group} {name} | {dec[kind][name]:.3g} | {cal[kind][name]:.3g} | "
+                             + (f"{s['value']:.3g} ± {s['std']:.2g} |" if s else "fixed (declared 0) |"))
+        lines.append("")
+    else:
+        lines += ["Residual std per output: " + ", ".join(
+            f"{o} {v:.4g} (declared {r.noise['declared_std'][o]:.4g})" for o, v in r.noise["residual_std"].items()), ""]
+    lines += ["## Recordings", "", "| file | samples | RMSE | log-likelihood |", "|---|---|---|---|"]
+    for rec in r.recordings:
+        lines.append(f"| {Path(rec['file']).name} | {rec['samples']} | "
+                     + ", ".join(f"{o} {v:.4g}" for o, v in rec["rmse"].items()) + f" | {rec['loglik']:.6g} |")
+    kind = "free-run simulation" if r.method == "output-error" else "one-step prediction (innovation)"
+    lines += ["", f"RMSE of the {kind} on the fitted recordings.", ""]
+    if validation:
+        lines += ["## Validation (free-run simulation, initial state from the first samples)", "",
+                  "| file | samples scored | RMSE |", "|---|---|---|"]
+        for v in validation:
+            lines.append(f"| {Path(v['file']).name} | {v['samples']} | "
+                         + ", ".join(f"{o} {x:.4g}" for o, x in v["rmse"].items()) + " |")
+        lines.append("")
+    lines += [f"![{f}]({f})" for f in figures]
+    path.write_text("\n".join(lines) + "\n")
+    return path

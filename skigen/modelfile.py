@@ -1,0 +1,43 @@
+"""Load a model declared in a Python file (its ``model``) or at ``package.module:attribute``."""
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import sys
+from pathlib import Path
+
+from .model import Model, ModelError
+
+__all__ = ["ModelFileError", "load_model"]
+
+
+class ModelFileError(ValueError):
+    """A model file that cannot be found, imported or does not define a model."""
+
+
+def load_model(spec: str) -> Model:
+    """A checked model from ``path/to/file.py`` (its ``model``) or ``package.module:attribute``."""
+    spec = str(spec)
+    if ":" in spec and not Path(spec).exists():
+        module_name, attr = spec.split(":", 1)
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError as exc:
+            raise ModelFileError(f"cannot import model module '{module_name}': {exc}") from None
+    else:
+        path, attr = Path(spec), "model"
+        if not path.is_file():
+            raise ModelFileError(f"model file '{spec}' not found (give a .py file or package.module:attribute)")
+        module_spec = importlib.util.spec_from_file_location(f"skigen_user_model_{path.stem}", path)
+        module = importlib.util.module_from_spec(module_spec)
+        sys.modules[module_spec.name] = module      # dataclasses and pickling look it up
+        try:
+            module_spec.loader.exec_module(module)
+        except ModelError:
+            raise
+        except Exception as exc:  # the user's file failed to run: say where, briefly
+            raise ModelFileError(f"model file '{spec}' failed to load: {type(exc).__name__}: {exc}") from None
+    model = getattr(module, attr, None)
+    if not isinstance(model, Model):
+        raise ModelFileError(f"'{spec}' defines no skigen.Model named '{attr}'")
+    return model.check()
