@@ -11,6 +11,7 @@ for the error bars.
 from __future__ import annotations
 
 import copy
+import functools
 import time
 from dataclasses import dataclass, field
 
@@ -74,6 +75,7 @@ class FitResult:
 
 
 _CACHE: dict = {}
+SCORING_ITERATIONS = 50     # Fisher-scoring iterations before Newton (exact Hessian) takes over
 
 
 def _problem(model, lengths, method, estimate, shooting, max_iter) -> Problem:
@@ -85,11 +87,13 @@ def _problem(model, lengths, method, estimate, shooting, max_iter) -> Problem:
             _CACHE.clear()
         prob = build_problem(model, lengths, method, estimate, shooting)
         prob.progress = _Progress(prob.nlp["x"].shape[0], prob.nlp["g"].shape[0])
-        solver = ca.nlpsol("fit", "ipopt", {k: prob.nlp[k] for k in ("x", "p", "f", "g")},
-                           {"hess_lag": prob.nlp["hess"], "print_time": False,
-                            "iteration_callback": prob.progress,
-                            "ipopt.print_level": 0, "ipopt.sb": "yes", "ipopt.tol": 1e-9,
-                            "ipopt.max_iter": max_iter, "ipopt.mu_strategy": "adaptive"})
+        nlp = {k: prob.nlp[k] for k in ("x", "p", "f", "g")}
+        opts = {"print_time": False, "iteration_callback": prob.progress, "ipopt.print_level": 0,
+                "ipopt.sb": "yes", "ipopt.tol": 1e-9, "ipopt.mu_strategy": "adaptive"}
+        scoring = ca.nlpsol("fit_scoring", "ipopt", nlp, {**opts, "hess_lag": prob.nlp["hess"],
+                                                          "ipopt.max_iter": min(max_iter, SCORING_ITERATIONS)})
+        newton = lambda: ca.nlpsol("fit_newton", "ipopt", nlp, {**opts, "ipopt.max_iter": max_iter})
+        solver = (scoring, functools.lru_cache(maxsize=1)(newton))
         jac_g = ca.Function("jac_g", [prob.nlp["x"], prob.nlp["p"]], [ca.jacobian(prob.nlp["g"], prob.nlp["x"])])
         _CACHE[key] = (prob, solver, jac_g, model)      # keep the model alive: its id is in the key
     return _CACHE[key][:3]
@@ -195,8 +199,8 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     V = prob.variables
     data = np.concatenate([np.ravel(data_matrix(model, r), order="F") for r in recs])
     theta0 = np.array(prob.solver_inputs["x0"], float)
-    if method == "output-error" and shooting:
-        theta0 = _node_guess(model, prob, recs, theta0)
+    if method == "output-error":
+        theta0 = _initial_guess(model, prob, recs, theta0)
     scale = _scales(prob, theta0, data)
     p = np.r_[scale, data]
     rho0, _ = (np.asarray(v) for v in prob.residuals(theta0 / scale, p))
@@ -215,13 +219,22 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     if show_progress:
         note(f"fitting '{model.name}' by {method}: {len(V)} unknowns, {sum(lengths)} samples")
     prob.progress.start(f"fit {model.name}" if show_progress else None)
-    sol = solver(**inputs)
-    stats = solver.stats()
-    status = stats["return_status"]
+    scoring, newton = solver
+    sol = scoring(**inputs)
+    stats = scoring.stats()
+    iterations, status = stats["iter_count"], stats["return_status"]
+    if status not in ("Solve_Succeeded", "Solved_To_Acceptable_Level"):
+        if show_progress:
+            note(f"fit {model.name}: Fisher scoring {_IPOPT_WORDS.get(status, status)}; continuing with "
+                 f"Newton steps (exact Hessian)")
+        sol = newton()(**dict(inputs, x0=sol["x"], lam_x0=sol["lam_x"], lam_g0=sol["lam_g"]))
+        stats = newton().stats()
+        iterations, status = iterations + stats["iter_count"], stats["return_status"]
     if status not in ("Solve_Succeeded", "Solved_To_Acceptable_Level"):
         raise FitError(f"IPOPT {_IPOPT_WORDS.get(status, status)} (status {status}, "
-                       f"{stats['iter_count']} iterations)")
-    xi = np.asarray(sol["x"]).ravel()
+                       f"{iterations} iterations)")
+    stats = dict(stats, iter_count=iterations)
+    xi = np.clip(np.asarray(sol["x"]).ravel(), inputs["lbx"], inputs["ubx"])   # IPOPT may overstep a bound by ~1e-8
     rho, nll = (np.asarray(v) for v in prob.residuals(xi, p))
     J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(xi, p))
     G = _dense(jac_g(xi, p))
@@ -257,18 +270,23 @@ def _dense(M) -> np.ndarray:
     return np.asarray(ca.DM(M).full()) if M is not None else None
 
 
-def _node_guess(model, prob, recs, x0):
-    """Multiple shooting: start each node from a free run at the declared values, where it stays finite."""
-    from ..simulate import free_run
-    V, out = prob.variables, x0.copy()
-    runs = [free_run(model, rec.inputs)[0] for rec in recs]
+def _initial_guess(model, prob, recs, theta0):
+    """Initial states (at every shooting node) from the model's EKF at the declared values:
+    the filtered state at each node's sample, where the filter stays finite."""
+    from ..derive import derive
+    from ..runtime import FilterDivergedError, run
+    V, out = prob.variables, theta0.copy()
+    try:
+        runs = [run(derive(model, "ekf"), rec, show_progress=False).mean for rec in recs]
+    except FilterDivergedError:
+        return out
     M = prob.shooting
     for i, name in enumerate(V.names):
         if V.kinds[i] == "initial":
             state, rest = name.split("@")
             r, j = (int(v) for v in (rest.split("#") + ["0"])[:2])
             value = runs[r][j * M, model.state_names.index(state)]
-            if np.isfinite(value) and abs(value) < 1e6 * V.scale[i]:
+            if np.isfinite(value):
                 out[i] = value
     return out
 

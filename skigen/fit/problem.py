@@ -18,7 +18,8 @@ covariance S_k, −log L = ½ Σ (e_kᵀ S_k⁻¹ e_k + log det 2π S_k):
   and R scaled per equation and per output.
 
 A declared parameter std adds its prior ½ ((p − value)/std)². IPOPT gets the
-Fisher-scoring (Gauss-Newton) Hessian J_ρᵀ J_ρ of whitened pseudo-residuals
+Fisher-scoring (Gauss-Newton) Hessian J_ρᵀ J_ρ (plus, with multiple shooting,
+the exact curvature of the continuity constraints) of whitened pseudo-residuals
 ρ_k = [L̄⁻¹ e_k; vec(L̄⁻¹ S_k L̄⁻ᵀ)/√2] (L̄ the Cholesky factor of S_k, held
 constant): positive semi-definite, exact in expectation, and a few forward
 sweeps per iteration instead of a second-order sweep over the recording.
@@ -212,7 +213,8 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
             D = ca.horzcat(data[r], ca.repmat(ca.vertcat(data[r][:-2 * ny, -1], ca.DM.zeros(2 * ny)),
                                                1, K * M - n)) if K * M > n else data[r]
             sim = step.mapaccum("sim", M, [0], [0]).map(K, "thread", 2)
-            X_end, rho, nll, y_hat = sim(X0, D, th)
+            X_next, rho, nll, y_hat = sim(X0, D, th)
+            X_end = X_next[:, M - 1::M]                  # the state after each interval's last sample
             g += [X0[:, 1:] - X_end[:, :-1]] if K > 1 else []
             rho_all.append(rho[:, :n])
             nll_all.append(nll[:, :n])
@@ -251,8 +253,10 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
     for j, i in enumerate(prior_idx):
         prior_prec[i] = (sc[i] / prior_sd[j]) ** 2
     lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", gg.shape[0])
-    hess = ca.Function("nlp_hess_l", [xi, p, lam_f, lam_g],
-                       [ca.triu(lam_f * (ca.mtimes(J.T, J) + ca.diag(prior_prec)))],
+    curvature = lam_f * (ca.mtimes(J.T, J) + ca.diag(prior_prec))
+    if gg.shape[0]:      # the constraints' own curvature: multiple shooting needs it to converge
+        curvature += ca.hessian(ca.dot(lam_g, gg), xi)[0]
+    hess = ca.Function("nlp_hess_l", [xi, p, lam_f, lam_g], [ca.triu(curvature)],
                        ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
     lbx, ubx = np.array(V.lower), np.array(V.upper)
     for i in fixed_weights:
