@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import copy
 import functools
+import os
 import time
 from dataclasses import dataclass, field
 
@@ -20,7 +21,7 @@ import numpy as np
 
 from ..model import Model, ModelError
 from ..progress import note
-from ..recording import Recording
+from ..recording import Recording, read_recording
 from .problem import METHODS, Problem, build_problem, data_matrix
 from .uncertainty import covariance, unidentified
 
@@ -175,7 +176,7 @@ class _Progress(ca.Callback):
 
 def fit(model: Model, recordings, *, method: str = "output-error", estimate=None,
         shooting: int | None = None, max_iter: int = 200, show_progress: bool = True) -> FitResult:
-    """Fit ``model`` to ``recordings`` (Recording objects) by ``method``.
+    """Fit ``model`` to ``recordings`` (Recording objects or CSV paths) by ``method``.
 
     estimate: names of parameters and weights to estimate (default: all of
     them); the rest stay at their declared values (weights at 0). shooting:
@@ -186,7 +187,10 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got '{method}'")
     model.check()
-    recs = list(recordings)
+    if isinstance(recordings, (Recording, str, os.PathLike)):
+        recordings = [recordings]
+    recs = [read_recording(r, model.input_names, model.output_names) if isinstance(r, (str, os.PathLike)) else r
+            for r in recordings]
     if not recs:
         raise FitError("no recording to fit")
     for rec in recs:
