@@ -90,7 +90,9 @@ def _problem(model, lengths, method, estimate, shooting, max_iter) -> Problem:
         prob.progress = _Progress(prob.nlp["x"].shape[0], prob.nlp["g"].shape[0])
         nlp = {k: prob.nlp[k] for k in ("x", "p", "f", "g")}
         opts = {"print_time": False, "iteration_callback": prob.progress, "ipopt.print_level": 0,
-                "ipopt.sb": "yes", "ipopt.tol": 1e-9, "ipopt.mu_strategy": "adaptive"}
+                "ipopt.sb": "yes", "ipopt.tol": 1e-8, "ipopt.mu_strategy": "adaptive",
+                "ipopt.acceptable_tol": 1e-6, "ipopt.acceptable_iter": 2,
+                "ipopt.acceptable_obj_change_tol": 1e-12}
         scoring = ca.nlpsol("fit_scoring", "ipopt", nlp, {**opts, "hess_lag": prob.nlp["hess"],
                                                           "ipopt.max_iter": min(max_iter, SCORING_ITERATIONS)})
         newton = lambda: ca.nlpsol("fit_newton", "ipopt", nlp, {**opts, "ipopt.max_iter": max_iter})
@@ -201,10 +203,11 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     lengths = [len(r.t) for r in recs]
     prob, solver, jac_g = _problem(model, lengths, method, estimate, shooting, max_iter)
     V = prob.variables
-    data = np.concatenate([np.ravel(data_matrix(model, r), order="F") for r in recs])
+    blocks = [data_matrix(model, r) for r in recs]
+    data = np.concatenate([np.ravel(b, order="F") for b in blocks])
     theta0 = np.array(prob.solver_inputs["x0"], float)
     if method == "output-error":
-        theta0 = _initial_guess(model, prob, recs, theta0)
+        theta0 = _initial_guess(model, prob, recs, theta0, blocks)
     scale = _scales(prob, theta0, data)
     p = np.r_[scale, data]
     rho0, _ = (np.asarray(v) for v in prob.residuals(theta0 / scale, p))
@@ -274,22 +277,18 @@ def _dense(M) -> np.ndarray:
     return np.asarray(ca.DM(M).full()) if M is not None else None
 
 
-def _initial_guess(model, prob, recs, theta0):
-    """Initial states (at every shooting node) from the model's EKF at the declared values:
-    the filtered state at each node's sample, where the filter stays finite."""
-    from ..derive import derive
-    from ..runtime import FilterDivergedError, run
+def _initial_guess(model: Model, prob: Problem, recs, theta0, data_blocks):
+    """Initial states (at every shooting node) from the model's EKF at the starting values:
+    its prior state at each node's sample, where the filter stays finite."""
     V, out = prob.variables, theta0.copy()
-    try:
-        runs = [run(derive(model, "ekf"), rec, show_progress=False).mean for rec in recs]
-    except FilterDivergedError:
-        return out
-    M = prob.shooting
+    n_theta = sum(k in ("parameter", "weight") for k in V.kinds)
+    X = np.asarray(prob.filtered(theta0[:n_theta], *data_blocks))
+    starts = np.cumsum([0] + [len(r.t) + 1 for r in recs])
     for i, name in enumerate(V.names):
         if V.kinds[i] == "initial":
             state, rest = name.split("@")
             r, j = (int(v) for v in (rest.split("#") + ["0"])[:2])
-            value = runs[r][j * M, model.state_names.index(state)]
+            value = X[model.state_names.index(state), starts[r] + j * prob.shooting]
             if np.isfinite(value):
                 out[i] = value
     return out

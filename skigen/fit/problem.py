@@ -85,6 +85,8 @@ class Problem:
     residuals: ca.Function         # (ξ, data) → ρ (pseudo-residuals, one column per sample), nll per sample
     fisher: ca.Function            # (ξ, data) → J_ρ (rows: samples × residuals), prior precision
     predict: ca.Function           # (ξ, data) → predicted outputs, one column per sample
+    filtered: ca.Function          # (θ, data per recording) → the EKF's prior state, one column per sample
+                                   #   (recordings one after another, one column more at each start)
     lengths: list[int]             # samples per recording
     n_rho: int                     # pseudo-residuals per sample
     shooting: int                  # samples per shooting interval (output error)
@@ -190,10 +192,15 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
     fixed_weights = [i for i, n in enumerate(theta_names) if not free[i]]   # weights not estimated stay 0
     n_theta = len(theta_names)
 
-    xi = ca.MX.sym("xi", 0)
     data = [ca.MX.sym(f"data{r}", nd, n) for r, n in enumerate(lengths)]
-    parts, g = [], []
-    rho_all, nll_all, yhat_all = [], [], []
+    g, rho_all, nll_all, yhat_all = [], [], [], []
+    q_rows = [i for i in range(nx) if model.process_noise()[i, i] > 0]
+    lam_q, lam_r = ca.SX.sym("lam_q", len(q_rows)), ca.SX.sym("lam_r", ny)
+    ekf = _filter_error_step(model, aug, x, theta, lam_q, lam_r, q_rows)
+    s0 = ca.DM(np.r_[model.x0, np.ravel(model.initial_covariance(), order="F")])
+    th_sym = ca.MX.sym("theta", n_theta)
+    filtered = ca.Function("filtered", [th_sym, *data], [ca.horzcat(*[
+        ca.horzcat(s0, ekf.mapaccum("filter", n, [0], [0])(s0, d, th_sym, 0)[0]) for n, d in zip(lengths, data)])[:nx, :]])
     if method == "output-error":
         step = _output_error_step(aug, x, theta)
         M = shooting or max(lengths)
@@ -221,20 +228,16 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
             yhat_all.append(y_hat[:, :n])
         n_rho = ny
     else:
-        q_rows = [i for i in range(nx) if model.process_noise()[i, i] > 0]
         for i in q_rows:
             V.add(f"Q_scale_{model.state_names[i]}", "noise", 1.0, 0.0, -LOG_SCALE_BOUND, LOG_SCALE_BOUND)
         for name in model.output_names:
             V.add(f"R_scale_{name}", "noise", 1.0, 0.0, -LOG_SCALE_BOUND, LOG_SCALE_BOUND)
-        lam_q, lam_r = ca.SX.sym("lam_q", len(q_rows)), ca.SX.sym("lam_r", ny)
-        step = _filter_error_step(model, aug, x, theta, lam_q, lam_r, q_rows)
         xi, sc = ca.MX.sym("xi", len(V)), ca.MX.sym("scale", len(V))
         th = xi[:n_theta] * sc[:n_theta]
         lam = xi[n_theta:] * sc[n_theta:]
-        s0 = ca.DM(np.r_[model.x0, np.ravel(model.initial_covariance(), order="F")])
         rho_fn, chol_fn = _pseudo_residuals(ny), _chol_function(ny)
         for r, n in enumerate(lengths):
-            _, e, S, nll, y_hat = step.mapaccum("filter", n, [0], [0])(s0, data[r], th, lam)
+            _, e, S, nll, y_hat = ekf.mapaccum("filter", n, [0], [0])(s0, data[r], th, lam)
             L = ca.stop_diff(chol_fn.map(n)(S), 1)
             rho_all.append(rho_fn.map(n)(e, S, L))
             nll_all.append(nll)
@@ -266,7 +269,7 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
                    ca.Function("residuals", [xi, p], [rho, nll]),
                    ca.Function("fisher", [xi, p], [J, prior_prec]),
                    ca.Function("predict", [xi, p], [ca.horzcat(*yhat_all)]),
-                   list(lengths), n_rho, shooting or max(lengths))
+                   filtered, list(lengths), n_rho, shooting or max(lengths))
 
 
 def _chol_function(ny: int) -> ca.Function:
