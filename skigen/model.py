@@ -13,6 +13,7 @@ names the symbol, equation or matrix at fault::
 """
 from __future__ import annotations
 
+import keyword
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -25,6 +26,14 @@ __all__ = ["Model", "ModelError", "Parameter", "ROLES", "DISCRETIZATIONS", "INPU
 ROLES = ("position", "velocity", "angle", "rate", "altitude")
 DISCRETIZATIONS = ("rk4", "euler", "discrete")
 INPUT_HOLDS = ("zoh", "foh")     # input held over the sample, or interpolated linearly to the next
+C_KEYWORDS = frozenset("""auto break case char const continue default do double else enum extern float for goto
+    if inline int long register restrict return short signed sizeof static struct switch typedef union unsigned
+    void volatile while _Bool _Complex _Imaginary""".split())
+# Names a declaration may not take: result-table columns, the diagnosis's formula functions and the
+# names a written model file binds (a symbol named like them would overwrite or be shadowed).
+RESERVED = frozenset("""t time timestamp nis loglik status measured code tanh exp log sqrt abs fabs sin cos tan
+    atan atan2 sign fmin fmax pi model ca np Model Path load_model""".split())
+RESERVED_PREFIXES = ("std_", "innov_", "prior_var_", "w_")
 
 
 class ModelError(ValueError):
@@ -105,7 +114,11 @@ class Model:
     P0: np.ndarray | None = None
 
     def __post_init__(self):
-        if not (np.isfinite(self.dt) and self.dt > 0):
+        if not (isinstance(self.name, str) and self.name.isidentifier() and self.name.isascii()
+                and self.name not in C_KEYWORDS):
+            raise ModelError(f"model name {self.name!r} must be an ASCII identifier (letters, digits, _; "
+                             f"not starting with a digit, not a C keyword): it prefixes the generated C")
+        if not (isinstance(self.dt, (int, float)) and np.isfinite(self.dt) and self.dt > 0):
             raise ModelError(f"model '{self.name}': sample time dt must be positive, got {self.dt}")
         if self.discretization not in DISCRETIZATIONS:
             raise ModelError(f"model '{self.name}': discretization must be one of "
@@ -116,14 +129,18 @@ class Model:
         if self.input_hold == "foh" and self.discretization == "discrete":
             raise ModelError(f"model '{self.name}': input_hold='foh' interpolates inputs within the "
                              f"sample, which needs continuous dynamics (rk4 or euler), not 'discrete'")
-        if not (isinstance(self.substeps, int) and self.substeps >= 1):
+        if not (isinstance(self.substeps, int) and not isinstance(self.substeps, bool) and self.substeps >= 1):
             raise ModelError(f"model '{self.name}': substeps must be a positive integer, "
                              f"got {self.substeps!r}")
 
     # ----------------------------------------------------------- declaration
     def _fresh(self, name: str, what: str) -> ca.SX:
-        if not isinstance(name, str) or not name.isidentifier():
-            raise ModelError(f"{what} name {name!r} must be an identifier (letters, digits, _)")
+        if not (isinstance(name, str) and name.isidentifier() and name.isascii()):
+            raise ModelError(f"{what} name {name!r} must be an identifier (ASCII letters, digits, _; not "
+                             f"starting with a digit): it names C symbols and result columns")
+        if name in C_KEYWORDS or keyword.iskeyword(name) or name in RESERVED or name.startswith(RESERVED_PREFIXES):
+            raise ModelError(f"{what} name '{name}' is reserved (a C or Python keyword, a result column, a "
+                             f"formula function, or a prefix of {', '.join(RESERVED_PREFIXES)}); choose another")
         if name in self.names:
             raise ModelError(f"{what} '{name}' is declared twice")
         return ca.SX.sym(name)
@@ -135,10 +152,13 @@ class Model:
         if role is not None and role not in ROLES:
             raise ModelError(f"state '{name}': role must be one of {ROLES}, got '{role}'")
         sym = self._fresh(name, "state")
+        initial = _finite(initial, f"state '{name}': initial")
+        std = _non_negative(std, f"state '{name}': std")
+        process_std = _non_negative(process_std, f"state '{name}': process_std")
         self.states.append(Variable(name, sym, unit, role))
-        self.x0.append(float(initial))
-        self.x_std.append(float(std))
-        self.q_std.append(float(process_std))
+        self.x0.append(initial)
+        self.x_std.append(std)
+        self.q_std.append(process_std)
         return sym
 
     def input(self, name: str, unit: str = "") -> ca.SX:
@@ -195,8 +215,14 @@ class Model:
     def output(self, name: str, expr, unit: str = "", *, noise_std: float | None = None):
         """Declare a measured output y = h(x, u) with its noise standard deviation."""
         self._fresh(name, "output")
-        self.outputs.append(Variable(name, ca.SX(expr), unit))
-        self.r_std.append(None if noise_std is None else float(noise_std))
+        if noise_std is not None:
+            noise_std = _non_negative(noise_std, f"output '{name}': noise_std")
+        try:
+            expr = ca.SX(expr)
+        except (NotImplementedError, TypeError, RuntimeError):
+            raise ModelError(f"output '{name}': expected a CasADi expression or a number, got {expr!r}") from None
+        self.outputs.append(Variable(name, expr, unit))
+        self.r_std.append(noise_std)
 
     def dynamics(self, equations: dict):
         """State equations keyed by state symbol or name: dx/dt, or x[k+1]
@@ -323,10 +349,27 @@ class Model:
                 raise ModelError(f"weight '{wname}' appears twice (basis term '{t.name}' repeated "
                                  f"on equation '{eq}')")
             names.add(wname)
+        clash = set(names) & set(self.names)
+        if clash:
+            raise ModelError(f"weight name(s) {', '.join(sorted(clash))} collide with a declared name")
+        self._check_finite_at_start()
         _check_covariance(self.process_noise(), "Q (process noise)", self.state_names, definite=False)
         _check_covariance(self.measurement_noise(), "R (measurement noise)", self.output_names)
         _check_covariance(self.initial_covariance(), "P0 (initial covariance)", self.state_names)
         return self
+
+    def _check_finite_at_start(self):
+        """Every equation and output is finite at the declared initial state (inputs, history 0)."""
+        syms = [v.sym for v in self.states + self.inputs] + [m.sym for m in self.memory] + [p.sym for p in self.parameters]
+        values = list(self.x0) + [0.0] * (len(self.inputs) + len(self.memory)) + [p.value for p in self.parameters]
+        exprs = [(f"dynamics of '{n}'", self.rhs[n]) for n in self.state_names] + \
+                [(f"output '{v.name}'", v.sym) for v in self.outputs]
+        f = ca.Function("at_start", [ca.vertcat(*syms)], [ca.vertcat(*[e for _, e in exprs])])
+        out = np.asarray(f(values)).ravel()
+        for (what, _), v in zip(exprs, out):
+            if not np.isfinite(v):
+                raise ModelError(f"{what} is {v} at the declared initial state (inputs 0): a non-finite "
+                                 f"constant, or an expression undefined there")
 
     def process_noise(self) -> np.ndarray:
         """Q over the physical states, per sample (state units²)."""
@@ -367,6 +410,13 @@ def _finite(value, what: str) -> float:
         raise ModelError(f"{what} must be a number, got {value!r}") from None
     if not np.isfinite(value):
         raise ModelError(f"{what} must be finite, got {value}")
+    return value
+
+
+def _non_negative(value, what: str) -> float:
+    value = _finite(value, what)
+    if value < 0:
+        raise ModelError(f"{what} must be non-negative (a standard deviation), got {value}")
     return value
 
 

@@ -1,0 +1,84 @@
+"""Property: a random invalid declaration raises ModelError naming its culprit, never anything else."""
+import math
+
+import casadi as ca
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from skigen import Model, ModelError
+from skigen.model import C_KEYWORDS, RESERVED, RESERVED_PREFIXES
+
+BAD_NUMBERS = st.sampled_from([math.nan, math.inf, -math.inf])
+NEGATIVE = st.floats(max_value=-1e-12, min_value=-1e12, allow_nan=False)
+NOT_IDENTIFIERS = st.one_of(
+    st.just(""), st.text(min_size=1, max_size=6).filter(lambda s: not (s.isidentifier() and s.isascii())),
+    st.sampled_from(["wing-rock", "wingröck", "2fast", "a b", "ω"]))
+RESERVED_NAMES = st.one_of(st.sampled_from(sorted(RESERVED | C_KEYWORDS | {"lambda", "class"})),
+                           st.builds(lambda p, s: p + s, st.sampled_from(RESERVED_PREFIXES),
+                                     st.from_regex(r"[a-z][a-z0-9]{0,4}", fullmatch=True)))
+
+
+def base():
+    m = Model("toy", dt=0.1)
+    x = m.state("x", std=1.0)
+    u = m.input("u")
+    return m, x, u
+
+
+def finish(m, x, u):
+    if "x" not in m.rhs:
+        m.dynamics({x: -x + u})
+    m.output("y", x, noise_std=0.1)
+    m.check()
+
+
+def mutations():
+    """(what the error must name, a function declaring the invalid thing)."""
+    name = st.one_of(NOT_IDENTIFIERS, RESERVED_NAMES)
+    return st.one_of(
+        name.map(lambda n: (repr(n)[1:-1] if n else "''", lambda m, x, u: m.state(n))),
+        name.map(lambda n: (repr(n)[1:-1] if n else "''", lambda m, x, u: m.input(n))),
+        name.map(lambda n: (repr(n)[1:-1] if n else "''", lambda m, x, u: m.parameter(n, 1.0))),
+        name.map(lambda n: (repr(n)[1:-1] if n else "''", lambda m, x, u: m.output(n, x, noise_std=1.0))),
+        BAD_NUMBERS.map(lambda v: ("'z'", lambda m, x, u: m.state("z", initial=v))),
+        st.one_of(BAD_NUMBERS, NEGATIVE).map(lambda v: ("'z'", lambda m, x, u: m.state("z", std=v))),
+        st.one_of(BAD_NUMBERS, NEGATIVE).map(lambda v: ("'z'", lambda m, x, u: m.state("z", process_std=v))),
+        st.one_of(BAD_NUMBERS, NEGATIVE).map(lambda v: ("'y2'", lambda m, x, u: m.output("y2", x, noise_std=v))),
+        BAD_NUMBERS.map(lambda v: ("'k'", lambda m, x, u: m.parameter("k", v))),
+        NEGATIVE.map(lambda v: ("'k'", lambda m, x, u: m.parameter("k", 1.0, std=v))),
+        st.floats(min_value=2.0, max_value=1e9).map(
+            lambda v: ("'k'", lambda m, x, u: m.parameter("k", v, bounds=(0.0, 1.0)))),
+        BAD_NUMBERS.map(lambda v: ("'x'", lambda m, x, u: m.dynamics({x: x + v}))),
+        st.integers(max_value=0).map(lambda n: ("substeps", lambda m, x, u: Model("toy2", dt=0.1, substeps=n))),
+        st.one_of(BAD_NUMBERS, st.floats(max_value=0.0, allow_nan=False)).map(
+            lambda v: ("dt", lambda m, x, u: Model("toy2", dt=v))),
+        NOT_IDENTIFIERS.map(lambda n: (repr(n)[1:-1] if n else "''", lambda m, x, u: Model(n, dt=0.1))),
+    )
+
+
+@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(mutations())
+def test_invalid_declarations_raise_model_error_naming_the_culprit(case):
+    culprit, declare = case
+    m, x, u = base()
+    with pytest.raises(ModelError) as err:
+        declare(m, x, u)
+        finish(m, x, u)
+    assert culprit.strip("'") in str(err.value) or culprit in str(err.value), (culprit, str(err.value))
+
+
+def test_nan_constant_in_the_dynamics_is_named():
+    m, x, u = base()
+    m.dynamics({x: -x + u * ca.SX(math.nan)})
+    m.output("y", x, noise_std=0.1)
+    with pytest.raises(ModelError, match="dynamics of 'x' is nan at the declared initial state"):
+        m.check()
+
+
+def test_weight_name_colliding_with_a_state_is_refused():
+    from skigen.library import term
+    m, x, u = base()
+    m.unknown(x, [term("x", x, key="one")])
+    with pytest.raises(ModelError, match="reserved"):
+        m.state("w_one")
