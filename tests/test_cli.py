@@ -43,15 +43,16 @@ def test_run_writes_the_result_contract(recording, tmp_path):
 @pytest.mark.parametrize("content, expected", [
     ("t,delta,phi\n0,0,0\n0.02,abc,0.1\n", ["row 3", "column 'delta'", "'abc' is not a number"]),
     ("t,delta,phi\n0,0,0\n0.02,0\n", ["row 3", "fields"]),
-    ("t,delta,phi\n0,0,0\n0,0,0.1\n", ["row 3", "column 't'"]),
+    ("t,delta,phi\n0,0,0\n0.02,0,0.1\n0.01,0,0.1\n", ["row 4", "column 't'", "time goes backwards"]),
     ("t,delta\n0,0\n0.02,0\n", ["missing", "phi"]),
     ("", ["empty"]),
-    ("t,delta,phi\n0,0,0\n0.02,nan,0.1\n", ["row 3", "column 'delta'"]),
+    ("t,delta,phi\n0,0,0\n0.02,1_0,0.1\n", ["row 3", "column 'delta'", "'1_0' is not a number"]),
+    ("t,delta,phi\n0,0,0\n0.02,1e39,0.1\n", ["row 3", "column 'delta'", "overflows the C float"]),
 ])
 def test_malformed_recordings_get_one_line_errors(tmp_path, content, expected):
     bad = tmp_path / "bad.csv"
     bad.write_text(content)
-    r = skigen("run", MODEL, str(bad), "--out", str(tmp_path / "o.csv"))
+    r = skigen("run", MODEL, str(bad), "--out", str(tmp_path / "o.csv"), "--backend", "c", "--real", "float")
     assert r.returncode == 2
     assert "Traceback" not in r.stderr
     assert "bad.csv" in r.stderr

@@ -1,7 +1,7 @@
 """skigen diagnose: concealed effects found, named, located and fixed; clean data left alone;
 user mistakes reported in one line.
 
-The scenarios (examples/diagnose_scenarios.py) fly a closed-loop cart or a vertical
+The scenarios (benchmarks/scenarios.py) fly a closed-loop cart or a vertical
 quadrotor whose true physics adds one effect the nominal model file leaves out, each
 hidden in a different way. Every diagnosis runs once per module (a fixture) and the
 tests read its report.
@@ -15,7 +15,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from examples.diagnose_scenarios import make, overlap
+from benchmarks.scenarios import make, overlap
 from models import cart
 from skigen import derive
 from skigen.cli import load_model, main
