@@ -1,11 +1,12 @@
 """The model's sample grid is the clock: time-stamped samples laid onto it.
 
 The grid has step ``dt`` (the model's) and runs from the first time stamp at
-which every input is known to the last time stamp of any used column. Inputs
-are held (zero-order hold) or interpolated linearly (first-order hold) onto
-it; each output sample goes to the grid sample nearest its time stamp when it
-lies within dt/2 of it (a nearer sample of the same output wins; the others
-are counted and reported). Grid samples without one are "not measured" and
+which every input is known to the last time stamp of any used column. Every
+sample belongs to the grid sample nearest its time stamp (within dt/2), so
+jittered stamps land where they were meant to. Inputs are held from there
+(zero-order hold) or interpolated linearly between their stamps (first-order
+hold); an output is used at its grid sample (a nearer sample of the same
+output wins; the others are counted and reported). Grid samples without one are "not measured" and
 the filter predicts through them. A column with no sample for longer than
 ``max_gap`` seconds is a :class:`Hole`, reported with its time span.
 """
@@ -32,6 +33,8 @@ class Hole:
     t0: float
     t1: float
     columns: tuple[str, ...]
+    inputs: bool = False      # an input is among them: it is not known in the hole
+
 
     def __str__(self) -> str:
         return f"{self.t0:.6g}–{self.t1:.6g} s ({self.t1 - self.t0:.3g} s) without {', '.join(self.columns)}"
@@ -79,11 +82,11 @@ def time_scale(samples: Samples, time_unit: str, dt: float) -> tuple[float, str 
     return UNITS[time_unit], None
 
 
-def _series(samples: Samples, scale: float):
-    """name -> (stamps in seconds, values, group, row index) of the samples present."""
+def _series(samples: Samples, scale: float, origin: float):
+    """name -> (stamps in seconds after ``origin``, values, group, row index) of the samples present."""
     out = {}
     for g in samples.groups:
-        t = g.t if g.seconds else g.t * scale
+        t = (g.t if g.seconds else g.t * scale) - origin
         for name, v in g.values.items():
             ok = np.isfinite(v)
             out[name] = (t[ok], v[ok], g, np.flatnonzero(ok))
@@ -92,7 +95,8 @@ def _series(samples: Samples, scale: float):
 
 def _check_length(samples, series, start, end, dt) -> int:
     """The grid size; an error naming the largest jump when the stamps cannot be right."""
-    n = int(np.floor((end - start) / dt + 0.5)) + 1 if np.isfinite(end - start) else -1
+    span = (end - start) / dt
+    n = int(np.floor(span + 0.5)) + 1 if np.isfinite(span) and span < 2 ** 62 else -1
     stamps = sum(len(s[0]) for s in series.values())
     if 0 < n <= GRID_PER_STAMP * stamps + 10_000:
         return n
@@ -101,7 +105,7 @@ def _check_length(samples, series, start, end, dt) -> int:
     raise RecordingError(
         f"{samples.source}, {g.where(rows[i])}, column '{samples.time_column}': the time stamps span "
         f"{end - start:.3g} s, {n if n > 0 else 'too many'} samples of the model's dt = {dt:g} s for {stamps} "
-        f"values; the largest jump is here, from {ts[i - 1] if i else start:.17g} to {ts[i]:.17g} s "
+        f"values; the largest jump is here, {ts[i] - (ts[i - 1] if i else start):.3g} s "
         f"(check this time stamp and --time-unit)")
 
 
@@ -116,15 +120,15 @@ def _nearest(ts, start, dt, n):
     return k[order[first]], order[first]
 
 
-def _holes(series, names, start, end, max_gap, columns) -> list[Hole]:
+def _holes(series, names, inputs, start, end, max_gap, columns) -> list[Hole]:
     spans = {}
     for name in names:
         ts = series[name][0]
         edges = np.concatenate([[start], ts[(ts > start) & (ts < end)], [end]])
         gaps = np.flatnonzero(np.diff(edges) > max_gap)
         for j in gaps:
-            spans.setdefault((float(edges[j]), float(edges[j + 1])), []).append(columns[name])
-    return [Hole(a, b, tuple(c)) for (a, b), c in sorted(spans.items())]
+            spans.setdefault((float(edges[j]), float(edges[j + 1])), []).append(name)
+    return [Hole(a, b, tuple(columns[n] for n in c), any(n in inputs for n in c)) for (a, b), c in sorted(spans.items())]
 
 
 def to_grid(samples: Samples, dt: float, input_names, output_names, input_hold: str = "zoh", *,
@@ -133,7 +137,8 @@ def to_grid(samples: Samples, dt: float, input_names, output_names, input_hold: 
     input_names, output_names = tuple(input_names), tuple(output_names)
     scale, note = time_scale(samples, time_unit, dt)
     notes = list(samples.notes) + ([note] if note else [])
-    series, cols = _series(samples, scale), samples.columns
+    origin = min(float(g.t[0]) * (1.0 if g.seconds else scale) for g in samples.groups if len(g.t))
+    series, cols = _series(samples, scale, origin), samples.columns   # relative times: exact arithmetic
     for name in input_names:
         if not len(series[name][0]):
             raise RecordingError(f"{samples.source}, column '{cols[name]}': input '{name}' has no value")
@@ -153,7 +158,7 @@ def to_grid(samples: Samples, dt: float, input_names, output_names, input_hold: 
         if input_hold == "foh":
             inputs[:, j] = np.interp(t, ts, v)
         else:
-            inputs[:, j] = v[np.searchsorted(ts, t + 1e-9 * dt, side="right") - 1]
+            inputs[:, j] = v[np.searchsorted(ts, t + dt / 2, side="left") - 1]   # the last sample nearest ≤ t
     outputs = np.full((n, len(output_names)), np.nan)
     for j, name in enumerate(output_names):
         ts, v = series[name][:2]
@@ -162,13 +167,14 @@ def to_grid(samples: Samples, dt: float, input_names, output_names, input_hold: 
         early = int(np.sum(ts < start - dt / 2))
         dropped = len(ts) - len(used) - early
         if early:
-            notes.append(f"output '{name}': {early} sample(s) before the inputs are known (t < {start:g} s) "
+            notes.append(f"output '{name}': {early} sample(s) before the inputs are known (t < {origin + start:g} s) "
                          f"not used")
         if dropped:
             notes.append(f"output '{name}': {dropped} sample(s) not used: a nearer sample of '{name}' had "
                          f"the same grid sample (the log is faster than the model's 1/dt = {1 / dt:g} Hz)")
         if not len(ts):
             notes.append(f"output '{name}' (column '{cols[name]}') has no value: never measured")
-    holes = _holes(series, input_names + output_names, start, end, max_gap, cols)
-    return Recording(samples.source, t, inputs, outputs, input_names, output_names,
+    holes = [Hole(h.t0 + origin, h.t1 + origin, h.columns, h.inputs) for h in
+             _holes(series, input_names + output_names, input_names, start, end, max_gap, cols)]
+    return Recording(samples.source, origin + t, inputs, outputs, input_names, output_names,
                      holes=tuple(holes), notes=tuple(notes), columns=dict(cols), max_gap=max_gap)

@@ -284,6 +284,32 @@ def _check_diverged(filt, rec, part: RunResult, start: int, rejected: int) -> in
     return rejected
 
 
+RESTART_SCALE = 1.0      # after an input hole the states restart with this times their declared covariance
+
+
+def restarts(rec: Recording, dt: float) -> list[int]:
+    """Grid samples at which an input is known again after a hole in it."""
+    ks = {int(np.ceil((h.t1 - rec.t[0]) / dt - 1e-6)) for h in rec.holes if h.inputs}
+    return sorted(k for k in ks if 0 < k < len(rec.t))
+
+
+def forget_states(stepper, filt: DerivedFilter) -> None:
+    """The input was unknown for a while: the physical states restart from their declared
+    covariance (mean kept) and lose their correlation with the weights and parameters, which
+    keep what they learnt."""
+    nx, square_root = len(filt.aug.model.states), filt.square_root
+    C = np.asarray(stepper.C, float)
+    P = C @ C.T if square_root else C.copy()
+    P[:nx, :] = 0.0
+    P[:, :nx] = 0.0
+    P[:nx, :nx] = RESTART_SCALE * filt.aug.P0[:nx, :nx]
+    new = np.linalg.cholesky(P) if square_root else P
+    if hasattr(stepper, "set"):
+        stepper.set("C", new)
+    else:
+        stepper.C = new
+
+
 def _stepper(filt, backend, real, show_progress, cache_dir):
     aug, model = filt.aug, filt.aug.model
     if backend == "c":
@@ -306,11 +332,14 @@ def iter_run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", re
     stepper = _stepper(filt, backend, real, show_progress, cache_dir)
     inputs, N = step_inputs(model, rec.inputs), len(rec.t)
     chunk = chunk or CHUNK[backend]
-    starts = range(0, N, chunk)
+    again = set(restarts(rec, model.dt))
+    bounds = sorted(set(range(0, N, chunk)) | again) + [N]
     label = label or f"{model.name} {filt.kind} ({backend})"
     rejected = 0
-    for a in progress(starts, len(starts), f"{label}, parts of {chunk} samples") if show_progress else starts:
-        b = min(a + chunk, N)
+    parts = list(zip(bounds[:-1], bounds[1:]))
+    for a, b in progress(parts, len(parts), f"{label}, {N} samples in parts") if show_progress else parts:
+        if a in again:
+            forget_states(stepper, filt)
         raw = (stepper.run_many(inputs[a:b], rec.outputs[a:b]) if backend == "c"
                else _step_python(stepper, inputs[a:b], rec.outputs[a:b]))
         part = _part(filt, rec.t[a:b], rec.outputs[a:b], raw, rec)
