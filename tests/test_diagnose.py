@@ -202,7 +202,7 @@ def _cart_csv(path, seconds=10.0, dt=cart.DT, measured=True):
     ("no_model", ["defines no skigen.Model"]),
     ("missing_column", ["missing", "'p_meas'"]),
     ("too_short", ["too few", f"at least {MIN_SAMPLES}"]),
-    ("wrong_dt", ["0.02 s apart", "dt = 0.01 s"]),
+    ("time_in_ms", ["10 s apart", "dt = 0.01 s", "is the time in ms?"]),   # (a 50 Hz log is laid on the grid)
     ("bad_candidate", ["NAME:EQUATION:FORMULA"]),
     ("candidate_unknown_name", ["formula", "'q'"]),
 ])
@@ -216,7 +216,7 @@ def test_user_errors_are_one_line(tmp_path, capsys, case, expected):
     elif case == "no_model":
         model = str(tmp_path / "empty.py")
         (tmp_path / "empty.py").write_text("x = 1\n")
-    _cart_csv(data, seconds=1.0 if case == "too_short" else 10.0, dt=0.02 if case == "wrong_dt" else cart.DT,
+    _cart_csv(data, seconds=1.0 if case == "too_short" else 10.0, dt=10.0 if case == "time_in_ms" else cart.DT,
               measured=case != "missing_column")
     if case == "bad_candidate":
         extra = ["--candidate", "stiction-tanh(v)"]
