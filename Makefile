@@ -31,6 +31,7 @@ bench: $(STAMP)  ## accuracy and speed tables (figures land in benchmarks/figure
 	$(PY) -m skigen bench footprint
 	$(PY) -m skigen bench diagnose
 	$(PY) -m skigen bench fit
+	$(PY) -m skigen bench logs
 
 generate: $(STAMP)  ## regenerate the checked-in C sources in generated/
 	$(PY) -m skigen.emit.shipped generated

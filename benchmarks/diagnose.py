@@ -10,7 +10,7 @@ import tempfile
 from pathlib import Path
 
 from benchmarks.common import emit, parser
-from examples.diagnose_demo import one
+from benchmarks.scenarios import one
 
 CASES = ("cart_lag", "quad_ground_effect")
 SECONDS = 100.0     # 10 000 samples at 100 Hz

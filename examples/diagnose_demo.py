@@ -3,7 +3,7 @@
     python examples/diagnose_demo.py --out out/diagnose [--seconds 60] [--only cart_lag ...]
     python examples/diagnose_demo.py --timing          # one 10 000-sample diagnosis, timed
 
-For each scenario of ``examples/diagnose_scenarios.py`` it writes the
+For each scenario of ``benchmarks/scenarios.py`` it writes the
 recording CSV, runs ``skigen diagnose`` (the Python function, as the CLI
 does) into ``OUT/<scenario>/`` and prints: the verdict, the located equation,
 window overlap with the truth, the finding against the truth, and the
@@ -18,32 +18,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from examples.diagnose_scenarios import SCENARIOS, make, overlap  # noqa: E402
-from skigen.diagnose import diagnose  # noqa: E402
-
-
-def one(name: str, out: Path, seconds: float, seed: int) -> dict:
-    sc = make(name, seconds, seed)
-    csv = sc.write_csv(out / f"{name}.csv")
-    t0 = time.perf_counter()
-    rep = diagnose(sc.model_file, csv, out / name, candidates=list(sc.candidates), show_progress=False)
-    dt = time.perf_counter() - t0
-    d = rep.data
-    top = d["findings"][0] if d["findings"] else None
-    rec, prec = overlap(d["located"]["windows"], sc.t, sc.active) if sc.effect else (float("nan"),) * 2
-    fit = d["fit"]
-    row = dict(name=name, samples=len(sc.t), seconds=dt, mismatch=d["mismatch_detected"],
-               equations=",".join(d["located"]["equations"]), recall=rec, precision=prec,
-               regime=d["located"].get("regime"), truth=f"{sc.effect or '-'} {sc.truth if sc.truth else ''}",
-               found="; ".join(f"{f['effect']} on {f['equation']} {f['coefficient']:.4g}±{f['std'] or 0:.2g}"
-                               for f in d["findings"]) or "-",
-               right=(top is not None and top["effect"] == sc.effect and sc.equation in top["equation"].split("+"))
-               if sc.effect else not d["findings"],
-               ll=(fit["before"]["loglik"], fit["after"]["loglik"] if fit["after"] else None),
-               rmse=(list(fit["before"]["free_run_rmse"].values())[0],
-                     list(fit["after"]["free_run_rmse"].values())[0] if fit["after"] else None),
-               concealment=sc.concealment)
-    return row
+from benchmarks.scenarios import SCENARIOS, one  # noqa: E402
 
 
 def main() -> None:

@@ -16,6 +16,8 @@ from .recording import RecordingError
 
 __all__ = ["main", "load_model"]
 
+BENCHMARKS = ("wingrock", "delay", "quadrotor", "mukf", "speed", "footprint", "diagnose", "logs")
+
 
 class CliError(Exception):
     """A user-facing error: printed as one line, exit status 2."""
@@ -29,18 +31,52 @@ def load_model(spec: str) -> Model:
         raise CliError(str(exc)) from None
 
 
+def _add_data_options(p: argparse.ArgumentParser) -> None:
+    """The options of every command that reads DATA (see :func:`_read_options`)."""
+    p.add_argument("--time", metavar="COLUMN", help="time column (default: t, time or timestamp)")
+    p.add_argument("--time-unit", choices=["s", "ms", "us", "ns", "auto"], default="s",
+                   help="unit of the time column (default s; auto decides from magnitude and spacing and "
+                        "says what it chose); ULog stamps are always µs")
+    p.add_argument("--map", action="append", default=[], metavar="NAME=COLUMN",
+                   help="read model input/output NAME from COLUMN (repeatable); ULog columns are "
+                        "topic.field, topic.field[i] or topic:instance.field")
+    p.add_argument("--max-gap", type=float, default=1.0, metavar="SECONDS",
+                   help="report spans longer than this without a sample of a column (default 1 s)")
+
+
+def _read_options(args) -> dict:
+    """Keyword arguments of :func:`skigen.recording.load_recording` from :func:`_add_data_options`."""
+    columns = {}
+    for m in args.map:
+        name, sep, column = m.partition("=")
+        if not sep or not name.strip() or not column.strip():
+            raise CliError(f"--map '{m}': expected NAME=COLUMN, e.g. --map z=vehicle_local_position.z")
+        if name.strip() in columns:
+            raise CliError(f"--map: '{name.strip()}' is mapped twice")
+        columns[name.strip()] = column.strip()
+    if not args.max_gap > 0:
+        raise CliError(f"--max-gap must be positive, got {args.max_gap}")
+    return dict(time=args.time, time_unit=args.time_unit, columns=columns or None, max_gap=args.max_gap)
+
+
 def _run(args) -> int:
     from .derive import derive
-    from .recording import read_recording
-    from .runtime import run
+    from .recording import TableWriter, load_recording
+    from .runtime import RunSummary, iter_run
 
     model = load_model(args.model)
-    rec = read_recording(args.data, model.input_names, model.output_names)
+    rec = load_recording(args.data, model, real=args.real, **_read_options(args))
+    for line in rec.notes:
+        print(line)
     filt = derive(model, args.filter)
-    result = run(filt, rec, backend=args.backend, real=args.real)
-    result.write(args.out)
-    print(f"{model.name} {args.filter} ({args.backend}): {len(rec.t)} samples -> {args.out}; "
-          f"mean NIS {np.nanmean(result.nis):.3f} (expected about {len(model.output_names)})")
+    summary = RunSummary(filt)
+    with TableWriter(args.out) as out:
+        for part in iter_run(filt, rec, backend=args.backend, real=args.real):
+            out.write(part.columns())
+            summary.add(part)
+    print(f"{model.name} {args.filter} ({args.backend}): {len(rec.t)} samples of dt = {model.dt:g} s, "
+          f"t = {rec.t[0]:.6g}–{rec.t[-1]:.6g} s -> {args.out}")
+    print("\n".join(summary.lines()))
     return 0
 
 
@@ -69,7 +105,8 @@ def _diagnose(args) -> int:
         candidates.append(tuple(p.strip() for p in parts))
     try:
         report = diagnose(args.model, args.data, args.out, candidates=candidates, alpha=args.alpha,
-                          validation=args.validation, horizon=args.horizon, figures=not args.no_figures)
+                          validation=args.validation, horizon=args.horizon, figures=not args.no_figures,
+                          **_read_options(args))
     except DiagnosisError as exc:
         raise CliError(str(exc)) from None
     d = report.data
@@ -98,11 +135,13 @@ def _diagnose(args) -> int:
 def _fit(args) -> int:
     from .fit import FitError, fit
     from .fit.output import validate, write_outputs
-    from .recording import read_recording
+    from .recording import load_recording
 
     model = load_model(args.model)
-    read = lambda path: read_recording(path, model.input_names, model.output_names)
-    recs, held_out = [read(p) for p in args.data], [read(p) for p in args.validate]
+    options = _read_options(args)
+    recs, held_out = ([load_recording(p, model, **options) for p in paths] for paths in (args.data, args.validate))
+    for line in (n for rec in recs + held_out for n in rec.notes):
+        print(line)
     try:
         result = fit(model, recs, method=args.method, estimate=args.estimate or None,
                      shooting=args.shooting, max_iter=args.max_iter)
@@ -124,10 +163,15 @@ def _fit(args) -> int:
 
 
 def _bench(args) -> int:
+    module = f"benchmarks.{args.name}"
     try:
-        bench = importlib.import_module(f"benchmarks.{args.name}")
-    except ModuleNotFoundError:
-        raise CliError(f"no benchmark named '{args.name}'") from None
+        bench = importlib.import_module(module)
+    except ModuleNotFoundError as exc:
+        if exc.name in (module, "benchmarks"):
+            raise CliError(f"no benchmark named '{args.name}' (choose one of {', '.join(BENCHMARKS)})") from None
+        raise CliError(f"benchmark '{args.name}' failed to import: {exc}") from None
+    except ImportError as exc:
+        raise CliError(f"benchmark '{args.name}' failed to import: {exc}") from None
     return bench.main(args.rest + (["--json"] if args.json else []))
 
 
@@ -136,11 +180,12 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
     r = sub.add_parser("run", help="run a filter over a recording")
     r.add_argument("model", help="model file (.py exposing `model`) or package.module:attribute")
-    r.add_argument("data", help="recording CSV: t, inputs, outputs")
+    r.add_argument("data", help="recording: CSV, Parquet or PX4 ULog")
     r.add_argument("--filter", choices=FILTERS, default="ski")
     r.add_argument("--backend", choices=["python", "c"], default="python")
     r.add_argument("--real", choices=["double", "float"], default="double", help="C backend precision")
     r.add_argument("--out", required=True, help="result CSV")
+    _add_data_options(r)
     r.set_defaults(func=_run)
     g = sub.add_parser("generate", help="emit the C library of a filter")
     g.add_argument("model")
@@ -154,7 +199,7 @@ def _parser() -> argparse.ArgumentParser:
     g.set_defaults(func=_generate)
     d = sub.add_parser("diagnose", help="find, name and correct what the model misses in a recording")
     d.add_argument("model", help="model file (.py exposing `model`) or package.module:attribute")
-    d.add_argument("data", help="recording CSV: t, inputs, outputs")
+    d.add_argument("data", help="recording: CSV, Parquet or PX4 ULog")
     d.add_argument("--out", required=True, help="output directory (report.json, report.md, figures, "
                                                 "corrected_model.py, generated/)")
     d.add_argument("--candidate", action="append", default=[], metavar="NAME:EQUATION:FORMULA",
@@ -163,10 +208,11 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--validation", type=float, default=0.3, help="held-out last fraction (0.3)")
     d.add_argument("--horizon", type=float, default=1.0, help="free-run length in seconds (1)")
     d.add_argument("--no-figures", action="store_true", help="skip the figures")
+    _add_data_options(d)
     d.set_defaults(func=_diagnose)
     f = sub.add_parser("fit", help="fit a model's parameters, weights and initial states to recordings")
     f.add_argument("model", help="model file (.py exposing `model`) or package.module:attribute")
-    f.add_argument("data", nargs="+", help="recording CSV(s): t, inputs, outputs")
+    f.add_argument("data", nargs="+", help="recording(s): CSV, Parquet or PX4 ULog")
     f.add_argument("--out", required=True, help="output directory (fit.json, fitted_model.py, report.md, figures)")
     f.add_argument("--method", choices=["output-error", "filter-error"], default="output-error",
                    help="output-error: free-run simulation error; filter-error: maximum likelihood of the "
@@ -183,7 +229,8 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--max-iter", type=int, default=200, help="IPOPT iteration limit (200)")
     f.add_argument("--no-figures", action="store_true", help="skip the figures")
     f.set_defaults(func=_fit)
-    b = sub.add_parser("bench", help="print a benchmark table (wingrock, delay, quadrotor, mukf, speed, footprint, diagnose)")
+    _add_data_options(f)
+    b = sub.add_parser("bench", help=f"print a benchmark table ({', '.join(BENCHMARKS)})")
     b.add_argument("name")
     b.add_argument("--json", action="store_true", help="print one JSON object")
     b.add_argument("rest", nargs=argparse.REMAINDER)

@@ -1,22 +1,23 @@
-"""Flight-test recordings as CSV: strict reading, exact writing.
+"""Recordings: time-stamped samples read from a file or a DataFrame, laid onto the model's grid.
 
-Contract: a header row; first column ``t`` (seconds, strictly increasing);
-one column per model input and output, named as in the model.  Extra columns
-are ignored but must hold numbers or be empty.  An empty or NaN output cell
-means "not measured" and stays NaN (the filter skips that update).  Anything
-else malformed raises :class:`RecordingError` naming file, row and column.
+:func:`load_recording` is the entry point: it reads a CSV, Parquet or PX4 ULog
+file or a pandas DataFrame (:mod:`skigen.sources`) and lays the samples onto
+the model's sample grid (:mod:`skigen.grid`), reporting holes. A
+:class:`Recording` holds the result as read-only arrays. :func:`read_recording`
+reads a file by names; given ``dt`` it returns the grid, without it the rows as
+they are (strictly increasing time, every input present). Anything malformed
+raises :class:`RecordingError` naming the file, row and column.
 """
 from __future__ import annotations
 
-import csv
 import dataclasses
-import io
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["RecordingError", "Recording", "read_recording", "write_recording", "write_table"]
+__all__ = ["RecordingError", "Recording", "load_recording", "read_recording", "write_recording",
+           "write_table", "TableWriter"]
 
 
 class RecordingError(ValueError):
@@ -33,6 +34,10 @@ class Recording:
     outputs: np.ndarray  # (N, ny), NaN where not measured
     input_names: tuple[str, ...]
     output_names: tuple[str, ...]
+    holes: tuple = ()             # grid.Hole: spans longer than max_gap without a sample of some column
+    notes: tuple[str, ...] = ()   # what reading decided (time unit, samples not used)
+    columns: dict = field(default_factory=dict)   # model name -> column it was read from
+    max_gap: float = float("nan")  # seconds: the hole threshold used
 
     def __post_init__(self):
         for a in (self.t, self.inputs, self.outputs):
@@ -40,6 +45,11 @@ class Recording:
 
     def __len__(self) -> int:
         return len(self.t)
+
+    @property
+    def measured(self) -> np.ndarray:
+        """(N, ny) True where an output was measured."""
+        return np.isfinite(self.outputs)
 
     @property
     def dt(self) -> float:
@@ -52,102 +62,60 @@ class Recording:
         return dataclasses.replace(self, t=self.t[s], inputs=self.inputs[s], outputs=self.outputs[s])
 
 
-def _where(path, row=None, col=None) -> str:
-    return str(path) + ("" if row is None else f", row {row}") + ("" if col is None else f", column '{col}'")
+def load_recording(source, model, *, time=None, time_unit: str = "s", columns=None, max_gap: float = 1.0,
+                   real: str = "double") -> Recording:
+    """``source`` (a CSV, Parquet or ULog path, or a DataFrame) on ``model``'s grid.
+
+    time: the time column (default t, time or timestamp); time_unit: s, ms, us, ns or auto;
+    columns: model input/output name -> column; max_gap: seconds without a sample reported as
+    a hole; real: 'float' also rejects values beyond the C float range.
+    """
+    return read_recording(source, model.input_names, model.output_names, dt=model.dt,
+                          input_hold=model.input_hold, time=time, time_unit=time_unit, columns=columns,
+                          max_gap=max_gap, real=real)
 
 
-def read_recording(path, input_names, output_names, *, min_samples: int = 2) -> Recording:
-    """Read and validate a CSV recording; see the module docstring for the contract."""
+def read_recording(path, input_names, output_names, *, dt: float | None = None, input_hold: str = "zoh",
+                   time=None, time_unit: str = "s", columns=None, max_gap: float = 1.0, real: str = "double",
+                   min_samples: int = 2) -> Recording:
+    """Read ``path`` (or a DataFrame) for the named inputs and outputs.
+
+    With ``dt`` (seconds): the samples on that grid (see :mod:`skigen.grid`). Without: the
+    rows as they are, which then need strictly increasing time and every input in every row.
+    Other options as in :func:`load_recording`.
+    """
+    from .grid import UNITS, to_grid
+    from .sources import read_samples
+
     input_names, output_names = tuple(input_names), tuple(output_names)
-    try:
-        with open(path, encoding="utf-8-sig", newline="") as f:
-            text = f.read()
-    except FileNotFoundError:
-        raise RecordingError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise RecordingError(f"{path}: cannot read file ({e})") from None
-
-    reader = csv.reader(io.StringIO(text))
-    try:
-        rows = list(reader)
-    except csv.Error as e:
-        raise RecordingError(f"{_where(path, reader.line_num)}: malformed CSV ({e})") from None
-    while rows and not any(c.strip() for c in rows[-1]):  # trailing blank lines
-        rows.pop()
-    if not rows:
-        raise RecordingError(f"{path}: file is empty")
+    samples = read_samples(path, input_names + output_names, columns=columns, time=time, real=real)
+    if dt is not None:
+        return to_grid(samples, dt, input_names, output_names, input_hold, time_unit=time_unit,
+                       max_gap=max_gap, min_samples=min_samples)
+    (g,) = samples.groups
+    src, cols = samples.source, samples.columns
 
     def fail(i, col, msg):
-        """Raise for data row ``i`` (0-based), numbered as its line in the file (header = 1)."""
-        reader = csv.reader(io.StringIO(text))  # count physical lines: a quoted cell may span several
-        for _ in range(i + 1):
-            next(reader)
-        raise RecordingError(f"{_where(path, reader.line_num + 1, col)}: {msg}")
-
-    header = [h.strip() for h in rows[0]]
-    body = rows[1:]
-    if not header or header[0] != "t":
-        where = f"'t' is column {header.index('t') + 1}" if "t" in header else "there is no 't' column"
-        raise RecordingError(f"{_where(path, 1, 't')}: the first column must be time 't' in seconds; "
-                             f"{where} (columns found: {', '.join(header)})")
-    seen = {}
-    for j, h in enumerate(header):
-        if h in seen:
-            raise RecordingError(f"{_where(path, 1, h)}: duplicate column name "
-                                 f"(columns {seen[h] + 1} and {j + 1})")
-        seen[h] = j
-    missing = [n for n in input_names + output_names if n not in seen]
-    if missing:
-        raise RecordingError(f"{path}: missing required column(s) {', '.join(repr(m) for m in missing)} "
-                             f"(columns found: {', '.join(header)})")
-
-    ncol = len(header)
-    for i, r in enumerate(body):
-        if len(r) != ncol:
-            fail(i, None, f"expected {ncol} fields (as in the header), found {len(r)}")
-
-    try:  # fast path: plain numbers, empty cells as NaN
-        data = np.array([[float(c or "nan") for c in r] for r in body], dtype=float).reshape(len(body), ncol)
-    except ValueError:  # slow path: tolerate blank cells, locate the bad one
-        data = np.empty((len(body), ncol))
-        for i, r in enumerate(body):
-            for j, c in enumerate(r):
-                try:
-                    data[i, j] = float(c.strip() or "nan")
-                except ValueError:
-                    fail(i, header[j], f"{c!r} is not a number")
-
-    def first_bad(mask):
-        return int(np.argmax(mask)) if mask.any() else None
-
-    for name in ("t",) + input_names:
-        j = seen[name]
-        i = first_bad(~np.isfinite(data[:, j]))
-        if i is not None:
-            what = "time must be a finite number" if name == "t" else "inputs must be present"
-            fail(i, name, f"{body[i][j].strip()!r}: {what} in every row")
-    for name in output_names:
-        j = seen[name]
-        i = first_bad(np.isinf(data[:, j]))
-        if i is not None:
-            fail(i, name, f"{body[i][j].strip()!r}: outputs must be finite (leave the cell empty if not measured)")
-
-    t = data[:, 0]
-    i = first_bad(np.diff(t) <= 0)
-    if i is not None:
-        now, before = body[i + 1][0].strip(), body[i][0].strip()
-        fail(i + 1, "t", f"time must be strictly increasing: {now} follows {before} (row above)")
-    if len(body) < min_samples:
-        raise RecordingError(f"{path}: {len(body)} data row(s), at least {min_samples} needed")
-
-    return Recording(
-        path=str(path),
-        t=t.copy(),
-        inputs=data[:, [seen[n] for n in input_names]],
-        outputs=data[:, [seen[n] for n in output_names]],
-        input_names=input_names,
-        output_names=output_names,
-    )
+        raise RecordingError(f"{src}, {g.where(i)}, column '{col}': {msg}")
+    for name in input_names:
+        bad = ~np.isfinite(g.values[name])
+        if bad.any():
+            fail(int(np.argmax(bad)), cols[name], "no value: inputs must be present in every row "
+                                                  "(or give the model's dt to hold them)")
+    same = np.diff(g.t) <= 0
+    if same.any():
+        i = int(np.argmax(same)) + 1
+        fail(i, samples.time_column, f"time must be strictly increasing: {g.t[i]:.17g} follows "
+                                     f"{g.t[i - 1]:.17g} (row above)")
+    if len(g.t) < min_samples:
+        raise RecordingError(f"{src}: {len(g.t)} data row(s), at least {min_samples} needed")
+    if time_unit not in UNITS:
+        raise RecordingError(f"time unit '{time_unit}': choose s, ms, us or ns (auto needs the model's dt)")
+    scale = 1.0 if g.seconds else UNITS[time_unit]
+    return Recording(src, g.t * scale,
+                     np.column_stack([g.values[n] for n in input_names]).reshape(len(g.t), len(input_names)),
+                     np.column_stack([g.values[n] for n in output_names]).reshape(len(g.t), len(output_names)),
+                     input_names, output_names, notes=tuple(samples.notes), columns=dict(cols))
 
 
 def write_recording(path, t, inputs: dict, outputs: dict, extra: dict | None = None) -> None:
@@ -161,16 +129,49 @@ def write_recording(path, t, inputs: dict, outputs: dict, extra: dict | None = N
     write_table(path, columns)
 
 
+def _csv_cell(text: str) -> str:
+    return '"' + text.replace('"', '""') + '"' if any(c in text for c in ',"\r\n') else text
+
+
+class TableWriter:
+    """CSV written a block of columns at a time (pyarrow): numbers in their shortest exact form,
+    NaN as an empty cell, text as is. Use as a context manager; :meth:`write` each block."""
+
+    def __init__(self, path):
+        self.path, self._writer = path, None
+        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+
+    def write(self, columns: dict) -> None:
+        import pyarrow as pa
+        import pyarrow.csv as pc
+
+        arrays = []
+        for name, v in columns.items():
+            v = np.asarray(v)
+            if v.ndim != 1 or len(v) != len(np.asarray(next(iter(columns.values())))):
+                raise ValueError(f"column {name!r}: expected a 1-D array of equal length, got shape {v.shape}")
+            arrays.append(pa.array(v.astype(float) if v.dtype.kind in "biuf" else v, from_pandas=True))
+        table = pa.Table.from_arrays(arrays, names=list(columns))
+        if self._writer is None:
+            self._file = open(self.path, "wb")
+            self._file.write((",".join(_csv_cell(n) for n in columns) + "\n").encode())
+            self._writer = pc.CSVWriter(self._file, table.schema, write_options=pc.WriteOptions(
+                include_header=False, quoting_style="none"))
+        self._writer.write_table(table)
+
+    def close(self) -> None:
+        if self._writer is not None:
+            self._writer.close()
+            self._file.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+
 def write_table(path, columns: dict) -> None:
-    """Write equal-length 1-D columns as CSV: header, then rows in '%.17g' (exact), NaN as empty."""
-    names = list(columns)
-    cols = [np.asarray(v, dtype=float) for v in columns.values()]
-    for name, c in zip(names, cols):
-        if c.ndim != 1 or len(c) != len(cols[0]):
-            raise ValueError(f"column {name!r}: expected a 1-D array of length {len(cols[0])}, got shape {c.shape}")
-    cells = [["" if x != x else "%.17g" % x for x in c.tolist()] for c in cols]
-    os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-    with open(path, "w", encoding="utf-8", newline="") as f:
-        w = csv.writer(f, lineterminator="\n")
-        w.writerow(names)
-        w.writerows(zip(*cells))
+    """Write equal-length 1-D columns as one CSV (see :class:`TableWriter`)."""
+    with TableWriter(path) as w:
+        w.write(columns)

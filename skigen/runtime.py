@@ -17,7 +17,8 @@ from .emit.c import Status
 from .progress import note, progress
 from .recording import Recording, write_table
 
-__all__ = ["RunResult", "FilterDivergedError", "PythonStepper", "run", "check_columns", "Status"]
+__all__ = ["RunResult", "RunSummary", "FilterDivergedError", "PythonStepper", "run", "iter_run", "check_columns",
+           "Status", "STATUS_WORDS"]
 
 MAX_REJECTED_IN_A_ROW = 20
 SLOW_DERIVATION_N = 80      # above this augmented-state size the symbolic step takes seconds: say so
@@ -27,9 +28,21 @@ class FilterDivergedError(RuntimeError):
     """The filter produced non-finite results for many samples in a row."""
 
 
+STATUS_WORDS = ("measured", "partial", "predicted", "bad_input", "rejected")
+
+
+def status_words(code: np.ndarray, measured: np.ndarray) -> np.ndarray:
+    """The step's status per sample: measured (every output), partial (some), predicted (none
+    measured), bad_input (non-finite input: nothing done), rejected (non-finite result: prior kept)."""
+    any_ = measured.any(axis=1) if measured.size else np.zeros(len(code), bool)
+    i = np.where(code == Status.OK, 0, np.where(any_, 1, 2))
+    i = np.where(code == Status.BAD_INPUT, 3, np.where(code == Status.NUMERICAL_FAILURE, 4, i))
+    return np.array(STATUS_WORDS, dtype=object)[i]
+
+
 @dataclass
 class RunResult:
-    """Per-sample filter output. Arrays have one row per recording sample."""
+    """Per-sample filter output. Arrays have one row per sample of the model's grid."""
 
     filter: DerivedFilter
     t: np.ndarray
@@ -42,6 +55,13 @@ class RunResult:
     prior_var: np.ndarray     # (N, nw) ARD prior variances (SKI), else empty
     code: np.ndarray          # (N,) Status per sample
     final_cov: np.ndarray     # (n, n) last posterior covariance
+    measured: np.ndarray | None = None   # (N, ny) True where the output was measured
+    holes: tuple = ()         # grid.Hole of the recording
+    notes: tuple = ()         # what reading the recording decided
+
+    def __post_init__(self):
+        if self.measured is None:
+            self.measured = np.isfinite(self.innovation)
 
     @property
     def names(self) -> list[str]:
@@ -58,18 +78,95 @@ class RunResult:
     def columns(self) -> dict[str, np.ndarray]:
         """The run-result table of the contract (design.md), in order."""
         aug = self.filter.aug
+        outs = aug.model.output_names
         cols = {"t": self.t}
         cols.update({n: self.mean[:, i] for i, n in enumerate(self.names)})
         cols.update({f"std_{n}": self.std[:, i] for i, n in enumerate(self.names)})
-        cols.update({f"innov_{n}": self.innovation[:, i] for i, n in enumerate(aug.model.output_names)})
-        cols.update(nis=self.nis, loglik=self.loglik)
+        cols.update({f"innov_{n}": self.innovation[:, i] for i, n in enumerate(outs)})
+        cols.update(nis=self.nis, loglik=self.loglik, status=status_words(self.code, self.measured))
+        cols.update({f"measured_{n}": self.measured[:, i].astype(np.int8) for i, n in enumerate(outs)})
         w_names = [self.names[i] for i in aug.w_index]
         cols.update({f"prior_var_{n}": self.prior_var[:, i] for i, n in enumerate(w_names)}
                     if self.prior_var.size else {})
         return cols
 
+    def to_frame(self):
+        """The result table as a pandas DataFrame (columns as in the result CSV)."""
+        import pandas as pd
+        return pd.DataFrame(self.columns())
+
     def write(self, path) -> None:
         write_table(path, self.columns())
+
+    def summary(self) -> "RunSummary":
+        return RunSummary(self.filter).add(self)
+
+    @classmethod
+    def concat(cls, parts: list["RunResult"]) -> "RunResult":
+        """One result from consecutive parts of a run."""
+        first, last = parts[0], parts[-1]
+        cat = lambda name: np.concatenate([getattr(p, name) for p in parts])
+        return cls(first.filter, cat("t"), cat("mean"), cat("std"), cat("innovation"), cat("innovation_var"),
+                   cat("nis"), cat("loglik"), cat("prior_var"), cat("code"), last.final_cov, cat("measured"),
+                   first.holes, first.notes)
+
+
+class RunSummary:
+    """What a run says at its end, gathered part by part: the weights' final values ± 2σ (SKI:
+    which terms are kept), the holes, and the mean NIS against its expectation given the
+    outputs actually measured (a consistent filter's NIS averages the number measured)."""
+
+    KEEP = 0.01     # SKI keeps a term whose ARD prior std, relative to the declared one, is ≥ 1 % of the largest
+
+    def __init__(self, filt: DerivedFilter):
+        self.filter, self.samples, self.with_measurement = filt, 0, 0
+        self.nis_sum, self.nis_count, self.expected_sum, self.last, self.t = 0.0, 0, 0.0, None, [np.nan, np.nan]
+        self.holes, self.notes = (), ()
+
+    def add(self, part: RunResult) -> "RunSummary":
+        ok = np.isfinite(part.nis)
+        self.samples += len(part.t)
+        self.with_measurement += int(part.measured.any(axis=1).sum()) if part.measured.size else 0
+        self.nis_sum += float(part.nis[ok].sum())
+        self.nis_count += int(ok.sum())
+        self.expected_sum += float(part.measured[ok].sum())
+        self.holes, self.notes = part.holes, part.notes
+        if len(part.t):
+            self.t = [self.t[0] if self.samples > len(part.t) else float(part.t[0]), float(part.t[-1])]
+            good = np.flatnonzero(np.isfinite(part.mean[:, 0]))
+            if good.size:
+                k = good[-1]
+                self.last = (part.mean[k], part.std[k], part.prior_var[k] if part.prior_var.size else None)
+        return self
+
+    def kept(self) -> np.ndarray | None:
+        """SKI: True for the weights whose term is kept; None for other filters."""
+        if self.last is None or self.last[2] is None:
+            return None
+        r = np.sqrt(np.asarray(self.last[2], float) / self.filter.aug.s0)
+        return r >= self.KEEP * r.max()
+
+    def lines(self) -> list[str]:
+        aug, out = self.filter.aug, []
+        if self.holes:
+            out.append(f"{len(self.holes)} hole(s) longer than the maximum gap:")
+            out += [f"  {h}" for h in self.holes]
+        else:
+            out.append("no holes")
+        if self.last is not None and len(aug.w_index):
+            kept = self.kept()
+            out.append("weight" + " " * 14 + "final ± 2σ" + ("   (SKI: kept?)" if kept is not None else ""))
+            for j, i in enumerate(aug.w_index):
+                mark = "" if kept is None else ("   kept" if kept[j] else "   pruned")
+                out.append(f"  {aug.names[i]:16s} {self.last[0][i]:+.4g} ± {2 * self.last[1][i]:.2g}{mark}")
+        if self.nis_count:
+            expected = self.expected_sum / self.nis_count
+            out.append(f"mean NIS {self.nis_sum / self.nis_count:.3f} (expected {expected:.3f}: the "
+                       f"{len(aug.model.output_names)} output(s) measured {expected:.3g} at a time on average, "
+                       f"{self.with_measurement} of {self.samples} samples measured)")
+        else:
+            out.append("no sample was measured: no NIS")
+        return out
 
 
 class PythonStepper:
@@ -135,6 +232,124 @@ def check_columns(model, rec: Recording) -> None:
             + f" (model inputs {model.input_names}, outputs {model.output_names})")
 
 
+CHUNK = {"python": 1_000, "c": 1 << 16}     # samples per part of a run
+
+
+def _step_python(stepper: PythonStepper, inputs, outputs) -> dict[str, np.ndarray]:
+    """The per-sample records of :meth:`CFilter.run_many`, from the Python step."""
+    N, n, ny = len(inputs), stepper.filt.aug.n, outputs.shape[1]
+    nw = len(stepper.filt.aug.w_index) if stepper.filt.has_ard else 0
+    raw = dict(z_post=np.empty((N, n)), std=np.empty((N, n)), e=np.empty((N, ny)), pyy=np.empty((N, ny)),
+               nis=np.empty(N), loglik=np.empty(N), s=np.empty((N, nw)), code=np.empty(N, int))
+    for k in range(N):
+        raw["code"][k] = stepper.step(inputs[k], outputs[k])
+        raw["z_post"][k], raw["std"][k] = stepper.z_post, stepper.std()
+        raw["e"][k], raw["pyy"][k] = stepper.e, np.diag(stepper.Pyy)
+        raw["nis"][k], raw["loglik"][k] = stepper.nis, stepper.loglik
+        if nw:
+            raw["s"][k] = stepper.s
+    return raw
+
+
+def _part(filt, t, outputs, raw, rec) -> RunResult:
+    """A RunResult from the raw records of a part: NaN where nothing was done or measured."""
+    code = np.asarray(raw["code"], int)
+    valid = np.isfinite(outputs)
+    stepped = code != Status.BAD_INPUT
+    update = (code != Status.NUMERICAL_FAILURE) & stepped & valid.any(axis=1)
+    f = lambda a, mask: np.where(mask, np.asarray(a, float), np.nan)
+    mean, std = f(raw["z_post"], stepped[:, None]), f(raw["std"], stepped[:, None])
+    e, ev = f(raw["e"], update[:, None] & valid), f(raw["pyy"], update[:, None] & valid)
+    nis = f(raw["nis"], update)
+    ll = np.where(update, raw["loglik"], np.where(stepped, 0.0, np.nan))
+    s = f(raw["s"], stepped[:, None]) if filt.has_ard else np.zeros((len(t), 0))
+    return RunResult(filt, t, mean, std, e, ev, nis, ll, s, code, np.full((filt.aug.n,) * 2, np.nan),
+                     valid, rec.holes, rec.notes)
+
+
+def _check_diverged(filt, rec, part: RunResult, start: int, rejected: int) -> int:
+    """The count of rejected steps in a row at the part's end; an error at MAX_REJECTED_IN_A_ROW."""
+    if not np.any(part.code == Status.NUMERICAL_FAILURE):
+        return 0 if np.any(part.code != Status.BAD_INPUT) else rejected
+    for k, c in enumerate(part.code):
+        if c == Status.BAD_INPUT:
+            continue
+        rejected = rejected + 1 if c == Status.NUMERICAL_FAILURE else 0
+        if rejected >= MAX_REJECTED_IN_A_ROW:
+            k0 = start + k - rejected + 1
+            model = filt.aug.model
+            raise FilterDivergedError(
+                f"{rec.path}: the {filt.kind} filter of '{model.name}' diverged: {rejected} non-finite "
+                f"steps in a row from t = {rec.t[k0]:g} s (grid sample {k0})")
+    return rejected
+
+
+RESTART_SCALE = 1.0      # after an input hole the states restart with this times their declared covariance
+
+
+def restarts(rec: Recording, dt: float) -> list[int]:
+    """Grid samples at which an input is known again after a hole in it."""
+    ks = {int(np.ceil((h.t1 - rec.t[0]) / dt - 1e-6)) for h in rec.holes if h.inputs}
+    return sorted(k for k in ks if 0 < k < len(rec.t))
+
+
+def forget_states(stepper, filt: DerivedFilter) -> None:
+    """The input was unknown for a while: the physical states restart from their declared
+    covariance (mean kept) and lose their correlation with the weights and parameters, which
+    keep what they learnt."""
+    nx, square_root = len(filt.aug.model.states), filt.square_root
+    C = np.asarray(stepper.C, float)
+    P = C @ C.T if square_root else C.copy()
+    P[:nx, :] = 0.0
+    P[:, :nx] = 0.0
+    P[:nx, :nx] = RESTART_SCALE * filt.aug.P0[:nx, :nx]
+    new = np.linalg.cholesky(P) if square_root else P
+    if hasattr(stepper, "set"):
+        stepper.set("C", new)
+    else:
+        stepper.C = new
+
+
+def _stepper(filt, backend, real, show_progress, cache_dir):
+    aug, model = filt.aug, filt.aug.model
+    if backend == "c":
+        from .emit.c import load_c
+        return load_c(filt, real, cache_dir=cache_dir)
+    if backend == "python":
+        if show_progress and "step" not in filt.__dict__ and aug.n > SLOW_DERIVATION_N:
+            note(f"deriving the {filt.kind} step of '{model.name}' symbolically (n = {aug.n}: this "
+                 f"takes a while; the C backend does not need it)")
+        return PythonStepper(filt)
+    raise ValueError(f"unknown backend '{backend}'; choose python or c")
+
+
+def iter_run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", real: str = "double",
+             show_progress: bool = True, label: str | None = None, cache_dir=None, chunk: int | None = None):
+    """:func:`run` part by part: yields a RunResult per ``chunk`` samples, so that a long
+    recording can be written as it is filtered. The last part's ``final_cov`` is the run's."""
+    model = filt.aug.model
+    check_columns(model, rec)
+    stepper = _stepper(filt, backend, real, show_progress, cache_dir)
+    inputs, N = step_inputs(model, rec.inputs), len(rec.t)
+    chunk = chunk or CHUNK[backend]
+    again = set(restarts(rec, model.dt))
+    bounds = sorted(set(range(0, N, chunk)) | again) + [N]
+    label = label or f"{model.name} {filt.kind} ({backend})"
+    rejected = 0
+    parts = list(zip(bounds[:-1], bounds[1:]))
+    for a, b in progress(parts, len(parts), f"{label}, {N} samples in parts") if show_progress else parts:
+        if a in again:
+            forget_states(stepper, filt)
+        raw = (stepper.run_many(inputs[a:b], rec.outputs[a:b]) if backend == "c"
+               else _step_python(stepper, inputs[a:b], rec.outputs[a:b]))
+        part = _part(filt, rec.t[a:b], rec.outputs[a:b], raw, rec)
+        rejected = _check_diverged(filt, rec, part, a, rejected)
+        if b == N:
+            C = np.asarray(stepper.C_post, float)
+            part.final_cov = C @ C.T if filt.square_root else C
+        yield part
+
+
 def run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", real: str = "double",
         show_progress: bool = True, label: str | None = None, cache_dir=None) -> RunResult:
     """Filter the whole recording; returns the posterior at every sample.
@@ -142,44 +357,5 @@ def run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", real: s
     backend: ``"python"`` (the CasADi Function) or ``"c"`` (the generated C,
     compiled and cached on first use, in ``real`` precision).
     """
-    aug, model = filt.aug, filt.aug.model
-    check_columns(model, rec)
-    if backend == "c":
-        from .emit.c import load_c
-        stepper = load_c(filt, real, cache_dir=cache_dir)
-    elif backend == "python":
-        if show_progress and "step" not in filt.__dict__ and aug.n > SLOW_DERIVATION_N:
-            note(f"deriving the {filt.kind} step of '{model.name}' symbolically (n = {aug.n}: this "
-                 f"takes a while; the C backend does not need it)")
-        stepper = PythonStepper(filt)
-    else:
-        raise ValueError(f"unknown backend '{backend}'; choose python or c")
-    N, n, ny, ski = len(rec.t), aug.n, len(model.output_names), filt.has_ard
-    out = {k: np.full(shape, np.nan) for k, shape in
-           dict(mean=(N, n), std=(N, n), e=(N, ny), ev=(N, ny), nis=(N,), ll=(N,),
-                s=(N, len(aug.w_index) if ski else 0)).items()}
-    code, rejected = np.zeros(N, dtype=int), 0
-    inputs = step_inputs(model, rec.inputs)
-    label = label or f"{model.name} {filt.kind} ({backend})"
-    for k in progress(range(N), N, label) if show_progress else range(N):
-        code[k] = c = stepper.step(inputs[k], rec.outputs[k])
-        if c == Status.BAD_INPUT:
-            continue
-        rejected = rejected + 1 if c == Status.NUMERICAL_FAILURE else 0
-        if rejected >= MAX_REJECTED_IN_A_ROW:
-            raise FilterDivergedError(
-                f"{rec.path}: the {filt.kind} filter of '{model.name}' diverged: {rejected} non-finite "
-                f"steps in a row from t = {rec.t[k - rejected + 1]:g} s (row {k - rejected + 3} of the file)")
-        out["mean"][k], out["std"][k] = stepper.z_post, stepper.std()
-        if ski:
-            out["s"][k] = stepper.s
-        valid = np.isfinite(rec.outputs[k])
-        if c != Status.NUMERICAL_FAILURE and valid.any():
-            out["e"][k] = np.where(valid, stepper.e, np.nan)
-            out["ev"][k] = np.where(valid, np.diag(stepper.Pyy), np.nan)
-            out["nis"][k], out["ll"][k] = stepper.nis, stepper.loglik
-        else:
-            out["ll"][k] = 0.0
-    C = np.asarray(stepper.C_post, float)
-    return RunResult(filt, rec.t, out["mean"], out["std"], out["e"], out["ev"], out["nis"], out["ll"],
-                     out["s"], code, C @ C.T if filt.square_root else C)
+    return RunResult.concat(list(iter_run(filt, rec, backend=backend, real=real, show_progress=show_progress,
+                                          label=label, cache_dir=cache_dir)))

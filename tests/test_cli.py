@@ -43,15 +43,16 @@ def test_run_writes_the_result_contract(recording, tmp_path):
 @pytest.mark.parametrize("content, expected", [
     ("t,delta,phi\n0,0,0\n0.02,abc,0.1\n", ["row 3", "column 'delta'", "'abc' is not a number"]),
     ("t,delta,phi\n0,0,0\n0.02,0\n", ["row 3", "fields"]),
-    ("t,delta,phi\n0,0,0\n0,0,0.1\n", ["row 3", "column 't'"]),
+    ("t,delta,phi\n0,0,0\n0.02,0,0.1\n0.01,0,0.1\n", ["row 4", "column 't'", "time goes backwards"]),
     ("t,delta\n0,0\n0.02,0\n", ["missing", "phi"]),
     ("", ["empty"]),
-    ("t,delta,phi\n0,0,0\n0.02,nan,0.1\n", ["row 3", "column 'delta'"]),
+    ("t,delta,phi\n0,0,0\n0.02,1_0,0.1\n", ["row 3", "column 'delta'", "'1_0' is not a number"]),
+    ("t,delta,phi\n0,0,0\n0.02,1e39,0.1\n", ["row 3", "column 'delta'", "overflows the C float"]),
 ])
 def test_malformed_recordings_get_one_line_errors(tmp_path, content, expected):
     bad = tmp_path / "bad.csv"
     bad.write_text(content)
-    r = skigen("run", MODEL, str(bad), "--out", str(tmp_path / "o.csv"))
+    r = skigen("run", MODEL, str(bad), "--out", str(tmp_path / "o.csv"), "--backend", "c", "--real", "float")
     assert r.returncode == 2
     assert "Traceback" not in r.stderr
     assert "bad.csv" in r.stderr
@@ -91,3 +92,46 @@ def test_generate_then_run_with_the_c_backend(recording, tmp_path):
     a = np.genfromtxt(py, delimiter=",", skip_header=1)
     b = np.genfromtxt(c, delimiter=",", skip_header=1)
     np.testing.assert_allclose(b, a, rtol=1e-9, atol=1e-12, equal_nan=True)
+
+
+def test_run_reads_a_mapped_log_in_ms_and_says_what_happened(tmp_path):
+    sim = simulate(seed=0, duration=4.0)
+    keep = (sim.t < 1.5) | (sim.t >= 2.7)                            # a 1.2 s hole
+    path = tmp_path / "log.csv"
+    write_recording(path, np.round(sim.t[keep] * 1000), {"cmd": sim.delta[keep]}, {"roll": sim.phi[keep]},
+                    extra={"mode": np.zeros(keep.sum())})
+    out = tmp_path / "r.csv"
+    r = skigen("run", MODEL, str(path), "--filter", "ski", "--map", "delta=cmd", "--map", "phi=roll",
+               "--time-unit", "auto", "--out", str(out))
+    assert r.returncode == 0, r.stderr
+    assert "time unit: ms (auto" in r.stdout
+    assert "1 hole(s) longer than the maximum gap:\n  1.48–2.7 s (1.22 s) without cmd, roll" in r.stdout
+    assert "final ± 2σ" in r.stdout and "kept" in r.stdout and "w_theta3" in r.stdout
+    assert "mean NIS" in r.stdout and "expected 1.000" in r.stdout
+    rows = list(csv.reader(open(out)))
+    assert len(rows) == 1 + 201 and rows[0][20:22] == ["status", "measured_phi"]
+    assert rows[1 + 80][20:22] == ["predicted", "0"] and rows[1][20:22] == ["measured", "1"]
+    r = skigen("run", MODEL, str(path), "--map", "delta=cmd", "--map", "phi=roll", "--out", str(out))
+    assert r.returncode == 2 and "is the time in ms?" in r.stderr and "Traceback" not in r.stderr
+    r = skigen("run", MODEL, str(path), "--map", "delta", "--out", str(out))
+    assert r.returncode == 2 and "expected NAME=COLUMN" in r.stderr
+
+
+def test_bench_import_errors_are_shown_as_such(monkeypatch, capsys):
+    import importlib
+
+    from skigen import cli
+
+    def broken(name):
+        raise ModuleNotFoundError("No module named 'examples'", name="examples")
+    monkeypatch.setattr(importlib, "import_module", broken)
+    assert cli.main(["bench", "diagnose"]) == 2
+    assert "benchmark 'diagnose' failed to import: No module named 'examples'" in capsys.readouterr().err
+
+
+def test_every_benchmark_imports_outside_the_repository(tmp_path):
+    from skigen.cli import BENCHMARKS
+
+    code = "import importlib\n" + "".join(f"importlib.import_module('benchmarks.{b}')\n" for b in BENCHMARKS)
+    r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path)
+    assert r.returncode == 0, r.stderr

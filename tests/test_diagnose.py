@@ -1,7 +1,7 @@
 """skigen diagnose: concealed effects found, named, located and fixed; clean data left alone;
 user mistakes reported in one line.
 
-The scenarios (examples/diagnose_scenarios.py) fly a closed-loop cart or a vertical
+The scenarios (benchmarks/scenarios.py) fly a closed-loop cart or a vertical
 quadrotor whose true physics adds one effect the nominal model file leaves out, each
 hidden in a different way. Every diagnosis runs once per module (a fixture) and the
 tests read its report.
@@ -15,7 +15,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from examples.diagnose_scenarios import make, overlap
+from benchmarks.scenarios import make, overlap
 from models import cart
 from skigen import derive
 from skigen.cli import load_model, main
@@ -202,7 +202,7 @@ def _cart_csv(path, seconds=10.0, dt=cart.DT, measured=True):
     ("no_model", ["defines no skigen.Model"]),
     ("missing_column", ["missing", "'p_meas'"]),
     ("too_short", ["too few", f"at least {MIN_SAMPLES}"]),
-    ("wrong_dt", ["0.02 s apart", "dt = 0.01 s"]),
+    ("time_in_ms", ["10 s apart", "dt = 0.01 s", "is the time in ms?"]),   # (a 50 Hz log is laid on the grid)
     ("bad_candidate", ["NAME:EQUATION:FORMULA"]),
     ("candidate_unknown_name", ["formula", "'q'"]),
 ])
@@ -216,7 +216,7 @@ def test_user_errors_are_one_line(tmp_path, capsys, case, expected):
     elif case == "no_model":
         model = str(tmp_path / "empty.py")
         (tmp_path / "empty.py").write_text("x = 1\n")
-    _cart_csv(data, seconds=1.0 if case == "too_short" else 10.0, dt=0.02 if case == "wrong_dt" else cart.DT,
+    _cart_csv(data, seconds=1.0 if case == "too_short" else 10.0, dt=10.0 if case == "time_in_ms" else cart.DT,
               measured=case != "missing_column")
     if case == "bad_candidate":
         extra = ["--candidate", "stiction-tanh(v)"]

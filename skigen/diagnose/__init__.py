@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import os
 import sys
-import time
+from time import perf_counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -72,11 +72,11 @@ class _Stages:
         env = os.environ.get("SKIGEN_PROGRESS")
         tty = getattr(stream, "isatty", lambda: False)()
         self.on = show and (env == "1" or (env != "0" and tty))
-        self.stream, self.t0, self.width = stream, time.perf_counter(), 0
+        self.stream, self.t0, self.width = stream, perf_counter(), 0
 
     def __call__(self, label: str):
         if self.on:
-            text = f"diagnose {time.perf_counter() - self.t0:5.1f} s: {label}"
+            text = f"diagnose {perf_counter() - self.t0:5.1f} s: {label}"
             self.stream.write("\r" + text.ljust(self.width))
             self.stream.flush()
             self.width = len(text)
@@ -89,21 +89,24 @@ class _Stages:
 
 def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01, validation: float = 0.3,
              horizon: float = 1.0, equations=None, figures: bool = True, emit: bool = True,
-             show_progress: bool = True) -> Report:
+             show_progress: bool = True, time=None, time_unit: str = "s", columns=None,
+             max_gap: float = 1.0) -> Report:
     """Diagnose ``model`` (a :class:`Model`, a model file or ``package.module:attribute``) against
-    ``recording`` (a :class:`Recording` or a CSV path); write report.json, report.md, figures and
+    ``recording`` (a :class:`Recording`, a CSV, Parquet or ULog path, or a DataFrame); write report.json, report.md, figures and
     the corrected model into ``out_dir``.
 
     candidates: extra additive terms, ``(name, equation, formula)`` — the formula in the model's
     state and input names (``"-tanh(v/0.001)"``). alpha: false-alarm rate of the whole decision.
     validation: held-out last fraction. horizon: free-run length (s) for the fit table.
     equations: equations to test for a disturbance (default: the rate equations; kinematic
-    identities ṗ = v are exact by definition).
+    identities ṗ = v are exact by definition). time, time_unit, columns, max_gap: how to read
+    ``recording`` when it is a path or a DataFrame (see :func:`skigen.recording.load_recording`).
     """
-    t_start = time.perf_counter()
+    t_start = perf_counter()
     stage = _Stages(show_progress)
     try:
-        user, spec, rec = load(model, recording)
+        user, spec, rec = load(model, recording, time=time, time_unit=time_unit, columns=columns,
+                               max_gap=max_gap)
         nominal = T.copy_model(user, unknowns=False)
         check(nominal, rec, validation)
         user_cands = C.user_candidates(nominal, candidates) + C.declared_candidates(user)
@@ -206,7 +209,7 @@ def _findings(nominal: Model, corr: Correction, ev: dict) -> list[dict]:
 
 def _finish(report: Report, meta: dict, t_start: float, stage) -> Report:
     stage("report")
-    report.seconds = time.perf_counter() - t_start
+    report.seconds = perf_counter() - t_start
     meta["seconds"] = report.seconds
     out = report.out_dir
     report.files = [write_json(out / "report.json", report.data),

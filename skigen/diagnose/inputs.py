@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 
 from ..model import Model
-from ..recording import Recording, read_recording
+from ..recording import Recording, load_recording
 from ..runtime import check_columns
 from . import transform as T
 from .errors import DiagnosisError
@@ -17,8 +17,9 @@ __all__ = ["MIN_SAMPLES", "load", "check"]
 MIN_SAMPLES = 300          # 210 to fit, 90 to validate, and ≥ 5 Ljung–Box lags
 
 
-def load(model, recording) -> tuple[Model, str | None, Recording]:
-    """(model, its file or module spec if any, recording) from objects or paths."""
+def load(model, recording, **read) -> tuple[Model, str | None, Recording]:
+    """(model, its file or module spec if any, recording) from objects, paths or a DataFrame;
+    ``read``: options of :func:`skigen.recording.load_recording`."""
     if isinstance(model, (str, os.PathLike)):
         from ..modelfile import ModelFileError
         spec = str(model)
@@ -40,8 +41,8 @@ def load(model, recording) -> tuple[Model, str | None, Recording]:
         raise DiagnosisError(f"model '{model.name}' declares parameters ({', '.join(model.parameter_names)}); "
                              f"the diagnosis takes them as constants only once `skigen fit` has fixed them: "
                              f"fit first, or declare them as numbers")
-    if isinstance(recording, (str, os.PathLike)):
-        rec = read_recording(recording, model.input_names, model.output_names)
+    if not isinstance(recording, Recording):
+        rec = load_recording(recording, model, **read)
     else:
         rec = recording
         try:

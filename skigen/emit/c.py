@@ -400,6 +400,24 @@ class CFilter:
             return self.get(name)
         raise AttributeError(name)
 
+    def run_many(self, inputs, outputs) -> dict[str, np.ndarray]:
+        """Step over rows of ``inputs`` and ``outputs`` in one C call (libraries from :func:`load_c`):
+        per sample the posterior mean ``z_post`` and ``std``, innovation ``e``, diagonal of ``Pyy``,
+        ``nis``, ``loglik``, ARD variances ``s`` (SKI) and the status ``code``."""
+        count, d = len(inputs), {k: self.shapes[k] for k in ("e", "z_post")}
+        u = np.ascontiguousarray(inputs, self.dtype).reshape(count, -1)
+        y = np.ascontiguousarray(outputs, self.dtype).reshape(count, -1)
+        nw = _size(self.shapes["s"]) if "s" in self.shapes else 0
+        out = dict(z_post=(self.n,), std=(self.n,), e=d["e"], pyy=d["e"], nis=(), loglik=(), s=(nw,))
+        out = {k: np.empty((count, *shape), self.dtype) for k, shape in out.items()}
+        out["code"] = np.empty(count, np.intc)
+        ptr = lambda a: a.ctypes.data_as(ctypes.c_void_p)
+        fn = getattr(self.lib, f"{self.prefix}_run_many")
+        fn.restype = None
+        fn(ctypes.byref(self._st), ctypes.c_size_t(count), ptr(u), ptr(y),
+           *(ptr(out[k]) for k in ("z_post", "std", "e", "pyy", "nis", "loglik", "s", "code")))
+        return out
+
     def run(self, inputs, outputs) -> dict[str, np.ndarray]:
         """Step over rows of ``inputs`` (N×nu) and ``outputs`` (N×ny): posterior means, stds, codes."""
         inputs, outputs = np.asarray(inputs, float), np.asarray(outputs, float)
@@ -411,10 +429,23 @@ class CFilter:
         return dict(z_post=z, std=sd, code=code)
 
 
+def _run_many_source(filt: DerivedFilter, out_dir, real: str, prefix: str) -> Path:
+    """``<prefix>_run_many.c``: the batch loop :meth:`CFilter.run_many` calls."""
+    d = filt.aug.shapes
+    copy_s = (f"        for (i = 0; i < {d['nw']}; ++i) s[k * {d['nw']} + i] = st->s[i];"
+              if filt.has_ard else "")
+    text = string.Template((_HERE / "run_many.c.in").read_text()).substitute(
+        prefix=prefix, real=real, N=d["n"], NU=d["nu"], NY=d["ny"], copy_s=copy_s)
+    path = Path(out_dir) / f"{prefix}_run_many.c"
+    path.write_text(text)
+    return path
+
+
 def load_c(filt: DerivedFilter, real: str = "double", prefix: str | None = None, cache_dir=None,
            cc: str = "gcc", flags=DEFAULT_FLAGS, style: str = "auto") -> CFilter:
     """Emit, compile (cached) and load ``filt`` as a :class:`CFilter`."""
     with tempfile.TemporaryDirectory() as tmp:
         paths = emit_c(filt, tmp, real, prefix, style)
+        paths.append(_run_many_source(filt, tmp, real, prefix or default_prefix(filt)))
         lib = compile_shared(paths, cc=cc, flags=flags, cache_dir=cache_dir)
     return CFilter(lib, filt, real, prefix)

@@ -21,7 +21,7 @@ import numpy as np
 
 from ..model import Model, ModelError
 from ..progress import note
-from ..recording import Recording, read_recording
+from ..recording import Recording, load_recording
 from .problem import METHODS, Problem, build_problem, data_matrix
 from .uncertainty import covariance, unidentified
 
@@ -178,7 +178,8 @@ class _Progress(ca.Callback):
 
 def fit(model: Model, recordings, *, method: str = "output-error", estimate=None,
         shooting: int | None = None, max_iter: int = 200, show_progress: bool = True) -> FitResult:
-    """Fit ``model`` to ``recordings`` (Recording objects or CSV paths) by ``method``.
+    """Fit ``model`` to ``recordings`` (Recording objects, or paths and DataFrames read onto the
+    model's grid with :func:`skigen.recording.load_recording`) by ``method``.
 
     estimate: names of parameters and weights to estimate (default: all of
     them); the rest stay at their declared values (weights at 0). shooting:
@@ -189,10 +190,9 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got '{method}'")
     model.check()
-    if isinstance(recordings, (Recording, str, os.PathLike)):
+    if isinstance(recordings, (Recording, str, os.PathLike)) or hasattr(recordings, "columns"):   # one, or a DataFrame
         recordings = [recordings]
-    recs = [read_recording(r, model.input_names, model.output_names) if isinstance(r, (str, os.PathLike)) else r
-            for r in recordings]
+    recs = [r if isinstance(r, Recording) else load_recording(r, model) for r in recordings]
     if not recs:
         raise FitError("no recording to fit")
     for rec in recs:

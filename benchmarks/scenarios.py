@@ -24,22 +24,25 @@ quad_clean          quadrotor   none                the nominal model is right
 
 ``make(name, seconds, seed)`` returns a :class:`Scenario` with the recording
 columns, the truth and the windows where the effect is truly active;
-``write_csv`` writes the recording for ``skigen diagnose``.
+``write_csv`` writes the recording for ``skigen diagnose``; ``one`` diagnoses one
+scenario and compares what was found with the truth.
 """
 from __future__ import annotations
 
 import importlib.util
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from models import cart
+from skigen.diagnose import diagnose
 from skigen.recording import Recording, write_recording
 
 ROOT = Path(__file__).resolve().parent.parent
 CART_FILE = str(ROOT / "models" / "cart.py")
-QUAD_FILE = str(ROOT / "examples" / "diagnose_quadrotor.py")
+QUAD_FILE = str(ROOT / "models" / "diagnose_quadrotor.py")
 
 
 def _quad():
@@ -153,3 +156,28 @@ def overlap(windows, t: np.ndarray, active: np.ndarray) -> tuple[float, float]:
     recall = float((located & active).sum() / max(active.sum(), 1))
     precision = float((located & active).sum() / max(located.sum(), 1))
     return recall, precision
+
+
+def one(name: str, out: Path, seconds: float, seed: int) -> dict:
+    """Diagnose scenario ``name`` (recording and report under ``out``): timing, findings, truth."""
+    sc = make(name, seconds, seed)
+    csv = sc.write_csv(out / f"{name}.csv")
+    t0 = time.perf_counter()
+    rep = diagnose(sc.model_file, csv, out / name, candidates=list(sc.candidates), show_progress=False)
+    dt = time.perf_counter() - t0
+    d = rep.data
+    top = d["findings"][0] if d["findings"] else None
+    rec, prec = overlap(d["located"]["windows"], sc.t, sc.active) if sc.effect else (float("nan"),) * 2
+    fit = d["fit"]
+    row = dict(name=name, samples=len(sc.t), seconds=dt, mismatch=d["mismatch_detected"],
+               equations=",".join(d["located"]["equations"]), recall=rec, precision=prec,
+               regime=d["located"].get("regime"), truth=f"{sc.effect or '-'} {sc.truth if sc.truth else ''}",
+               found="; ".join(f"{f['effect']} on {f['equation']} {f['coefficient']:.4g}±{f['std'] or 0:.2g}"
+                               for f in d["findings"]) or "-",
+               right=(top is not None and top["effect"] == sc.effect and sc.equation in top["equation"].split("+"))
+               if sc.effect else not d["findings"],
+               ll=(fit["before"]["loglik"], fit["after"]["loglik"] if fit["after"] else None),
+               rmse=(list(fit["before"]["free_run_rmse"].values())[0],
+                     list(fit["after"]["free_run_rmse"].values())[0] if fit["after"] else None),
+               concealment=sc.concealment)
+    return row

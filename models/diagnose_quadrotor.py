@@ -1,6 +1,6 @@
 """A vertical quadrotor for the diagnosis examples: model file and closed-loop simulator.
 
-Nominal model (``model``; usable as ``skigen diagnose examples/diagnose_quadrotor.py …``):
+Nominal model (``model``; usable as ``skigen diagnose models/diagnose_quadrotor.py …``):
 
     ż = v_z,    v̇_z = T / M − g,      M = 1.2 kg, g = 9.81 m/s²
 

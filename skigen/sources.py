@@ -1,0 +1,392 @@
+"""Readers: a CSV, Parquet or PX4 ULog file, or a pandas DataFrame, as time-stamped samples.
+
+Every reader returns :class:`Samples`: one or more groups of rows sharing a time
+stamp (a CSV file is one group; a ULog file has a group per topic instance),
+with only the columns the model uses, as float arrays (NaN = no sample).
+Columns the model does not use are never parsed. Number parsing is strict
+(ASCII decimal only: no ``1_0``, no ``0x10``, no non-ASCII digits); an empty
+cell, ``nan``, ``NaN`` or ``N/A`` means "no sample". Anything malformed raises
+:class:`RecordingError` naming the file, row and column.
+"""
+from __future__ import annotations
+
+import csv
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from .recording import RecordingError
+
+__all__ = ["Group", "Samples", "read_samples", "TIME_NAMES", "MISSING", "parse_number"]
+
+TIME_NAMES = ("t", "time", "timestamp")           # looked for (case-insensitive) when no --time is given
+MISSING = ("", "nan", "NaN", "N/A")               # cells that mean "no sample"
+FLOAT_MAX = float(np.finfo(np.float32).max)
+_NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*(?:[eE][+-]?\d+)?|\.\d+(?:[eE][+-]?\d+)?|inf|infinity)",
+                     re.ASCII | re.IGNORECASE)
+_ULOG_COLUMN = re.compile(r"(?P<topic>\w+)(?::(?P<instance>\d+))?\.(?P<field>\w+(?:\[\d+\])?)$", re.ASCII)
+
+
+def parse_number(cell: str) -> float:
+    """A strict decimal number; NaN for the missing spellings; ValueError otherwise."""
+    c = cell.strip()
+    if c in MISSING:
+        return float("nan")
+    if not _NUMBER.fullmatch(c):
+        raise ValueError(f"{cell!r} is not a number")
+    return float(c)
+
+
+@dataclass
+class Group:
+    """Rows that share a time stamp: ``t`` (N,) in the source's unit, or seconds if ``seconds``."""
+
+    t: np.ndarray
+    values: dict[str, np.ndarray]            # model name -> (N,) float, NaN = no sample
+    where: Callable[[int], str]              # "row 17" for index i, for messages
+    seconds: bool = False                    # t is already in seconds (ULog, datetimes)
+
+
+@dataclass
+class Samples:
+    """What a reader found: the groups, and how each model name was read."""
+
+    source: str                              # file path or "DataFrame"
+    groups: list[Group]
+    columns: dict[str, str]                  # model name -> column it was read from
+    time_column: str | None
+    notes: list[str] = field(default_factory=list)
+
+
+def _where(source, row=None, col=None) -> str:
+    return str(source) + ("" if row is None else f", {row}") + ("" if col is None else f", column '{col}'")
+
+
+def _columns_for(names, mapping) -> dict[str, str]:
+    """Model name -> column, from ``mapping`` (name -> column) or the name itself."""
+    mapping = dict(mapping or {})
+    unknown = [k for k in mapping if k not in names]
+    if unknown:
+        raise RecordingError(f"--map names {', '.join(repr(k) for k in unknown)}, which the model does not "
+                             f"have (inputs and outputs: {', '.join(names)})")
+    return {n: mapping.get(n, n) for n in names}
+
+
+def _time_column(header, time, source) -> str:
+    """The time column: ``time`` if given, else the first of TIME_NAMES present (any case)."""
+    if time is not None:
+        if time not in header:
+            raise RecordingError(f"{source}: no time column '{time}' (columns found: {', '.join(header)})")
+        return time
+    lower = {h.lower(): h for h in reversed(header)}
+    for name in TIME_NAMES:
+        if name in lower:
+            return lower[name]
+    raise RecordingError(f"{source}: no time column: expected one named {', '.join(TIME_NAMES)} or given with "
+                         f"--time COLUMN (columns found: {', '.join(header)})")
+
+
+def _require(columns: dict, header, source, time_col) -> None:
+    missing = [f"'{c}'" + (f" (for '{n}')" if c != n else "") for n, c in columns.items() if c not in header]
+    if missing:
+        raise RecordingError(f"{source}: missing required column(s) {', '.join(missing)} "
+                             f"(columns found: {', '.join(header)}); map others with --map NAME=COLUMN")
+    if time_col in columns.values():
+        raise RecordingError(f"{source}: column '{time_col}' is the time column and cannot be a model "
+                             f"input or output")
+
+
+def check_group(g: Group, columns: dict, time_col: str, real: str, fail) -> None:
+    """Finite, non-decreasing time; finite values, within float range if ``real == 'float'``.
+
+    ``fail(i, column, message)`` raises for sample ``i``.
+    """
+    bad = ~np.isfinite(g.t)
+    if bad.any():
+        i = int(np.argmax(bad))
+        fail(i, time_col, f"{g.t[i]:g}: time must be a finite number in every row")
+    back = np.diff(g.t) < 0
+    if back.any():
+        i = int(np.argmax(back)) + 1
+        fail(i, time_col, f"time goes backwards: {g.t[i]:.17g} follows {g.t[i - 1]:.17g} (the sample before)")
+    for name, v in g.values.items():
+        inf = np.isinf(v)
+        if inf.any():
+            i = int(np.argmax(inf))
+            fail(i, columns[name], f"{v[i]:g}: values must be finite (leave the cell empty if not measured)")
+        if real == "float":
+            big = np.abs(v) > FLOAT_MAX
+            if big.any():
+                i = int(np.argmax(big))
+                fail(i, columns[name], f"{v[i]:.17g} overflows the C float (largest {FLOAT_MAX:.7g}); "
+                                       f"run with --real double")
+
+
+# --------------------------------------------------------------------------- CSV
+
+class _Retry(Exception):
+    """The fast CSV path met something the exact path must report."""
+
+
+def _csv_header(path) -> list[str]:
+    try:
+        with open(path, encoding="utf-8-sig", newline="") as f:
+            first = next(csv.reader(f), None)
+    except FileNotFoundError:
+        raise RecordingError(f"{path}: file not found") from None
+    except (OSError, UnicodeDecodeError, csv.Error) as e:
+        raise RecordingError(f"{path}: cannot read file ({e})") from None
+    if not first or not any(c.strip() for c in first):
+        raise RecordingError(f"{path}: file is empty")
+    header = [h.strip() for h in first]
+    seen = {}
+    for j, h in enumerate(header):
+        if h in seen:
+            raise RecordingError(f"{_where(path, 'row 1', h)}: duplicate column name (columns {seen[h] + 1} "
+                                 f"and {j + 1})")
+        seen[h] = j
+    return header
+
+
+def _csv_fast(path, header, wanted, columns, time_col, real) -> Group:
+    """pyarrow's streaming reader: blocks of 4 MB, only the used columns. Raises _Retry on anything odd."""
+    import pyarrow as pa
+    import pyarrow.csv as pc
+
+    try:
+        reader = pc.open_csv(
+            path, read_options=pc.ReadOptions(column_names=header, skip_rows=1, block_size=4 << 20,
+                                              use_threads=True),
+            parse_options=pc.ParseOptions(ignore_empty_lines=False),
+            convert_options=pc.ConvertOptions(include_columns=wanted, null_values=list(MISSING),
+                                              column_types={c: pa.float64() for c in wanted},
+                                              quoted_strings_can_be_null=True))
+        chunks = {c: [] for c in wanted}
+        for batch in reader:
+            for c in wanted:
+                chunks[c].append(batch.column(c).to_numpy(zero_copy_only=False))
+    except (pa.ArrowInvalid, pa.ArrowTypeError):
+        raise _Retry from None
+    data = {c: np.concatenate(chunks[c]) if chunks[c] else np.zeros(0) for c in wanted}
+    g = Group(data[time_col], {n: data[c] for n, c in columns.items()}, lambda i: f"row {i + 2}")
+
+    def retry(i, col, msg):
+        raise _Retry
+    check_group(g, columns, time_col, real, retry)
+    return g
+
+
+def _csv_exact(path, header, wanted, columns, time_col, real) -> Group:
+    """The csv module, cell by cell: slow, and names the exact line of any problem."""
+    idx = {c: header.index(c) for c in wanted}
+    rows, lines, blank_from = {c: [] for c in wanted}, [], None
+    with open(path, encoding="utf-8-sig", newline="") as f:
+        reader = csv.reader(f)
+        next(reader)
+        try:
+            for r in reader:
+                line = reader.line_num
+                if not any(c.strip() for c in r):
+                    blank_from = blank_from or line
+                    continue
+                if blank_from is not None:
+                    raise RecordingError(f"{_where(path, f'row {blank_from}')}: expected {len(header)} fields "
+                                         f"(as in the header), found 0")
+                if len(r) != len(header):
+                    raise RecordingError(f"{_where(path, f'row {line}')}: expected {len(header)} fields "
+                                         f"(as in the header), found {len(r)}")
+                for c in wanted:
+                    try:
+                        rows[c].append(parse_number(r[idx[c]]))
+                    except ValueError as e:
+                        raise RecordingError(f"{_where(path, f'row {line}', c)}: {e}") from None
+                lines.append(line)
+        except csv.Error as e:
+            raise RecordingError(f"{_where(path, f'row {reader.line_num}')}: malformed CSV ({e})") from None
+    data = {c: np.array(v, dtype=float) for c, v in rows.items()}
+    g = Group(data[time_col], {n: data[c] for n, c in columns.items()}, lambda i: f"row {lines[i]}")
+
+    def fail(i, col, msg):
+        raise RecordingError(f"{_where(path, f'row {lines[i]}', col)}: {msg}")
+    check_group(g, columns, time_col, real, fail)
+    return g
+
+
+def _read_csv(path, names, mapping, time, real) -> Samples:
+    header = _csv_header(path)
+    columns = _columns_for(names, mapping)
+    time_col = _time_column(header, time, path)
+    _require(columns, header, path, time_col)
+    wanted = list(dict.fromkeys([time_col, *columns.values()]))
+    try:
+        g = _csv_fast(path, header, wanted, columns, time_col, real)
+    except _Retry:
+        g = _csv_exact(path, header, wanted, columns, time_col, real)
+    return Samples(str(path), [g], columns, time_col)
+
+
+# --------------------------------------------------------------------------- Parquet and DataFrame
+
+def _column_values(source, name, values, where) -> tuple[np.ndarray, bool]:
+    """(float array, is_datetime) of one column: numbers, datetimes (as seconds) or strictly parsed text."""
+    import pandas as pd
+
+    s = pd.Series(values)
+    if pd.api.types.is_datetime64_any_dtype(s):
+        s = s.dt.tz_convert("UTC").dt.tz_localize(None) if getattr(s.dt, "tz", None) is not None else s
+        ns = s.to_numpy(dtype="datetime64[ns]").astype("int64").astype(float)
+        return np.where(s.isna().to_numpy(), np.nan, ns * 1e-9), True
+    if pd.api.types.is_timedelta64_dtype(s):
+        return s.dt.total_seconds().to_numpy(dtype=float), True
+    if pd.api.types.is_bool_dtype(s) or pd.api.types.is_numeric_dtype(s):
+        return s.to_numpy(dtype=float, na_value=np.nan), False
+    out = np.empty(len(s))
+    for i, v in enumerate(s.tolist()):
+        try:
+            out[i] = np.nan if v is None else float(v) if isinstance(v, (int, float)) else parse_number(str(v))
+        except ValueError as e:
+            raise RecordingError(f"{_where(source, where(i), name)}: {e}") from None
+    return out, False
+
+
+def _frame_group(source, frame, columns, time_col, where, real) -> Group:
+    vals, seconds = {}, False
+    for c in dict.fromkeys([time_col, *columns.values()]):
+        vals[c], dt = _column_values(source, c, frame[c], where)
+        seconds = seconds or (dt and c == time_col)
+    g = Group(vals[time_col], {n: vals[c] for n, c in columns.items()}, where, seconds)
+
+    def fail(i, col, msg):
+        raise RecordingError(f"{_where(source, where(i), col)}: {msg}")
+    check_group(g, columns, time_col, real, fail)
+    return g
+
+
+def _read_parquet(path, names, mapping, time, real) -> Samples:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    try:
+        pf = pq.ParquetFile(path)
+    except (OSError, pa.ArrowInvalid) as e:
+        raise RecordingError(f"{path}: cannot read Parquet file ({e})") from None
+    header = pf.schema_arrow.names
+    columns = _columns_for(names, mapping)
+    time_col = _time_column(header, time, path)
+    _require(columns, header, path, time_col)
+    wanted = list(dict.fromkeys([time_col, *columns.values()]))
+    frame = pa.concat_tables([pa.Table.from_batches([b]) for b in pf.iter_batches(columns=wanted)]
+                             or [pf.schema_arrow.empty_table().select(wanted)]).to_pandas()
+    g = _frame_group(path, frame, columns, time_col, lambda i: f"row {i + 1}", real)
+    return Samples(str(path), [g], columns, time_col)
+
+
+def _read_frame(frame, names, mapping, time, real) -> Samples:
+    import pandas as pd
+
+    source = "DataFrame"
+    header = [str(c) for c in frame.columns]
+    columns = _columns_for(names, mapping)
+    index_time = time is None and not any(h.lower() in TIME_NAMES for h in header)
+    if index_time:                          # the index is the time when no column is
+        idx = frame.index
+        if isinstance(idx, pd.RangeIndex) or not (pd.api.types.is_numeric_dtype(idx)
+                                                  or pd.api.types.is_datetime64_any_dtype(idx)
+                                                  or pd.api.types.is_timedelta64_dtype(idx)):
+            raise RecordingError(f"{source}: no time: give a column named {', '.join(TIME_NAMES)}, name one "
+                                 f"with time=..., or use a numeric or datetime index (columns: {', '.join(header)})")
+        time_col = str(idx.name or "index")
+        frame = frame.reset_index(names=[time_col]) if time_col not in header else frame.set_index(
+            pd.RangeIndex(len(frame))).assign(**{time_col: idx.to_numpy()})
+        header = [str(c) for c in frame.columns]
+    else:
+        time_col = _time_column(header, time, source)
+    _require(columns, header, source, time_col)
+    labels = frame.index
+    frame = frame.rename(columns=str)
+    g = _frame_group(source, frame, columns, time_col, lambda i: f"row {i + 1} (index {labels[i]!r})", real)
+    return Samples(source, [g], columns, time_col)
+
+
+# --------------------------------------------------------------------------- ULog
+
+def _read_ulog(path, names, mapping, time, real) -> Samples:
+    """PX4 ULog: COLUMN = ``topic.field``, ``topic.field[i]`` or ``topic:instance.field``; µs stamps."""
+    from pyulog import ULog
+
+    columns = _columns_for(names, mapping)
+    specs = {}
+    for n, c in columns.items():
+        m = _ULOG_COLUMN.match(c)
+        if not m:
+            raise RecordingError(f"{path}: '{n}' reads column '{c}', which is not a ULog column: use "
+                                 f"topic.field, topic.field[i] or topic:instance.field (--map {n}=COLUMN)")
+        specs[n] = (m["topic"], int(m["instance"] or 0), m["field"])
+    try:
+        log = ULog(str(path), sorted({s[0] for s in specs.values()}))
+    except FileNotFoundError:
+        raise RecordingError(f"{path}: file not found") from None
+    except Exception as e:  # pyulog raises plain exceptions for corrupt files
+        raise RecordingError(f"{path}: cannot read ULog file ({type(e).__name__}: {e})") from None
+    topics = {(d.name, d.multi_id): d for d in log.data_list}
+    groups, notes = {}, []
+    for n, (topic, inst, fld) in specs.items():
+        d = topics.get((topic, inst))
+        if d is None:
+            have = sorted({k[1] for k in topics if k[0] == topic})
+            raise RecordingError(
+                f"{path}: '{n}' reads '{columns[n]}', but the log has no topic '{topic}'" +
+                (f" instance {inst} (instances: {', '.join(map(str, have))})" if have else
+                 f" (topics: {', '.join(sorted({x.name for x in ULog(str(path)).data_list}))})"))
+        if fld not in d.data:
+            fields = [f for f in d.data if f != "timestamp"]
+            raise RecordingError(f"{path}: topic '{topic}' has no field '{fld}' (fields: {', '.join(fields[:40])}"
+                                 f"{', …' if len(fields) > 40 else ''})")
+        key = (topic, inst)
+        if key not in groups:
+            label = topic if inst == 0 else f"{topic}:{inst}"
+            groups[key] = Group(np.asarray(d.data["timestamp"], float) * 1e-6, {},
+                                lambda i, label=label: f"topic '{label}' message {i + 1}", seconds=True)
+        groups[key].values[n] = np.asarray(d.data[fld], float)
+    for g in groups.values():
+        def fail(i, col, msg, g=g):
+            raise RecordingError(f"{_where(path, g.where(i), col)}: {msg}")
+        check_group(g, columns, "timestamp", real, fail)
+    if time not in (None, "timestamp"):
+        notes.append(f"--time '{time}' ignored: every ULog topic has its own 'timestamp' (µs)")
+    return Samples(str(path), list(groups.values()), columns, "timestamp", notes)
+
+
+# --------------------------------------------------------------------------- dispatch
+
+def _kind(path: Path) -> str:
+    try:
+        with open(path, "rb") as f:
+            magic = f.read(7)
+    except FileNotFoundError:
+        raise RecordingError(f"{path}: file not found") from None
+    except OSError as e:
+        raise RecordingError(f"{path}: cannot read file ({e})") from None
+    if magic == b"ULog\x01\x12\x35" or path.suffix.lower() == ".ulg":
+        return "ulog"
+    if magic.startswith(b"PAR1") or path.suffix.lower() in (".parquet", ".pq"):
+        return "parquet"
+    return "csv"
+
+
+def read_samples(source, names, *, columns=None, time=None, real: str = "double") -> Samples:
+    """The samples of the model ``names`` (inputs then outputs) in ``source``: a path or a DataFrame.
+
+    columns: model name -> column (default the name itself). time: the time column
+    (default the first of t, time, timestamp). real: 'float' also rejects values beyond
+    the C float range.
+    """
+    names = list(names)
+    if hasattr(source, "columns") and hasattr(source, "index"):
+        return _read_frame(source, names, columns, time, real)
+    path = Path(source)
+    reader = {"csv": _read_csv, "parquet": _read_parquet, "ulog": _read_ulog}[_kind(path)]
+    return reader(source, names, columns, time, real)

@@ -1,0 +1,248 @@
+"""Real logs in: the model's grid is the clock (holes, rates, units, jitter), names and
+formats (mapping, text columns, separate rows, DataFrame, Parquet, ULog)."""
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import skigen
+from models import wingrock
+from models.wingrock_sim import W_TRUE, simulate, staircase_reference
+from skigen.recording import RecordingError, load_recording
+
+DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+ULOG = DATA / "px4_sitl_takeoff.ulg"
+MODEL = wingrock.build(prior_variance=wingrock.PRIOR_VARIANCE)
+
+
+@pytest.fixture(scope="module")
+def flight():
+    """15 s of WingRock at the model's 50 Hz (staircase reference): t, delta, phi."""
+    sim = simulate(seed=0, duration=15, reference=staircase_reference)
+    return pd.DataFrame({"t": sim.t, "delta": sim.delta, "phi": sim.phi})
+
+
+def error(result) -> float:
+    return float(np.linalg.norm(result.weights[-1] - W_TRUE))
+
+
+@pytest.fixture(scope="module")
+def clean(flight):
+    return skigen.run(MODEL, flight, filter="ukf")
+
+
+@pytest.mark.parametrize("a", [3.0, 5.0, 10.0])
+def test_a_one_second_hole_is_predicted_through_and_reported(flight, clean, a):
+    """Measured: 0.41-1.5x the clean error (0.042) at holes from 1 to 12 s; rows stitched
+    together without their time stamps gave 1.7-19 before."""
+    holed = flight[(flight.t < a) | (flight.t >= a + 1)]
+    res = skigen.run(MODEL, holed, filter="ukf")
+    assert len(res.t) == len(flight) and np.allclose(res.t, flight.t)
+    assert error(res) < 3 * error(clean)
+    (hole,) = res.holes
+    assert hole.t0 == pytest.approx(a - 0.02) and hole.t1 == pytest.approx(a + 1) and hole.inputs
+    assert hole.columns == ("delta", "phi")
+    inside = (res.t > a) & (res.t < a + 0.99)
+    assert not res.measured[inside].any() and np.isnan(res.nis[inside]).all()
+    assert np.isfinite(res.mean[inside]).all()          # predicted, not skipped
+
+
+def test_an_output_only_hole_of_half_a_second_is_not_reported(flight):
+    gap = flight.assign(phi=np.where((flight.t > 4) & (flight.t < 4.5), np.nan, flight.phi))
+    assert skigen.run(MODEL, gap, filter="ekf").holes == ()
+
+
+def test_outputs_at_half_the_model_rate(flight, clean):
+    """phi at 25 Hz, delta at 50 Hz (own rows): every other grid sample measured, NIS as expected."""
+    slow = pd.concat([flight[["t", "delta"]], flight[["t", "phi"]].iloc[::2]]).sort_values("t", kind="stable")
+    res = skigen.run(MODEL, slow, filter="ukf")
+    assert len(res.t) == len(flight)
+    assert res.measured[::2].all() and not res.measured[1::2].any()
+    assert np.nanmean(res.nis) == pytest.approx(1.0, abs=0.15)
+    assert error(res) < 3 * error(clean)
+
+
+def test_a_whole_log_at_half_the_model_rate(flight):
+    """Inputs at 25 Hz too: held over two model samples, which the PID's input was not (NIS
+    6.8 measured: the summary says the model and the log disagree, instead of 21 000)."""
+    res = skigen.run(MODEL, flight.iloc[::2], filter="ukf")
+    assert res.measured[::2].all() and not res.measured[1::2].any()
+    assert 2 < np.nanmean(res.nis) < 10
+
+
+def test_a_log_faster_than_the_model_uses_the_nearest_sample():
+    sim = simulate(seed=1, duration=4, dt=0.01)               # 100 Hz truth, 50 Hz model
+    df = pd.DataFrame({"t": sim.t, "delta": sim.delta, "phi": sim.phi})
+    rec = load_recording(df, MODEL)
+    assert len(rec.t) == 201 and np.array_equal(rec.outputs[:, 0], sim.phi[::2])
+    assert any("not used" in n and "faster than the model" in n for n in rec.notes)
+
+
+@pytest.mark.parametrize("unit, factor", [("ms", 1e3), ("us", 1e6), ("ns", 1e9)])
+def test_time_units(flight, clean, unit, factor):
+    scaled = flight.assign(t=np.round(flight.t * factor))
+    same = skigen.run(MODEL, scaled, filter="ukf", time_unit=unit)
+    assert np.allclose(same.mean, clean.mean, atol=1e-9)
+    rec = load_recording(scaled, MODEL, time_unit="auto")
+    assert rec.notes == (f"time unit: {unit} (auto: time stamps {0.02 * factor:g} {unit} apart (median) "
+                         f"against the model's dt = 0.02 s)",)
+    with pytest.raises(RecordingError, match=f"is the time in {unit}"):
+        load_recording(scaled, MODEL)                    # read as seconds: 1000x off the model's dt
+
+
+def test_jitter_of_40_percent(flight, clean):
+    rng = np.random.default_rng(3)
+    jittered = flight.assign(t=flight.t + rng.uniform(-0.4, 0.4, len(flight)) * 0.02)
+    jittered.loc[0, "t"] = 0.0
+    res = skigen.run(MODEL, jittered, filter="ukf")
+    assert res.measured.mean() > 0.95                # few collisions (the nearer sample wins)
+    assert error(res) < 3 * error(clean)
+
+
+def test_an_absurd_time_stamp_is_an_error_naming_its_row(tmp_path, flight):
+    bad = flight.copy()
+    bad.loc[len(bad) - 1, "t"] = 1e308
+    path = tmp_path / "bad.csv"
+    bad.to_csv(path, index=False)
+    with pytest.raises(RecordingError, match=rf"row {len(bad) + 1}, column 't'.*largest jump"):
+        load_recording(path, MODEL)
+
+
+def test_mapped_names_text_and_missing_cells(tmp_path, flight, clean):
+    df = flight.rename(columns={"delta": "roll_cmd", "phi": "roll", "t": "time"})
+    df.insert(1, "mode", "AUTO")
+    df["roll"] = df["roll"].map(repr).astype(object)
+    df.loc[[10, 20], "roll"] = ["N/A", ""]
+    path = tmp_path / "log.csv"
+    df.to_csv(path, index=False)
+    res = skigen.run(MODEL, path, filter="ukf", columns={"delta": "roll_cmd", "phi": "roll"})
+    assert not res.measured[[10, 20]].any() and res.measured.sum() == len(flight) - 2
+    assert error(res) == pytest.approx(error(clean), rel=0.05)
+    with pytest.raises(RecordingError, match="missing required column.*'delta'"):
+        load_recording(path, MODEL)
+    with pytest.raises(RecordingError, match="'beta', which the model does not have"):
+        load_recording(path, MODEL, columns={"beta": "roll"})
+
+
+def test_inputs_and_outputs_on_separate_rows(flight, clean):
+    ins = flight[["t", "delta"]]
+    outs = flight[["t", "phi"]].assign(t=flight.t + 0.004)             # a little later, own rows
+    both = pd.concat([ins, outs]).sort_values("t", kind="stable").reset_index(drop=True)
+    res = skigen.run(MODEL, both, filter="ukf")
+    assert np.allclose(res.mean, clean.mean, atol=1e-12)
+
+
+def test_dataframe_in_and_out(flight, clean):
+    indexed = flight.set_index("t")
+    res = skigen.run(MODEL, indexed, filter="ukf")
+    assert np.allclose(res.mean, clean.mean, atol=1e-12)
+    stamped = flight.set_index(pd.Timestamp("2024-05-01T12:00:00Z") + pd.to_timedelta(flight.t, unit="s"))
+    res2 = skigen.run(MODEL, stamped.drop(columns="t"), filter="ukf")
+    assert np.allclose(res2.mean, clean.mean, atol=1e-9)
+    frame = res.to_frame()
+    assert list(frame.columns[:3]) == ["t", "theta", "p"] and len(frame) == len(flight)
+    assert set(frame.status) == {"measured"} and frame.measured_phi.all()
+    with pytest.raises(RecordingError, match="no time"):
+        skigen.run(MODEL, flight.drop(columns="t"))
+
+
+def test_parquet_round_trip(tmp_path, flight, clean):
+    path = tmp_path / "log.parquet"
+    flight.assign(note="x").to_parquet(path)
+    res = skigen.run(MODEL, path, filter="ukf")
+    assert np.allclose(res.mean, clean.mean, atol=1e-12)
+    out = tmp_path / "result.parquet"
+    res.to_frame().to_parquet(out)
+    assert np.array_equal(pd.read_parquet(out).w_one.to_numpy(), res.mean[:, 2], equal_nan=True)
+
+
+def test_result_csv_is_exact_and_has_status(tmp_path, flight):
+    res = skigen.run(MODEL, flight.iloc[:100], filter="ekf")
+    res.write(tmp_path / "r.csv")
+    back = pd.read_csv(tmp_path / "r.csv")
+    assert np.array_equal(back.w_one.to_numpy(), res.mean[:, 2])
+    assert back.status.iloc[0] == "measured" and back.measured_phi.sum() == 100
+
+
+def test_nis_expectation_counts_the_outputs_measured():
+    m = skigen.Model("two", dt=0.02)
+    x = m.state("x", std=1.0, process_std=1e-2)
+    v = m.state("v", std=1.0, process_std=1e-2)
+    u = m.input("u")
+    m.dynamics({x: v, v: u})
+    m.output("xm", x, noise_std=0.1)
+    m.output("vm", v, noise_std=0.1)
+    t = np.arange(500) * 0.02
+    rng = np.random.default_rng(0)
+    vm = np.where(np.arange(500) % 2 == 0, rng.normal(0, 0.1, 500), np.nan)
+    df = pd.DataFrame({"t": t, "u": 0.0, "xm": rng.normal(0, 0.1, 500), "vm": vm})
+    lines = skigen.run(m, df, filter="ekf").summary().lines()
+    nis = next(line for line in lines if line.startswith("mean NIS"))
+    assert "expected 1.500" in nis and "500 of 500 samples measured" in nis
+
+
+# ------------------------------------------------------------------ ULog
+
+def write_ulog(path, topics):
+    """A ULog file with ``topics``: {(name, instance): {"timestamp": µs, field: (N,) or (N, k)}}."""
+    from pyulog import ULog
+
+    log = ULog(None)
+    for msg_id, ((name, inst), fields) in enumerate(topics.items()):
+        fmt = ULog.MessageFormat.__new__(ULog.MessageFormat)
+        fmt.name, fmt.fields = name, [("uint64_t", 0, "timestamp")]
+        data = ULog.Data.__new__(ULog.Data)
+        data.multi_id, data.msg_id, data.name, data.timestamp_idx = inst, msg_id, name, 0
+        data.field_data = [ULog._FieldData("timestamp", "uint64_t")]
+        data.data = {"timestamp": np.asarray(fields["timestamp"], np.uint64)}
+        for f, v in fields.items():
+            if f == "timestamp":
+                continue
+            v = np.asarray(v, np.float32)
+            names = [f"{f}[{i}]" for i in range(v.shape[1])] if v.ndim == 2 else [f]
+            fmt.fields.append(("float", v.shape[1] if v.ndim == 2 else 0, f))
+            for i, n in enumerate(names):
+                data.field_data.append(ULog._FieldData(n, "float"))
+                data.data[n] = v[:, i] if v.ndim == 2 else v
+        log._message_formats[name] = fmt
+        log._data_list.append(data)
+    log.write_ulog(str(path))
+
+
+def test_ulog_topics_at_their_own_rates_arrays_and_instances(tmp_path, flight):
+    """delta at 50 Hz in an array field of instance 1, phi at 25 Hz in another topic."""
+    us = np.round(flight.t.to_numpy() * 1e6).astype(np.uint64) + 10_000_000
+    cmd = np.column_stack([np.zeros(len(us)), flight.delta])
+    path = tmp_path / "small.ulg"
+    write_ulog(path, {("actuator", 0): {"timestamp": us, "control": np.zeros((len(us), 2))},
+                      ("actuator", 1): {"timestamp": us, "control": cmd},
+                      ("attitude", 0): {"timestamp": us[::2] + 3000, "roll": flight.phi[::2]}})
+    mapping = {"delta": "actuator:1.control[1]", "phi": "attitude.roll"}
+    rec = load_recording(path, MODEL, columns=mapping)
+    assert rec.t[0] == pytest.approx(10.0) and len(rec.t) == len(flight)
+    assert np.allclose(rec.inputs[:, 0], flight.delta.astype(np.float32))
+    assert rec.measured[::2].all() and not rec.measured[1::2].any()
+    with pytest.raises(RecordingError, match="no topic 'attitud'.*topics: actuator, attitude"):
+        load_recording(path, MODEL, columns={**mapping, "phi": "attitud.roll"})
+    with pytest.raises(RecordingError, match="instance 2 \\(instances: 0, 1\\)"):
+        load_recording(path, MODEL, columns={**mapping, "delta": "actuator:2.control[1]"})
+    with pytest.raises(RecordingError, match="topic 'attitude' has no field 'pitch' \\(fields: roll\\)"):
+        load_recording(path, MODEL, columns={**mapping, "phi": "attitude.pitch"})
+
+
+@pytest.mark.skipif(not ULOG.is_file(), reason=f"PX4 log not found: {ULOG} (../shared/data)")
+def test_px4_takeoff_log_vertical_channel():
+    m = skigen.Model("vertical", dt=0.02)
+    h = m.state("h", std=0.1, process_std=1e-3)
+    v = m.state("v", std=0.1, process_std=1e-2)
+    motors = [m.input(f"m{i}") for i in range(4)]
+    m.dynamics({h: v, v: 0 * v})
+    m.output("alt", h, noise_std=0.1)
+    cols = {f"m{i}": f"actuator_motors.control[{i}]" for i in range(4)}
+    cols["alt"] = "vehicle_local_position.z"
+    rec = load_recording(ULOG, m, columns=cols)
+    assert 30 < rec.t[-1] - rec.t[0] < 32 and len(rec.t) == pytest.approx(1550, abs=30)
+    assert rec.measured.mean() == pytest.approx(0.2, abs=0.01)     # 10 Hz position, 50 Hz grid
+    assert rec.holes == ()
+    assert -3 < np.nanmin(rec.outputs) < -1.5                        # NED: the climb to about 2 m
