@@ -208,15 +208,16 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     theta0 = np.array(prob.solver_inputs["x0"], float)
     if method == "output-error":
         theta0 = _initial_guess(model, prob, recs, theta0, blocks)
-    scale = _scales(prob, theta0, data)
-    p = np.r_[scale, data]
-    rho0, _ = (np.asarray(v) for v in prob.residuals(theta0 / scale, p))
+    nominal = np.array(V.scale)
+    rho0, _ = (np.asarray(v) for v in prob.residuals(theta0 / nominal, np.r_[nominal, data]))
     where = _first_bad(rho0, lengths, recs)
     if where:
         hint = ("; use shorter shooting intervals" if shooting else
                 "; give a shooting interval (shooting=... samples, --shooting) to fit it by multiple shooting")
         raise FitError(f"the simulation of '{model.name}' at the initial values diverges in {where}{hint}")
-    J0, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(theta0 / scale, p))
+    scale = _scales(prob, theta0, data)
+    p = np.r_[scale, data]
+    J0, prior, _ = (np.asarray(ca.DM(v)) for v in prob.fisher(theta0 / scale, p))
     lost = unidentified(J0, prior.ravel(), V.names, _dense(jac_g(theta0 / scale, p)))
     if lost:
         raise FitError(f"the recordings cannot identify every quantity of '{model.name}': " + "; ".join(lost)
@@ -243,10 +244,10 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     stats = dict(stats, iter_count=iterations)
     xi = np.clip(np.asarray(sol["x"]).ravel(), inputs["lbx"], inputs["ubx"])   # IPOPT may overstep a bound by ~1e-8
     rho, nll = (np.asarray(v) for v in prob.residuals(xi, p))
-    J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(xi, p))
+    J, prior, scores = (np.asarray(ca.DM(v)) for v in prob.fisher(xi, p))
     G = _dense(jac_g(xi, p))
-    robust = method == "output-error"
-    C, info = covariance(J, rho, prob.n_rho, lengths, prior.ravel(), G, robust=robust)
+    robust = method == "output-error"      # simulation residuals may be coloured; innovations are white
+    C, info = covariance(J, scores if robust else None, lengths, prior.ravel(), G)
     value = xi * scale
     std = np.sqrt(np.clip(np.diag(C), 0, None)) * scale
     C = C * np.outer(scale, scale)
@@ -262,7 +263,7 @@ def _scales(prob: Problem, theta0: np.ndarray, data: np.ndarray) -> np.ndarray:
     error as the Fisher information at the start sees it."""
     V = prob.variables
     nominal = np.array(V.scale)
-    J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(theta0 / nominal, np.r_[nominal, data]))
+    J, prior, _ = (np.asarray(ca.DM(v)) for v in prob.fisher(theta0 / nominal, np.r_[nominal, data]))
     info = np.sum(J * J, axis=0) + prior.ravel()
     scale = nominal.copy()
     for i, kind in enumerate(V.kinds):
@@ -334,8 +335,9 @@ def _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_
                             rmse={o: float(np.sqrt(np.nanmean(e[:, j] ** 2))) for j, o in enumerate(model.output_names)},
                             loglik=float(-np.sum(nll[:, start:start + n]))))
         start += n
-    note_text = ("sandwich covariance: inverse Fisher information around the Newey-West long-run covariance "
-                 f"of the per-sample scores (Bartlett kernel, Andrews bandwidth {', '.join(f'{b:.0f}' for b in info['bandwidth'])} samples)"
+    note_text = ("sandwich covariance: the inverse Fisher information around the Newey-West long-run "
+                 "covariance of the per-sample scores (Bartlett kernel, Andrews bandwidth "
+                 + ", ".join(f"{b:.0f}" for b in info["bandwidth"]) + " samples)"
                  if robust else "inverse Fisher information of the innovations' likelihood")
     return FitResult(method, fitted, params, weights, init, noise,
                      dict(names=[V.names[i] for i in corr_idx], matrix=(sub / np.outer(d, d)).tolist()),

@@ -6,7 +6,7 @@ covariance. Output error: the simulation residuals are coloured whenever
 process noise or model error is present, and the Fisher information then
 overstates what the data know. The covariance is the sandwich
 A⁻¹ B A⁻¹ (A the Fisher information, B the long-run covariance of the
-per-sample scores g_k = J_kᵀ ρ_k), with B estimated by Newey and West's
+per-sample scores g_k = ∂(−log L_k)/∂θ = J_kᵀ ρ_k), with B estimated by Newey and West's
 Bartlett-weighted sum of score autocovariances and the bandwidth chosen by
 Andrews' (1991) AR(1) plug-in rule, per recording (recordings are
 independent). With white residuals B ≈ A and the two agree.
@@ -52,37 +52,33 @@ def long_run_covariance(scores: np.ndarray, bandwidth: float | None = None) -> t
     return B, L
 
 
-def covariance(J: np.ndarray, rho: np.ndarray, n_rho: int, lengths: list[int], prior: np.ndarray,
-               G: np.ndarray | None = None, robust: bool = True) -> tuple[np.ndarray, dict]:
-    """Covariance of the scaled variables.
+def covariance(J: np.ndarray, scores: np.ndarray | None, lengths: list[int], prior: np.ndarray,
+               G: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
+    """Covariance of the scaled variables: the inverse Fisher information A⁻¹, or with
+    ``scores`` the sandwich A⁻¹ B A⁻¹.
 
-    J: (Σ N_r · n_rho) × p Jacobian of the pseudo-residuals, sample-major; rho:
-    n_rho × Σ N_r pseudo-residuals; prior: prior precision per variable; G:
-    Jacobian of the equality constraints (or None). robust: the sandwich with
-    the long-run score covariance (output error), else the inverse Fisher
-    information. Returns (C, info) with the bandwidths used.
+    J: (Σ N_r · n_rho) × p Jacobian of the pseudo-residuals (A = JᵀJ + prior, the
+    Fisher information); scores: Σ N_r × p per-sample gradients of −log L (B, their
+    long-run covariance, per recording); prior: prior precision per variable; G:
+    Jacobian of the equality constraints (or None). Returns (C, info) with the
+    bandwidths used.
     """
     p = J.shape[1]
     Z = null_space(G) if G is not None and G.shape[0] else np.eye(p)
     Jz = J @ Z
     A = Jz.T @ Jz + Z.T @ np.diag(prior) @ Z
     d = np.sqrt(np.clip(np.diag(A), 1e-300, None))         # invert in the normalised basis
-    inverse = lambda M: np.linalg.pinv(M / np.outer(d, d), rcond=1e-12) / np.outer(d, d)
-    info = {"bandwidth": []}
-    if robust:
-        per_sample = (Jz * rho.T.reshape(-1, 1)).reshape(-1, n_rho, Jz.shape[1]).sum(axis=1)
-        B, start = np.zeros_like(A), 0
-        for n in lengths:
-            Bi, L = long_run_covariance(per_sample[start:start + n])
-            B += Bi
-            info["bandwidth"].append(L)
-            start += n
-        B += Z.T @ np.diag(prior) @ Z
-        Ainv = inverse(A)
-        Cz = Ainv @ B @ Ainv
-    else:
-        Cz = inverse(A)
-    return Z @ Cz @ Z.T, info
+    Ainv = np.linalg.pinv(A / np.outer(d, d), rcond=1e-12) / np.outer(d, d)
+    if scores is None:
+        return Z @ Ainv @ Z.T, {"bandwidth": []}
+    per_sample = scores @ Z
+    B, start, info = Z.T @ np.diag(prior) @ Z, 0, {"bandwidth": []}
+    for n in lengths:
+        Bi, L = long_run_covariance(per_sample[start:start + n])
+        B += Bi
+        info["bandwidth"].append(L)
+        start += n
+    return Z @ (Ainv @ B @ Ainv) @ Z.T, info
 
 
 def unidentified(J: np.ndarray, prior: np.ndarray, names: list[str], G: np.ndarray | None = None) -> list[str]:
