@@ -10,7 +10,7 @@ Measured on the development machine (fixed seeds below):
   k3 0.94, b 0.94 (300 runs: 0.95, 0.93, 0.95, 0.96).
 - Pendulum with viscous and smooth Coulomb friction (ZOH), 50 runs, output error:
   a 0.98, c 0.96, fc 0.96, b 0.98; filter error: a 0.98, c 0.98, fc 0.96, b 0.96.
-- Duffing, filter error: k 0.86, d 0.92, k3 0.86, b 0.88 (see FE_COVERAGE).
+- Duffing, filter error, 1500 samples: k 0.96, d 0.92, k3 0.96, b 0.98 (see FE_SAMPLES).
 
 Whole file: about 105 s on one core.
 """
@@ -32,12 +32,14 @@ from skigen.simulate import free_run
 
 RUNS = 50            # Monte-Carlo runs per system and method
 COVERAGE = 0.90      # required share of 2σ intervals holding the truth (nominal 0.954)
-# Filter error on the Duffing oscillator: the inverse Fisher information is ~12 % too small
-# (std of error/std: k 1.04, d 1.14, k3 1.13, b 1.00 over 200 further runs, seeds 1050-1249,
-# whose coverage is k 0.94, d 0.935, k3 0.925, b 0.975; the Q scale comes out 0.88 on average,
-# the finite-sample low bias of an ML variance). These 50 seeds measure k 0.86, d 0.92, k3 0.86,
-# b 0.88: asserted as measured, not at COVERAGE, and reported as an open question.
-FE_COVERAGE = {"duffing": {"k": 0.86, "k3": 0.86, "b": 0.88}, "pendulum": {}}
+# Filter error on the Duffing oscillator needs a longer record for honest error bars: with 500
+# samples (~8 periods) the process-noise scale comes out 0.86 on average (the finite-sample low bias
+# of a maximum-likelihood variance), the filter is overconfident and the errors are ~12 % larger
+# than the inverse Fisher information says (coverage k 0.86, d 0.92, k3 0.86, b 0.88 on these
+# seeds; 0.93-0.98 on 200 others; the sandwich or the observed information do no better). With
+# 1500 samples the scale averages 0.98, error/std has std 0.96-1.07 and coverage is k 0.96,
+# d 0.92, k3 0.96, b 0.98. README reports both.
+FE_SAMPLES = {"duffing": 1500}
 
 
 # ---------------------------------------------------------------------------- helpers
@@ -113,6 +115,7 @@ SYSTEMS = {
 def monte_carlo(system, method):
     """Fit RUNS simulated recordings; returns {parameter: (errors, stds)} and the fits."""
     build, truth, start, N, seed, (width, gain), x0_std, q = SYSTEMS[system]
+    N = FE_SAMPLES.get(system, N) if method == "filter-error" else N
     q = q if method == "filter-error" else (0.0, 0.0)
     plant, model = build(truth, q=q), build(start, q=q)
     errors = {n: [] for n in truth}
@@ -153,13 +156,13 @@ def test_output_error_recovers_parameters_with_honest_error_bars(system):
 @pytest.mark.parametrize("system", list(SYSTEMS))
 def test_filter_error_recovers_parameters_and_noise_with_honest_error_bars(system):
     """Process noise in the truth (a Gaussian kick on the rate every sample). Coverage: see
-    FE_COVERAGE; the calibrated R scale averages 1 within 0.05."""
+    FE_SAMPLES; the calibrated R scale averages 1 within 0.05."""
     stats, fits = monte_carlo(system, "filter-error")
     cov = coverage(stats)
     print(system, "filter error coverage", cov)
     for n, (e, s) in stats.items():
         assert abs(e.mean()) < 3 * e.std(ddof=1) / np.sqrt(RUNS), (n, e.mean())
-        assert cov[n] >= FE_COVERAGE[system].get(n, COVERAGE), (system, n, cov)
+        assert cov[n] >= COVERAGE, (system, n, cov)
     # the declared noise is the truth: the calibrated measurement noise scale is ~1
     r_scale = np.array([next(v["value"] for k, v in f.noise["scales"].items() if k.startswith("R_")) for f in fits])
     assert abs(r_scale.mean() - 1) < 0.05
