@@ -1,6 +1,7 @@
 """skigen batch on a 2-worker LocalCluster: a fleet of 22 small logs (2 corrupt), the same numbers
 as each log run alone, resume after a deleted result, the C library compiled once, the move rule."""
 import csv
+import json
 import os
 import subprocess
 import sys
@@ -187,3 +188,20 @@ def test_cli_batch_on_its_own_two_workers(fleet, tmp_path):
     r = subprocess.run([sys.executable, "-m", "skigen", "batch", MODEL, "nope/*.csv", "--out", str(tmp_path)],
                        capture_output=True, text=True)
     assert r.returncode == 2 and r.stderr.strip() == "skigen: error: no log file matches 'nope/*.csv'"
+
+
+def test_diagnose_each_log_lists_its_findings(client, tmp_path):
+    from benchmarks.scenarios import make
+    (tmp_path / "logs").mkdir()
+    for name, seconds in (("cart_clean", 10.0), ("cart_bias", 20.0)):
+        sc = make(name, seconds, 1)
+        sc.write_csv(tmp_path / "logs" / f"{name}.csv")
+    res = batch(sc.model_file, str(tmp_path / "logs" / "*.csv"), tmp_path / "out", mode="diagnose", client=client,
+                show_progress=False, figures=False)
+    rows = _summary(tmp_path / "out")
+    assert rows["cart_clean"]["mismatch"] == "False" and rows["cart_clean"]["findings"] == ""
+    assert rows["cart_bias"]["mismatch"] == "True" and rows["cart_bias"]["findings"].startswith("bias on v (")
+    assert float(rows["cart_bias"]["bias@v"]) > 5 * float(rows["cart_bias"]["std_bias@v"])
+    report = json.loads((tmp_path / "out" / "cart_bias" / "report.json").read_text())
+    assert report["corrected_model"] == str(tmp_path / "out" / "cart_bias" / "corrected_model.py")
+    assert Path(report["corrected_model"]).exists() and res.counts["ok"] == 2
