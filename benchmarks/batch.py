@@ -60,7 +60,7 @@ def timed_batch(paths, out: Path, filt: str, backend: str, workers=None, schedul
         cluster, client = None, Client(scheduler, timeout=10)
     else:
         cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
-                               silence_logs=logging.ERROR)
+                               silence_logs=logging.CRITICAL)
         client = Client(cluster)
     t1 = time.perf_counter()
     try:
@@ -78,6 +78,20 @@ def timed_batch(paths, out: Path, filt: str, backend: str, workers=None, schedul
                 task_s=sum(r["seconds"] for r in res.rows))
 
 
+_BUSY = "import time\nt0 = time.perf_counter()\nx = 0\nfor i in range(6_000_000): x += i * i\nprint(time.perf_counter() - t0)"
+
+
+def free_cores() -> float:
+    """The cores this run really has (the machine is shared): 2 × (the time of a CPU-bound loop
+    alone) / (its time with two copies side by side)."""
+    import subprocess
+    run = lambda: subprocess.Popen([sys.executable, "-c", _BUSY], stdout=subprocess.PIPE, text=True)
+    alone = float(run().communicate()[0])
+    pair = [run(), run()]
+    both = max(float(p.communicate()[0]) for p in pair)
+    return 2 * alone / both
+
+
 def main(argv=None) -> int:
     p = parser("batch", seeds=1)
     p.add_argument("--logs", type=int, default=200)
@@ -88,6 +102,7 @@ def main(argv=None) -> int:
     p.add_argument("--dir", default=None, help="folder for the logs and outputs (default: a temporary one)")
     args = p.parse_args(argv)
     load = os.getloadavg()[0]            # the cores are shared: what else was running
+    cores = free_cores()
     root = Path(args.dir) if args.dir else Path(tempfile.mkdtemp(prefix="skigen-bench-batch-"))
     try:
         paths = write_logs(root / "logs", args.logs, args.seconds)
@@ -106,11 +121,13 @@ def main(argv=None) -> int:
     overhead = 1e3 * (runs[0]["batch_s"] * runs[0]["workers"] - loop) / n if runs[0]["workers"] == 1 else None
     report = dict(logs=n, samples_per_log=int(round(args.seconds / 0.02)) + 1, filter=args.filter,
                   backend=args.backend, cores=os.cpu_count(), plain_loop_s=loop, diverged=diverged,
-                  load_average_before=load, runs=runs,
+                  load_average_before=load, free_cores_before=cores, runs=runs,
                   overhead_ms_per_log=overhead)
     lines = [f"skigen batch: {n} WingRock logs of {args.seconds:g} s ({report['samples_per_log']} samples), "
              f"{args.filter}, {args.backend} backend, {os.cpu_count()} cores ({diverged} logs diverge: a row "
-             f"each, in the loop and the batch); load average {load:.2f} before the run",
+             f"each, in the loop and the batch)",
+             f"before the run: load average {load:.2f}; two CPU-bound processes side by side ran as on "
+             f"{cores:.2f} free cores",
              f"{'':28s} {'wall s':>8s} {'ms/log':>8s} {'ratio':>6s} {'cluster start s':>16s}",
              f"{'plain loop, one process':28s} {loop:8.2f} {1e3 * loop / n:8.1f}"]
     for r in runs:

@@ -28,7 +28,7 @@ def client():
     from distributed import Client, LocalCluster
     import logging
     cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
-                           silence_logs=logging.ERROR)
+                           silence_logs=logging.CRITICAL)
     c = Client(cluster)
     yield c
     c.close()

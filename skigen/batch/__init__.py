@@ -141,7 +141,7 @@ def _client(workers, scheduler, connect_timeout):
     if n < 1:
         raise BatchError(f"workers must be at least 1, got {workers}")
     cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
-                           silence_logs=logging.ERROR)
+                           silence_logs=logging.CRITICAL)
     return Client(cluster), cluster, n
 
 
