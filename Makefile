@@ -32,6 +32,7 @@ bench: $(STAMP)  ## accuracy and speed tables (figures land in benchmarks/figure
 	$(PY) -m skigen bench diagnose
 	$(PY) -m skigen bench fit
 	$(PY) -m skigen bench logs
+	$(PY) -m skigen bench batch
 
 generate: $(STAMP)  ## regenerate the checked-in C sources in generated/
 	$(PY) -m skigen.emit.shipped generated

@@ -1,4 +1,4 @@
-"""Command line: ``skigen run | generate | fit | diagnose | bench`` (also ``python -m skigen``)."""
+"""Command line: ``skigen run | generate | fit | diagnose | batch | bench`` (also ``python -m skigen``)."""
 from __future__ import annotations
 
 import argparse
@@ -16,7 +16,7 @@ from .recording import RecordingError
 
 __all__ = ["main", "load_model"]
 
-BENCHMARKS = ("wingrock", "delay", "quadrotor", "mukf", "speed", "footprint", "diagnose", "logs")
+BENCHMARKS = ("wingrock", "delay", "quadrotor", "mukf", "speed", "footprint", "diagnose", "logs", "batch")
 
 
 class CliError(Exception):
@@ -162,6 +162,23 @@ def _fit(args) -> int:
     return 0
 
 
+def _batch(args) -> int:
+    from .batch import BatchError, batch
+
+    mode = "diagnose" if args.diagnose else "fit" if args.fit else "run"
+    if args.workers is not None and args.workers < 1:
+        raise CliError(f"--workers must be at least 1, got {args.workers}")
+    try:
+        result = batch(args.model, args.logs, args.out, mode=mode, filter=args.filter, backend=args.backend,
+                       real=args.real, track=args.track, estimate=args.estimate, method=args.method,
+                       figures=not args.no_figures, workers=args.workers, scheduler=args.scheduler,
+                       **_read_options(args))
+    except BatchError as exc:
+        raise CliError(str(exc)) from None
+    print("\n".join(result.lines()))
+    return 0 if result.counts.get("ok", 0) == len(result.rows) else 1
+
+
 def _bench(args) -> int:
     module = f"benchmarks.{args.name}"
     try:
@@ -230,6 +247,33 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--no-figures", action="store_true", help="skip the figures")
     f.set_defaults(func=_fit)
     _add_data_options(f)
+    a = sub.add_parser("batch", help="run, fit or diagnose a model over many logs on Dask (local or a cluster)")
+    a.add_argument("model", help="model file (.py exposing `model`) or package.module:attribute")
+    a.add_argument("logs", nargs="+", metavar="GLOB", help="log files or globs (quote them: 'flights/*.ulg'; ** recurses)")
+    a.add_argument("--out", required=True, help="output directory: DIR/<log>/ per log, DIR/summary.csv, DIR/summary.png")
+    what = a.add_mutually_exclusive_group()
+    what.add_argument("--filter", choices=FILTERS, default="ski", help="run this filter over each log (default ski)")
+    what.add_argument("--fit", action="store_true", help="fit each log (skigen fit) instead of filtering it")
+    what.add_argument("--diagnose", action="store_true", help="diagnose each log (skigen diagnose) instead")
+    a.add_argument("--backend", choices=["python", "c"], default="python",
+                   help="filter backend; c is compiled once into DIR/.build and shared by the workers")
+    a.add_argument("--real", choices=["double", "float"], default="double", help="C backend precision")
+    a.add_argument("--track", action="append", default=[], metavar="STATE",
+                   help="a state whose final value ± std joins the summary, e.g. a mass carried as a "
+                        "random-walk state (repeatable; weights and --estimate parameters always do)")
+    a.add_argument("--estimate", action="append", default=[], metavar="NAME",
+                   help="a parameter to estimate (filter: augmented online; --fit: default all) (repeatable)")
+    a.add_argument("--method", choices=["output-error", "filter-error"], default="output-error",
+                   help="--fit method (default output-error)")
+    a.add_argument("--no-figures", action="store_true", help="skip the per-log figures and summary.png")
+    where = a.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None, metavar="N",
+                       help="local worker processes (default: the machine's cores)")
+    where.add_argument("--scheduler", metavar="ADDRESS",
+                       help="a running Dask scheduler, e.g. tcp://host:8786 (logs and DIR at the same paths on "
+                            "every worker)")
+    _add_data_options(a)
+    a.set_defaults(func=_batch)
     b = sub.add_parser("bench", help=f"print a benchmark table ({', '.join(BENCHMARKS)})")
     b.add_argument("name")
     b.add_argument("--json", action="store_true", help="print one JSON object")

@@ -1,0 +1,207 @@
+"""skigen batch on a 2-worker LocalCluster: a fleet of 22 small logs (2 corrupt), the same numbers
+as each log run alone, resume after a deleted result, the C library compiled once, the move rule."""
+import csv
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import skigen
+from models.wingrock_sim import simulate
+from skigen.batch import BatchError, batch
+from skigen.batch.summary import moves, threshold
+from skigen.modelfile import load_model
+from skigen.recording import write_recording
+
+MODEL = "models/wingrock.py"
+FILTER = "ukf"
+GOOD = [f"flight_{i:02d}" for i in range(20)]
+
+
+@pytest.fixture(scope="module")
+def client():
+    from distributed import Client, LocalCluster
+    import logging
+    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                           silence_logs=logging.CRITICAL)
+    c = Client(cluster)
+    yield c
+    c.close()
+    cluster.close()
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory):
+    """20 short WingRock flights (3 s, 151 samples) and 2 corrupt logs."""
+    d = tmp_path_factory.mktemp("fleet")
+    for i, name in enumerate(GOOD):
+        sim = simulate(seed=i, duration=3.0)
+        write_recording(d / f"{name}.csv", sim.t, {"delta": sim.delta}, {"phi": sim.phi})
+    (d / "flight_bad_cell.csv").write_text("t,delta,phi\n0,0.1,0.2\n0.02,abc,0.3\n0.04,0.1,0.2\n")
+    (d / "flight_no_phi.csv").write_text("t,delta\n0,0.1\n0.02,0.2\n0.04,0.1\n")
+    return d
+
+
+@pytest.fixture(scope="module")
+def first(fleet, client, tmp_path_factory):
+    out = tmp_path_factory.mktemp("out")
+    return batch(MODEL, str(fleet / "flight_*.csv"), out, filter=FILTER, client=client, show_progress=False), out
+
+
+def _summary(out: Path) -> dict:
+    with open(out / "summary.csv", newline="") as f:
+        return {r["log"]: r for r in csv.DictReader(f)}
+
+
+def test_22_logs_give_20_ok_rows_and_2_failed_rows_with_their_messages(first):
+    result, out = first
+    rows = _summary(out)
+    assert len(rows) == 22 and result.counts == {"ok": 20, "diverged": 0, "failed": 2}
+    assert [r["log"] for r in result.rows] == sorted(rows)          # ordered by file name (no epoch stamps)
+    assert rows["flight_bad_cell"]["status"] == "failed"
+    assert "row 3, column 'delta': 'abc' is not a number" in rows["flight_bad_cell"]["message"]
+    assert rows["flight_no_phi"]["status"] == "failed" and "phi" in rows["flight_no_phi"]["message"]
+    for name in GOOD:
+        r = rows[name]
+        assert r["status"] == "ok" and r["message"] == "" and int(r["samples"]) == 151
+        assert float(r["duration_s"]) == pytest.approx(3.0)
+        assert 0.2 < float(r["mean_nis"]) < 5 and float(r["nis_expected"]) == 1.0
+        assert (out / name / "done.json").exists() and (out / name / "result.csv").exists()
+    for bad in ("flight_bad_cell", "flight_no_phi"):
+        assert not (out / bad / "done.json").exists()
+        assert "Traceback" in (out / bad / "error.txt").read_text()
+    assert (out / "summary.png").stat().st_size > 10_000
+    assert not list(out.glob(".*.tmp-*"))
+
+
+def test_the_same_numbers_as_running_each_log_alone(first, fleet):
+    result, out = first
+    model = load_model(MODEL)
+    rows = _summary(out)
+    weights = [n for n in rows["flight_00"] if n.startswith("w_")]
+    assert len(weights) == 6
+    for name in GOOD:
+        alone = skigen.run(model, fleet / f"{name}.csv", filter=FILTER)
+        w, s = alone.weights[-1], alone.weight_std[-1]
+        got = np.array([float(rows[name][n]) for n in weights])
+        got_std = np.array([float(rows[name][f"std_{n}"]) for n in weights])
+        np.testing.assert_allclose(got, w, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(got_std, s, rtol=1e-9, atol=1e-12)
+        assert float(rows[name]["mean_nis"]) == pytest.approx(np.nanmean(alone.nis), rel=1e-9)
+    alone = skigen.run(model, fleet / "flight_07.csv", filter=FILTER).to_frame()
+    table = pd.read_csv(out / "flight_07" / "result.csv")
+    assert list(table.columns) == list(alone.columns)
+    num = [c for c in alone.columns if c != "status"]
+    np.testing.assert_allclose(table[num].to_numpy(float), alone[num].to_numpy(float), rtol=1e-9, equal_nan=True)
+    assert (table["status"] == alone["status"]).all()
+
+
+def test_rerun_skips_complete_logs_and_redoes_a_deleted_or_changed_one(first, fleet, client, tmp_path):
+    import shutil
+    _, out = first
+    copy = tmp_path / "out"
+    shutil.copytree(out, copy)
+    before = {n: (copy / n / "done.json").stat().st_mtime_ns for n in GOOD}
+    shutil.rmtree(copy / "flight_05")
+    again = batch(MODEL, str(fleet / "flight_*.csv"), copy, filter=FILTER, client=client, show_progress=False)
+    assert again.skipped == 19 and again.counts == {"ok": 20, "diverged": 0, "failed": 2}
+    after = {n: (copy / n / "done.json").stat().st_mtime_ns for n in GOOD}
+    assert [n for n in GOOD if after[n] != before[n]] == ["flight_05"]
+    drop = lambda rows: {n: {k: v for k, v in r.items() if k != "seconds"} for n, r in rows.items()}
+    assert drop(_summary(copy)) == drop(_summary(out))         # the redone log has the same numbers
+    # a changed log is done again
+    sim = simulate(seed=99, duration=3.0)
+    write_recording(fleet / "flight_19.csv", sim.t, {"delta": sim.delta}, {"phi": sim.phi})
+    changed = batch(MODEL, str(fleet / "flight_*.csv"), copy, filter=FILTER, client=client, show_progress=False)
+    assert changed.skipped == 19 and (copy / "flight_19" / "done.json").stat().st_mtime_ns != after["flight_19"]
+    # another filter is another result: every log is done again
+    other = batch(MODEL, [str(fleet / "flight_0[0-2].csv")], copy, filter="ekf", client=client,
+                  show_progress=False, figures=False)
+    assert other.skipped == 0 and other.counts["ok"] == 3
+
+
+def test_c_backend_is_compiled_once_and_gives_the_python_numbers(first, fleet, client, tmp_path):
+    _, out = first
+    res = batch(MODEL, [str(fleet / f"flight_0{i}.csv") for i in range(4)], tmp_path, filter=FILTER, backend="c",
+                client=client, show_progress=False, figures=False)
+    assert res.counts["ok"] == 4
+    assert len(list((tmp_path / ".build" / "c").glob("*.so"))) == 1
+    py = {r["log"]: r for r in first[0].rows}
+    for r in res.rows:
+        for q, (v, s) in r["quantities"].items():
+            assert v == pytest.approx(py[r["log"]]["quantities"][q][0], rel=1e-7, abs=1e-10)
+
+
+def test_fit_each_log_gives_parameters_with_std(fleet, client, tmp_path):
+    from skigen.fit import fit
+    logs = [str(fleet / f"flight_1{i}.csv") for i in range(3)]
+    res = batch(MODEL, logs, tmp_path, mode="fit", client=client, show_progress=False, figures=False)
+    assert res.counts["ok"] == 3
+    model = load_model(MODEL)
+    alone = fit(model, [skigen.recording.load_recording(logs[1], model)], show_progress=False)
+    row = next(r for r in res.rows if r["log"] == "flight_11")
+    for name, p in alone.weights.items():
+        assert row["quantities"][name][0] == pytest.approx(p["value"], rel=1e-6)
+        assert row["quantities"][name][1] == pytest.approx(p["std"], rel=1e-6)
+    assert (tmp_path / "flight_11" / "fit.json").exists() and (tmp_path / "flight_11" / "fitted_model.py").exists()
+    assert "std_w_abs_theta_p" in (tmp_path / "summary.csv").read_text().splitlines()[0]
+
+
+def test_a_step_is_a_move_and_a_slow_drift_is_not():
+    rows = []
+    for k in range(100):
+        drift = 1.0 + 0.002 * k                      # 0.2 over the fleet, 0.1σ per flight
+        step = 0.010 if k < 60 else 0.015            # 0.005 = 7σ of the difference
+        rows.append(dict(log=f"f{k:03d}", status="ok" if k != 30 else "failed",
+                         quantities={"theta": [drift, 0.015], "phi": [step, 0.0005]}))
+    m = moves(rows)
+    assert [(x["quantity"], x["log"], x["previous"]) for x in m] == [("phi", "f060", "f059")]
+    assert m[0]["z"] == pytest.approx(0.005 / np.hypot(0.0005, 0.0005))
+    assert threshold(98) == pytest.approx(3.48, abs=0.01) and threshold(3) == pytest.approx(2.39, abs=0.01) and threshold(1) == 2.0
+
+
+def test_clear_errors(fleet, tmp_path):
+    with pytest.raises(BatchError, match=r"no log file matches '.*nothing_\*\.csv'"):
+        batch(MODEL, str(fleet / "nothing_*.csv"), tmp_path)
+    with pytest.raises(BatchError, match=r"^cannot connect to the Dask scheduler at 'tcp://127.0.0.1:9'"):
+        batch(MODEL, str(fleet / "flight_00.csv"), tmp_path, scheduler="tcp://127.0.0.1:9", connect_timeout=1)
+    with pytest.raises(BatchError, match="file path or package.module:attribute"):
+        batch(load_model(MODEL), str(fleet / "flight_00.csv"), tmp_path)
+    with pytest.raises(BatchError, match="SKI needs basis weights"):
+        batch("models/cart.py", str(fleet / "flight_00.csv"), tmp_path, filter="ski")
+
+
+def test_cli_batch_on_its_own_two_workers(fleet, tmp_path):
+    logs = [str(fleet / "flight_0[0-2].csv"), str(fleet / "flight_bad_cell.csv")]
+    r = subprocess.run([sys.executable, "-m", "skigen", "batch", MODEL, *logs, "--out", str(tmp_path),
+                        "--filter", FILTER, "--workers", "2", "--no-figures"], capture_output=True, text=True,
+                       env=dict(os.environ, SKIGEN_PROGRESS="0"))
+    assert r.returncode == 1, r.stderr                # a failed log: exit 1, the others done
+    assert r.stdout.startswith("4 logs: 3 ok, 0 diverged, 1 failed") and "on 2 worker(s)" in r.stdout
+    assert "failed: flight_bad_cell:" in r.stdout and "'abc' is not a number" in r.stdout
+    assert len(_summary(tmp_path)) == 4
+    r = subprocess.run([sys.executable, "-m", "skigen", "batch", MODEL, "nope/*.csv", "--out", str(tmp_path)],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and r.stderr.strip() == "skigen: error: no log file matches 'nope/*.csv'"
+
+
+def test_diagnose_each_log_lists_its_findings(client, tmp_path):
+    from benchmarks.scenarios import make
+    (tmp_path / "logs").mkdir()
+    for name, seconds in (("cart_clean", 10.0), ("cart_bias", 20.0)):
+        sc = make(name, seconds, 1)
+        sc.write_csv(tmp_path / "logs" / f"{name}.csv")
+    res = batch(sc.model_file, str(tmp_path / "logs" / "*.csv"), tmp_path / "out", mode="diagnose", client=client,
+                show_progress=False, figures=False)
+    rows = _summary(tmp_path / "out")
+    assert rows["cart_clean"]["mismatch"] == "False" and rows["cart_clean"]["findings"] == ""
+    assert rows["cart_bias"]["mismatch"] == "True" and rows["cart_bias"]["findings"].startswith("bias on v (")
+    assert float(rows["cart_bias"]["bias@v"]) > 5 * float(rows["cart_bias"]["std_bias@v"])
+    report = json.loads((tmp_path / "out" / "cart_bias" / "report.json").read_text())
+    assert report["corrected_model"] == str(tmp_path / "out" / "cart_bias" / "corrected_model.py")
+    assert Path(report["corrected_model"]).exists() and res.counts["ok"] == 2
