@@ -280,11 +280,11 @@ def _dense(M) -> np.ndarray:
 
 def _initial_guess(model: Model, prob: Problem, recs, theta0, data_blocks):
     """Initial states (at every shooting node) from the model's EKF at the starting values:
-    its prior state at each node's sample, where the filter stays finite."""
+    its posterior state at each node's sample, where the filter stays finite."""
     V, out = prob.variables, theta0.copy()
     n_theta = sum(k in ("parameter", "weight") for k in V.kinds)
     X = np.asarray(prob.filtered(theta0[:n_theta], *data_blocks))
-    starts = np.cumsum([0] + [len(r.t) + 1 for r in recs])
+    starts = np.cumsum([0] + [len(r.t) for r in recs])
     for i, name in enumerate(V.names):
         if V.kinds[i] == "initial":
             state, rest = name.split("@")

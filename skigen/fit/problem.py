@@ -86,8 +86,8 @@ class Problem:
     fisher: ca.Function            # (ξ, data) → J_ρ (rows: samples × residuals), prior precision,
                                    #   the per-sample scores ∂(−log L_k)/∂ξ (rows: samples)
     predict: ca.Function           # (ξ, data) → predicted outputs, one column per sample
-    filtered: ca.Function          # (θ, data per recording) → the EKF's prior state, one column per sample
-                                   #   (recordings one after another, one column more at each start)
+    filtered: ca.Function          # (θ, data per recording) → the EKF's posterior state, one column per
+                                   #   sample, recordings one after another
     lengths: list[int]             # samples per recording
     n_rho: int                     # pseudo-residuals per sample
     shooting: int                  # samples per shooting interval (output error)
@@ -140,7 +140,7 @@ def _output_error_step(aug, x, theta):
 
 
 def _filter_error_step(model, aug, x, theta, lam_q, lam_r, q_rows):
-    """(s = [x; vec P], d, θ, λ) → (s_next, e, vec S, nll, ŷ): one EKF sample with scaled noise."""
+    """(s = [x; vec P], d, θ, λ) → (s_next, e, vec S, nll, ŷ, x_post): one EKF sample with scaled noise."""
     nx, ny = x.shape[0], aug.h.shape[0]
     d = ca.SX.sym("d", aug.u.shape[0] + aug.mem.shape[0] + 2 * ny)
     u, mem, y, valid = _split_data(aug, d)
@@ -161,7 +161,7 @@ def _filter_error_step(model, aug, x, theta, lam_q, lam_r, q_rows):
     y_hat = ca.substitute(aug.h, ca.vertcat(aug.u, aug.mem, x), ca.vertcat(u, mem, x))
     s = ca.vertcat(x, ca.vec(P))
     return ca.Function("fe_step", [s, d, theta, ca.vertcat(lam_q, lam_r)],
-                       [ca.vertcat(x_next, ca.vec(P_next)), e, ca.vec(Pyy), -loglik, y_hat])
+                       [ca.vertcat(x_next, ca.vec(P_next)), e, ca.vec(Pyy), -loglik, y_hat, x_post])
 
 
 def _pseudo_residuals(ny: int) -> ca.Function:
@@ -201,7 +201,7 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
     s0 = ca.DM(np.r_[model.x0, np.ravel(model.initial_covariance(), order="F")])
     th_sym = ca.MX.sym("theta", n_theta)
     filtered = ca.Function("filtered", [th_sym, *data], [ca.horzcat(*[
-        ca.horzcat(s0, ekf.mapaccum("filter", n, [0], [0])(s0, d, th_sym, 0)[0]) for n, d in zip(lengths, data)])[:nx, :]])
+        ekf.mapaccum("filter", n, [0], [0])(s0, d, th_sym, 0)[5] for n, d in zip(lengths, data)])])
     if method == "output-error":
         step = _output_error_step(aug, x, theta)
         M = shooting or max(lengths)
@@ -238,7 +238,7 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
         lam = xi[n_theta:] * sc[n_theta:]
         rho_fn, chol_fn = _pseudo_residuals(ny), _chol_function(ny)
         for r, n in enumerate(lengths):
-            _, e, S, nll, y_hat = ekf.mapaccum("filter", n, [0], [0])(s0, data[r], th, lam)
+            _, e, S, nll, y_hat, _ = ekf.mapaccum("filter", n, [0], [0])(s0, data[r], th, lam)
             L = ca.stop_diff(chol_fn.map(n)(S), 1)
             rho_all.append(rho_fn.map(n)(e, S, L))
             nll_all.append(nll)
