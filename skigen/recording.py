@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["RecordingError", "Recording", "load_recording", "read_recording", "write_recording",
+__all__ = ["RecordingError", "Recording", "load_recording", "stream_recording", "read_recording", "write_recording",
            "write_table", "TableWriter"]
 
 
@@ -73,6 +73,25 @@ def load_recording(source, model, *, time=None, time_unit: str = "s", columns=No
     return read_recording(source, model.input_names, model.output_names, dt=model.dt,
                           input_hold=model.input_hold, time=time, time_unit=time_unit, columns=columns,
                           max_gap=max_gap, real=real)
+
+
+def stream_recording(path, model, *, time=None, time_unit: str = "s", columns=None, max_gap: float = 1.0,
+                     real: str = "double", block_size: int | None = None, rows: int | None = None,
+                     block: int = 1 << 16):
+    """A CSV file on ``model``'s grid, read as it is used: a :class:`~skigen.grid.GridStream`
+    whose iteration yields blocks of at most ``block`` grid samples, the same samples as
+    :func:`load_recording` gives, holding a block of the file (``block_size`` bytes; ``rows``
+    re-cuts it, for tests) instead of the whole recording. The header and the columns are checked
+    now; iterating raises :class:`~skigen.sources.NotStreamable` where only the whole-file reader
+    can decide (it names the row). Options as in :func:`load_recording`.
+    """
+    from .grid import GridStream
+    from .sources import BLOCK_SIZE, stream_csv
+
+    stream = stream_csv(path, model.input_names + model.output_names, columns=columns, time=time, real=real,
+                        block_size=block_size or BLOCK_SIZE, rows=rows)
+    return GridStream(stream, model.dt, model.input_names, model.output_names, model.input_hold,
+                      time_unit=time_unit, max_gap=max_gap, block=block)
 
 
 def read_recording(path, input_names, output_names, *, dt: float | None = None, input_hold: str = "zoh",
