@@ -75,13 +75,13 @@ def _run(args) -> int:
 
     model = load_model(args.model)
     options = _read_options(args)
-    out = Path(args.out)
+    out, filt = Path(args.out), None
     if is_csv(args.data):
         grid = stream_recording(args.data, model, real=args.real, **options)
         filt = derive(model, args.filter)
         summary = RunSummary(filt)
         try:
-            with TableWriter(out) as w:
+            with TableWriter(out, background=True) as w:
                 for part in iter_run_stream(filt, grid, backend=args.backend, real=args.real):
                     w.write(part.columns())
                     summary.add(part)
@@ -99,9 +99,9 @@ def _run(args) -> int:
         raise
     for line in rec.notes:
         print(line)
-    filt = derive(model, args.filter)
+    filt = filt or derive(model, args.filter)
     summary = RunSummary(filt)
-    with TableWriter(out) as w:
+    with TableWriter(out, background=True) as w:
         for part in iter_run(filt, rec, backend=args.backend, real=args.real):
             w.write(part.columns())
             summary.add(part)

@@ -152,7 +152,8 @@ def _csv_header(path) -> list[str]:
     return header
 
 
-BLOCK_SIZE = 4 << 20          # bytes per block of pyarrow's streaming CSV reader
+BLOCK_SIZE = 4 << 20          # bytes per block of pyarrow's streaming CSV reader (whole-file reading)
+STREAM_BLOCK_SIZE = 1 << 20   # the same when streaming: pyarrow reads up to 32 blocks ahead
 
 
 def _open_csv(path, header, wanted, block_size=BLOCK_SIZE):
@@ -253,7 +254,7 @@ class CsvStream:
     time_column: str
     real: str
     header: list[str]
-    block_size: int = BLOCK_SIZE
+    block_size: int = STREAM_BLOCK_SIZE
     rows: int | None = None              # re-cut the blocks into pieces of at most this many rows (tests)
     notes: list[str] = field(default_factory=list)
 
@@ -289,14 +290,16 @@ def is_csv(source) -> bool:
     return not (hasattr(source, "columns") and hasattr(source, "index")) and _kind(Path(source)) == "csv"
 
 
-def stream_csv(path, names, *, columns=None, time=None, real: str = "double", block_size: int = BLOCK_SIZE,
+def stream_csv(path, names, *, columns=None, time=None, real: str = "double", block_size: int = STREAM_BLOCK_SIZE,
                rows: int | None = None) -> CsvStream:
     """The CSV file ``path`` for the model ``names`` as blocks of rows, read as they are used.
 
     The header, the time column and the mapped columns are checked now, as :func:`read_samples`
     does. Iterating yields a :class:`Group` per block (``block_size`` bytes of file, cut into pieces
-    of at most ``rows`` rows if given); it raises :class:`NotStreamable` on anything the exact
-    whole-file reader must name (a malformed cell or row, time going backwards, a non-finite value).
+    of at most ``rows`` rows if given). pyarrow reads up to 32 blocks ahead in a thread, so memory
+    holds at most about 32 ``block_size`` of the file, however long it is. Iterating raises
+    :class:`NotStreamable` on anything the exact whole-file reader must name (a malformed cell or
+    row, time going backwards, a non-finite value).
     """
     header = _csv_header(path)
     cols = _columns_for(list(names), columns)
