@@ -348,7 +348,8 @@ class GridStream:
         dt, half, row = self.dt, self.dt / 2, self.row_t
         guess = lambda T: np.floor((T - self.start) / dt) if np.isfinite(T) else 0
         k = self._check_length()                                   # grid samples that exist already
-        k = min(k, self._count(lambda t: t < self.end - dt * 1e-6, guess(self.end)))   # trailing input holes
+        # an input hole up to the last stamp restarts the states about there (known at the end): keep a margin
+        k = min(k, self._count(lambda t: t < self.end - dt, guess(self.end)))
         for name in self.input_names:
             c = self.cols[name]
             if self.hold == "foh":

@@ -108,6 +108,25 @@ def test_a_late_input_and_outputs_before_it(tmp_path):
         assert any("before the inputs are known" in n for n in rec.notes)
 
 
+@pytest.mark.parametrize("hold", ["zoh", "foh"])
+def test_epoch_stamps_and_an_input_that_stops_before_the_end(tmp_path, hold):
+    """Stamps of 1.7e9 s, an input that stops 1.5 s before the last output (a hole to the end: the
+    states restart near the last sample, known only at the end of the file)."""
+    df = awkward_log(seed=5, seconds=8)
+    df["t"] += 1.7e9
+    df.loc[df.t > 1.7e9 + 6.4, "u"] = np.nan
+    path = tmp_path / "epoch.csv"
+    df.to_csv(path, index=False, float_format="%.17g")
+    model = small_model(hold)
+    rec = load_recording(path, model)
+    for rows in (3, 40):
+        grid, t, inputs, outputs, _ = streamed_grid(path, model, rows=rows)
+        assert np.array_equal(t, rec.t) and np.array_equal(inputs, rec.inputs)
+        assert np.array_equal(outputs, rec.outputs, equal_nan=True) and grid.holes == rec.holes
+        assert grid.restart_list == skigen.runtime.restarts(rec, model.dt)
+    assert rec.holes[-1].inputs and rec.holes[-1].columns[0] == "u" and rec.holes[-1].t1 >= rec.t[-1] - model.dt
+
+
 def run_cli(tmp_path, data, name, *args):
     out = tmp_path / name
     assert main(["run", *args, str(data), "--out", str(out)]) == 0
@@ -139,8 +158,10 @@ def test_skigen_run_streams_csv_with_the_same_result(tmp_path, monkeypatch, caps
     assert "hole(s) longer than the maximum gap" in printed and printed.count("mean NIS") == 3
 
 
-def test_errors_are_those_of_the_whole_file_reader(tmp_path, capsys):
-    """Time going backwards across blocks, a bad cell far in, a log too short: the message names the row."""
+def test_errors_are_those_of_the_whole_file_reader(tmp_path, capsys, monkeypatch):
+    """Time going backwards between blocks, a bad cell in a later block: the message names the row."""
+    from skigen import sources
+    monkeypatch.setattr(sources.CsvStream, "rows", 50)                  # row 302 starts a block
     t = np.arange(400) * 0.02
     df = pd.DataFrame({"t": t, "u": 0.1, "g": 1.0, "xm": 0.0, "vm": 0.0})
     df.loc[300, "t"] = 1.0
