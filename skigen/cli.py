@@ -60,22 +60,57 @@ def _read_options(args) -> dict:
 
 
 def _run(args) -> int:
+    """``skigen run``. A CSV file is streamed: read a block at a time (pyarrow's streaming reader),
+    laid on the grid, filtered and written before the next is read, so that memory does not grow
+    with the file (a flight log of hours, a 200 MB CSV). The grid is the same as the whole-file
+    reader's (:class:`skigen.grid.GridStream`); the notes come after the run instead of before.
+    When a block holds something only the whole-file reader can name (a malformed row, time going
+    backwards, a grid it cannot bound), the file is read whole, which names it. Parquet, ULog (read
+    whole by their libraries) and the other commands (``diagnose`` and ``fit`` need the whole
+    record) read the recording whole."""
     from .derive import derive
-    from .recording import TableWriter, load_recording
-    from .runtime import RunSummary, iter_run
+    from .recording import TableWriter, load_recording, stream_recording
+    from .runtime import RunSummary, iter_run, iter_run_stream
+    from .sources import NotStreamable, is_csv
 
     model = load_model(args.model)
-    rec = load_recording(args.data, model, real=args.real, **_read_options(args))
+    options = _read_options(args)
+    out, filt = Path(args.out), None
+    if is_csv(args.data):
+        grid = stream_recording(args.data, model, real=args.real, **options)
+        filt = derive(model, args.filter)
+        summary = RunSummary(filt)
+        try:
+            with TableWriter(out, background=True) as w:
+                for part in iter_run_stream(filt, grid, backend=args.backend, real=args.real):
+                    w.write(part.columns())
+                    summary.add(part)
+        except NotStreamable:
+            out.unlink(missing_ok=True)
+        else:
+            summary.holes, summary.notes = grid.holes, tuple(grid.notes)
+            for line in grid.notes:
+                print(line)
+            return _ran(args, model, grid.n, grid.time(0), grid.time(grid.n - 1), summary)
+    try:
+        rec = load_recording(args.data, model, real=args.real, **options)
+    except RecordingError:
+        out.unlink(missing_ok=True)
+        raise
     for line in rec.notes:
         print(line)
-    filt = derive(model, args.filter)
+    filt = filt or derive(model, args.filter)
     summary = RunSummary(filt)
-    with TableWriter(args.out) as out:
+    with TableWriter(out, background=True) as w:
         for part in iter_run(filt, rec, backend=args.backend, real=args.real):
-            out.write(part.columns())
+            w.write(part.columns())
             summary.add(part)
-    print(f"{model.name} {args.filter} ({args.backend}): {len(rec.t)} samples of dt = {model.dt:g} s, "
-          f"t = {rec.t[0]:.6g}–{rec.t[-1]:.6g} s -> {args.out}")
+    return _ran(args, model, len(rec.t), rec.t[0], rec.t[-1], summary)
+
+
+def _ran(args, model, n, t0, t1, summary) -> int:
+    print(f"{model.name} {args.filter} ({args.backend}): {n} samples of dt = {model.dt:g} s, "
+          f"t = {t0:.6g}–{t1:.6g} s -> {args.out}")
     print("\n".join(summary.lines()))
     return 0
 

@@ -19,7 +19,7 @@ import numpy as np
 from .recording import Recording, RecordingError
 from .sources import Samples
 
-__all__ = ["UNITS", "Hole", "time_scale", "to_grid"]
+__all__ = ["UNITS", "Hole", "time_scale", "to_grid", "GridStream", "GridBlock"]
 
 UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 RATE_MISMATCH = 300.0        # stamps this many times further apart (or closer) than dt: a wrong unit
@@ -178,3 +178,266 @@ def to_grid(samples: Samples, dt: float, input_names, output_names, input_hold: 
              _holes(series, input_names + output_names, input_names, start, end, max_gap, cols)]
     return Recording(samples.source, origin + t, inputs, outputs, input_names, output_names,
                      holes=tuple(holes), notes=tuple(notes), columns=dict(cols), max_gap=max_gap)
+
+
+# --------------------------------------------------------------------------- streamed
+
+@dataclass
+class GridBlock:
+    """Consecutive grid samples ``k0, k0 + 1, …`` of a streamed recording."""
+
+    k0: int
+    t: np.ndarray          # (m,) seconds
+    inputs: np.ndarray     # (m, nu)
+    outputs: np.ndarray    # (m, ny), NaN where not measured
+
+
+class _Column:
+    """What the stream keeps of one column: its samples not yet laid on the grid, and counts."""
+
+    def __init__(self):
+        self.t, self.v = np.zeros(0), np.zeros(0)
+        self.new = []                 # stamps not yet looked at for holes
+        self.first = self.last = None
+        self.count = self.early = self.used = 0
+        self.prev = None              # the last stamp looked at for holes (the grid start at first)
+
+    def add(self, t, v):
+        if len(t):
+            self.t, self.v = np.concatenate([self.t, t]), np.concatenate([self.v, v])
+            self.new.append(t)
+            self.first = float(t[0]) if self.first is None else self.first
+            self.last = float(t[-1])
+            self.count += len(t)
+
+    def drop(self, i):
+        self.t, self.v = self.t[i:], self.v[i:]
+
+
+class GridStream:
+    """:func:`to_grid` block by block: feed the :class:`~skigen.sources.Group` blocks of a CSV file in
+    order (:meth:`feed`), then :meth:`finish`; each yields the :class:`GridBlock` s that are decided.
+
+    The result is that of :func:`to_grid` on the whole file, sample for sample (the same
+    expressions on the same numbers): a grid sample is laid out once no later time stamp can change
+    it (every input has a stamp past it, every output a sample nearer the next grid sample), and
+    only the samples that can still matter are kept, so memory does not grow with the file. Three
+    decisions are taken on the first block instead of the whole file: the time origin (the same:
+    the first row), ``--time-unit auto`` and the check of the unit against dt (both from the
+    median spacing of the first block). Holes and notes are complete after :meth:`finish`;
+    ``restarts`` holds the grid samples at which an input is known again after a hole, each
+    found before that sample is laid out. Anything the whole-file path would refuse raises
+    :class:`~skigen.sources.NotStreamable`.
+    """
+
+    def __init__(self, stream, dt: float, input_names, output_names, input_hold: str = "zoh", *,
+                 time_unit: str = "s", max_gap: float = 1.0, min_samples: int = 2, block: int = 1 << 16):
+        self.stream, self.dt, self.hold, self.max_gap = stream, dt, input_hold, max_gap
+        self.input_names, self.output_names = tuple(input_names), tuple(output_names)
+        self.names = self.input_names + self.output_names
+        self.time_unit, self.min_samples, self.block = time_unit, min_samples, block
+        self.cols = {n: _Column() for n in self.names}
+        self.scale = self.origin = self.start = None
+        self.next_k, self.end, self.row_t, self.n = 0, -np.inf, -np.inf, None
+        self.spans, self.restarts = {}, set()
+        self.notes, self.holes = list(stream.notes), ()
+
+    def __iter__(self):
+        """Every grid block of the file, in order."""
+        for g in self.stream:
+            yield from self.feed(g)
+        yield from self.finish()
+
+    # ---------------------------------------------------------------- reading
+    def feed(self, g):
+        """Lay a block of rows: yields the grid blocks now decided."""
+        from .sources import NotStreamable, Samples
+
+        if not len(g.t):
+            return
+        if self.scale is None:
+            first = Samples(self.stream.source, [g], self.stream.columns, self.stream.time_column)
+            try:
+                self.scale, note = time_scale(first, self.time_unit, self.dt)
+            except RecordingError as e:
+                raise NotStreamable(str(e)) from None
+            self.notes += [note] if note else []
+            self.origin = float(g.t[0]) * (1.0 if g.seconds else self.scale)
+        t = (g.t if g.seconds else g.t * self.scale) - self.origin
+        for name in self.names:
+            v = g.values[name]
+            ok = np.isfinite(v)
+            self.cols[name].add(t[ok], v[ok])
+            if ok.any():
+                self.end = max(self.end, float(t[ok][-1]))
+        self.row_t = float(t[-1])
+        if self.start is None:
+            self._find_start()
+        if self.start is not None:
+            self._scan_holes()
+            self._check_length()
+            yield from self._emit(self._frontier())
+
+    def _find_start(self):
+        ins = [self.cols[n] for n in self.input_names]
+        if ins and all(c.first is not None for c in ins):
+            self.start = max(c.first for c in ins)
+        elif not ins and any(self.cols[n].first is not None for n in self.output_names):
+            self.start = min(self.cols[n].first for n in self.output_names if self.cols[n].first is not None)
+        else:                                   # an input not seen yet: the grid starts at or after this row
+            low, half = self.row_t, self.dt / 2
+            for n in self.input_names:
+                c = self.cols[n]
+                c.drop(max(int(np.searchsorted(c.t, low, side="right")) - 1, 0))
+            for n in self.output_names:
+                c = self.cols[n]
+                gone = int(np.sum(c.t < low - half))        # before the inputs are known, whatever the start
+                c.early += gone
+                c.drop(gone)
+            return
+        for c in self.cols.values():
+            c.prev = self.start
+
+    def _scan_holes(self):
+        for name in self.names:
+            c = self.cols[name]
+            if not c.new:
+                continue
+            ts = np.concatenate(c.new)
+            c.new = []
+            ts = ts[ts > self.start]
+            if not len(ts):
+                continue
+            edges = np.concatenate([[c.prev], ts])
+            for j in np.flatnonzero(np.diff(edges) > self.max_gap):
+                self._span(float(edges[j]), float(edges[j + 1]), name)
+            c.prev = float(ts[-1])
+
+    def _span(self, a, b, name):
+        self.spans.setdefault((a, b), []).append(name)
+        if name in self.input_names:        # as runtime.restarts computes it from the whole recording
+            self.restarts.add(int(np.ceil(((b + self.origin) - (self.origin + self.start)) / self.dt - 1e-6)))
+
+    def _stamps(self) -> int:
+        return sum(c.count for c in self.cols.values())
+
+    def _check_length(self):
+        from .sources import NotStreamable
+
+        span = (self.end - self.start) / self.dt
+        n = int(np.floor(span + 0.5)) + 1 if np.isfinite(span) and span < 2 ** 62 else -1
+        if not 0 < n <= GRID_PER_STAMP * self._stamps() + 10_000:
+            raise NotStreamable("the grid is too long for the time stamps")
+        return n
+
+    # ---------------------------------------------------------------- the grid
+    def _time(self, k):
+        return self.start + self.dt * np.asarray(k)
+
+    def _count(self, decided, guess) -> int:
+        """The number of grid samples k ≥ 0 for which ``decided(t_k)`` holds (it holds up to some k)."""
+        k = max(int(guess) - 2, 0)
+        while k > 0 and not decided(self._time(k - 1)):
+            k -= 1
+        while decided(self._time(k)):
+            k += 1
+        return k
+
+    def _frontier(self) -> int:
+        """Grid samples below this are decided by the samples read so far."""
+        dt, half, row = self.dt, self.dt / 2, self.row_t
+        guess = lambda T: np.floor((T - self.start) / dt) if np.isfinite(T) else 0
+        k = self._check_length()                                   # grid samples that exist already
+        # an input hole up to the last stamp restarts the states about there (known at the end): keep a margin
+        k = min(k, self._count(lambda t: t < self.end - dt, guess(self.end)))
+        for name in self.input_names:
+            c = self.cols[name]
+            if self.hold == "foh":
+                k = min(k, self._count(lambda t, T=c.last: T > t, guess(c.last)))
+            else:
+                T = max(c.last, row)
+                k = min(k, self._count(lambda t, T=T: T >= t + half, guess(T)))
+        for name in self.output_names:
+            c = self.cols[name]
+            T = max(c.last if c.last is not None else -np.inf, row)
+            k = min(k, int(np.rint((T - self.start) / dt)))
+        return max(k, self.next_k)
+
+    def _emit(self, stop):
+        """The grid samples from next_k to ``stop``, in blocks."""
+        while self.next_k < stop:
+            a = self.next_k
+            b = min(stop, a + self.block)
+            yield self._lay(a, b)
+            self.next_k = b
+
+    def _lay(self, a, b) -> GridBlock:
+        dt, n = self.dt, self.n if self.n is not None else b
+        t = self.start + dt * np.arange(a, b)
+        inputs = np.empty((b - a, len(self.input_names)))
+        t_next = self.start + dt * b
+        for j, name in enumerate(self.input_names):
+            c = self.cols[name]
+            if self.hold == "foh":
+                inputs[:, j] = np.interp(t, c.t, c.v)
+                keep = int(np.searchsorted(c.t, t_next, side="right")) - 1
+            else:
+                inputs[:, j] = c.v[np.searchsorted(c.t, t + dt / 2, side="left") - 1]
+                keep = int(np.searchsorted(c.t, t_next + dt / 2, side="left")) - 1
+            c.drop(max(keep, 0))
+        outputs = np.full((b - a, len(self.output_names)), np.nan)
+        for j, name in enumerate(self.output_names):
+            c = self.cols[name]
+            k = np.rint((c.t - self.start) / dt).astype(np.int64)
+            m = len(c.t) if self.n is not None else int(np.searchsorted(k, b, side="left"))
+            ts, v = c.t[:m], c.v[:m]
+            kk, used = _nearest(ts, self.start, dt, n)
+            inside = (kk >= a) & (kk < b)
+            outputs[kk[inside] - a, j] = v[used[inside]]
+            c.early += int(np.sum(ts < self.start - dt / 2))
+            c.used += len(used)
+            c.drop(m)
+        return GridBlock(a, self.origin + t, inputs, outputs)
+
+    def finish(self):
+        """The rest of the grid; then ``holes``, ``notes`` and ``n`` are complete."""
+        from .sources import NotStreamable
+
+        if self.start is None:
+            raise NotStreamable("no grid start")
+        self.n = self._check_length()
+        if self.n < self.min_samples:
+            raise NotStreamable("too few grid samples")
+        for name in self.names:
+            c = self.cols[name]
+            if self.end - c.prev > self.max_gap:
+                self._span(c.prev, self.end, name)
+        yield from self._emit(self.n)
+        order = {n: i for i, n in enumerate(self.names)}
+        cols, dt = self.stream.columns, self.dt
+        holes = []
+        for (a, b), names in sorted(self.spans.items()):
+            names = sorted(names, key=order.get)
+            holes.append(Hole(a + self.origin, b + self.origin, tuple(cols[n] for n in names),
+                              any(n in self.input_names for n in names)))
+        self.holes = tuple(holes)
+        for name in self.output_names:
+            c = self.cols[name]
+            dropped = c.count - c.used - c.early
+            if c.early:
+                self.notes.append(f"output '{name}': {c.early} sample(s) before the inputs are known "
+                                  f"(t < {self.origin + self.start:g} s) not used")
+            if dropped:
+                self.notes.append(f"output '{name}': {dropped} sample(s) not used: a nearer sample of '{name}' "
+                                  f"had the same grid sample (the log is faster than the model's "
+                                  f"1/dt = {1 / dt:g} Hz)")
+            if not c.count:
+                self.notes.append(f"output '{name}' (column '{cols[name]}') has no value: never measured")
+
+    def time(self, k) -> float:
+        """The time of grid sample ``k`` (seconds), as in the recording."""
+        return self.origin + (self.start + self.dt * k)
+
+    @property
+    def restart_list(self):
+        return sorted(k for k in self.restarts if 0 < k < (self.n or np.inf))

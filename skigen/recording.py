@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["RecordingError", "Recording", "load_recording", "read_recording", "write_recording",
+__all__ = ["RecordingError", "Recording", "load_recording", "stream_recording", "read_recording", "write_recording",
            "write_table", "TableWriter"]
 
 
@@ -73,6 +73,25 @@ def load_recording(source, model, *, time=None, time_unit: str = "s", columns=No
     return read_recording(source, model.input_names, model.output_names, dt=model.dt,
                           input_hold=model.input_hold, time=time, time_unit=time_unit, columns=columns,
                           max_gap=max_gap, real=real)
+
+
+def stream_recording(path, model, *, time=None, time_unit: str = "s", columns=None, max_gap: float = 1.0,
+                     real: str = "double", block_size: int | None = None, rows: int | None = None,
+                     block: int = 1 << 16):
+    """A CSV file on ``model``'s grid, read as it is used: a :class:`~skigen.grid.GridStream`
+    whose iteration yields blocks of at most ``block`` grid samples, the same samples as
+    :func:`load_recording` gives, holding a block of the file (``block_size`` bytes; ``rows``
+    re-cuts it, for tests) instead of the whole recording. The header and the columns are checked
+    now; iterating raises :class:`~skigen.sources.NotStreamable` where only the whole-file reader
+    can decide (it names the row). Options as in :func:`load_recording`.
+    """
+    from .grid import GridStream
+    from .sources import STREAM_BLOCK_SIZE, stream_csv
+
+    stream = stream_csv(path, model.input_names + model.output_names, columns=columns, time=time, real=real,
+                        block_size=block_size or STREAM_BLOCK_SIZE, rows=rows)
+    return GridStream(stream, model.dt, model.input_names, model.output_names, model.input_hold,
+                      time_unit=time_unit, max_gap=max_gap, block=block)
 
 
 def read_recording(path, input_names, output_names, *, dt: float | None = None, input_hold: str = "zoh",
@@ -135,40 +154,84 @@ def _csv_cell(text: str) -> str:
 
 class TableWriter:
     """CSV written a block of columns at a time (pyarrow): numbers in their shortest exact form,
-    NaN as an empty cell, text as is. Use as a context manager; :meth:`write` each block."""
+    NaN as an empty cell, text as is. Use as a context manager; :meth:`write` each block.
 
-    def __init__(self, path):
-        self.path, self._writer = path, None
+    With ``background=True`` the blocks are formatted and written by a thread (pyarrow releases
+    the GIL), at most ``queue`` blocks behind, while the caller computes the next: formatting
+    numbers is the slowest part of a run over a long log, and this overlaps it with the filter.
+    An error in the thread is raised by the next :meth:`write` or by :meth:`close`.
+    """
+
+    def __init__(self, path, background: bool = False, queue: int = 2):
+        self.path, self._writer, self._error = path, None, None
+        self._thread = self._queue = None
+        if background:
+            import queue as q
+            self._queue = q.Queue(maxsize=queue)
         os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
 
     def write(self, columns: dict) -> None:
+        n = len(np.asarray(next(iter(columns.values()))))
+        columns = {name: np.asarray(v) for name, v in columns.items()}
+        for name, v in columns.items():
+            if v.ndim != 1 or len(v) != n:
+                raise ValueError(f"column {name!r}: expected a 1-D array of equal length, got shape {v.shape}")
+        if self._queue is None:
+            self._write(columns)
+            return
+        if self._error is not None:
+            raise self._error
+        if self._thread is None:
+            import threading
+            self._thread = threading.Thread(target=self._drain, name="TableWriter", daemon=True)
+            self._thread.start()
+        self._queue.put(columns)
+
+    def _drain(self):
+        while (columns := self._queue.get()) is not None:
+            if self._error is None:
+                try:
+                    self._write(columns)
+                except BaseException as e:  # raised in the caller's thread
+                    self._error = e
+
+    def _write(self, columns: dict) -> None:
         import pyarrow as pa
         import pyarrow.csv as pc
 
-        arrays = []
-        for name, v in columns.items():
-            v = np.asarray(v)
-            if v.ndim != 1 or len(v) != len(np.asarray(next(iter(columns.values())))):
-                raise ValueError(f"column {name!r}: expected a 1-D array of equal length, got shape {v.shape}")
-            arrays.append(pa.array(v.astype(float) if v.dtype.kind in "biuf" else v, from_pandas=True))
-        table = pa.Table.from_arrays(arrays, names=list(columns))
+        table = pa.Table.from_arrays(
+            [pa.array(v if v.dtype.kind in "iu" else v.astype(float) if v.dtype.kind in "bf" else v, from_pandas=True)
+             for v in columns.values()], names=list(columns))
+
         if self._writer is None:
             self._file = open(self.path, "wb")
-            self._file.write((",".join(_csv_cell(n) for n in columns) + "\n").encode())
+            self._file.write((",".join(_csv_cell(n) for n in table.column_names) + "\n").encode())
             self._writer = pc.CSVWriter(self._file, table.schema, write_options=pc.WriteOptions(
                 include_header=False, quoting_style="none"))
         self._writer.write_table(table)
 
     def close(self) -> None:
+        if self._thread is not None:
+            self._queue.put(None)
+            self._thread.join()
+            self._thread = None
         if self._writer is not None:
             self._writer.close()
             self._file.close()
+            self._writer = None
+        if self._error is not None:
+            error, self._error = self._error, None
+            raise error
 
     def __enter__(self):
         return self
 
     def __exit__(self, *exc):
-        self.close()
+        try:
+            self.close()
+        except BaseException:
+            if exc[0] is None:
+                raise
 
 
 def write_table(path, columns: dict) -> None:

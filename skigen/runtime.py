@@ -17,7 +17,8 @@ from .emit.c import Status
 from .progress import note, progress
 from .recording import Recording, write_table
 
-__all__ = ["RunResult", "RunSummary", "FilterDivergedError", "PythonStepper", "run", "iter_run", "check_columns",
+__all__ = ["RunResult", "RunSummary", "FilterDivergedError", "PythonStepper", "run", "iter_run", "iter_run_stream",
+           "check_columns",
            "Status", "STATUS_WORDS"]
 
 MAX_REJECTED_IN_A_ROW = 20
@@ -251,7 +252,7 @@ def _step_python(stepper: PythonStepper, inputs, outputs) -> dict[str, np.ndarra
     return raw
 
 
-def _part(filt, t, outputs, raw, rec) -> RunResult:
+def _part(filt, t, outputs, raw, holes=(), notes=()) -> RunResult:
     """A RunResult from the raw records of a part: NaN where nothing was done or measured."""
     code = np.asarray(raw["code"], int)
     valid = np.isfinite(outputs)
@@ -264,10 +265,10 @@ def _part(filt, t, outputs, raw, rec) -> RunResult:
     ll = np.where(update, raw["loglik"], np.where(stepped, 0.0, np.nan))
     s = f(raw["s"], stepped[:, None]) if filt.has_ard else np.zeros((len(t), 0))
     return RunResult(filt, t, mean, std, e, ev, nis, ll, s, code, np.full((filt.aug.n,) * 2, np.nan),
-                     valid, rec.holes, rec.notes)
+                     valid, holes, notes)
 
 
-def _check_diverged(filt, rec, part: RunResult, start: int, rejected: int) -> int:
+def _check_diverged(filt, path, time_at, part: RunResult, start: int, rejected: int) -> int:
     """The count of rejected steps in a row at the part's end; an error at MAX_REJECTED_IN_A_ROW."""
     if not np.any(part.code == Status.NUMERICAL_FAILURE):
         return 0 if np.any(part.code != Status.BAD_INPUT) else rejected
@@ -279,9 +280,24 @@ def _check_diverged(filt, rec, part: RunResult, start: int, rejected: int) -> in
             k0 = start + k - rejected + 1
             model = filt.aug.model
             raise FilterDivergedError(
-                f"{rec.path}: the {filt.kind} filter of '{model.name}' diverged: {rejected} non-finite "
-                f"steps in a row from t = {rec.t[k0]:g} s (grid sample {k0})")
+                f"{path}: the {filt.kind} filter of '{model.name}' diverged: {rejected} non-finite "
+                f"steps in a row from t = {time_at(k0):g} s (grid sample {k0})")
     return rejected
+
+
+def _steps(filt, stepper, backend, pieces, again, path, time_at, holes=(), notes=()):
+    """Step over ``pieces`` (grid index of the first sample, t, step inputs, outputs), restarting the
+    states before a piece whose first index is in ``again``; a RunResult per piece."""
+    rejected = 0
+    for a, t, u, y in pieces:
+        if a in again and a > 0:
+            forget_states(stepper, filt)
+        raw = stepper.run_many(u, y) if backend == "c" else _step_python(stepper, u, y)
+        part = _part(filt, t, y, raw, holes, notes)
+        rejected = _check_diverged(filt, path, time_at, part, a, rejected)
+        C = np.asarray(stepper.C_post, float)
+        part.final_cov = C @ C.T if filt.square_root else C
+        yield part
 
 
 RESTART_SCALE = 1.0      # after an input hole the states restart with this times their declared covariance
@@ -326,7 +342,8 @@ def _stepper(filt, backend, real, show_progress, cache_dir):
 def iter_run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", real: str = "double",
              show_progress: bool = True, label: str | None = None, cache_dir=None, chunk: int | None = None):
     """:func:`run` part by part: yields a RunResult per ``chunk`` samples, so that a long
-    recording can be written as it is filtered. The last part's ``final_cov`` is the run's."""
+    recording can be written as it is filtered. Each part's ``final_cov`` is the posterior
+    covariance at its end (the last part's is the run's)."""
     model = filt.aug.model
     check_columns(model, rec)
     stepper = _stepper(filt, backend, real, show_progress, cache_dir)
@@ -335,19 +352,58 @@ def iter_run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", re
     again = set(restarts(rec, model.dt))
     bounds = sorted(set(range(0, N, chunk)) | again) + [N]
     label = label or f"{model.name} {filt.kind} ({backend})"
-    rejected = 0
     parts = list(zip(bounds[:-1], bounds[1:]))
-    for a, b in progress(parts, len(parts), f"{label}, {N} samples in parts") if show_progress else parts:
-        if a in again:
-            forget_states(stepper, filt)
-        raw = (stepper.run_many(inputs[a:b], rec.outputs[a:b]) if backend == "c"
-               else _step_python(stepper, inputs[a:b], rec.outputs[a:b]))
-        part = _part(filt, rec.t[a:b], rec.outputs[a:b], raw, rec)
-        rejected = _check_diverged(filt, rec, part, a, rejected)
-        if b == N:
-            C = np.asarray(stepper.C_post, float)
-            part.final_cov = C @ C.T if filt.square_root else C
-        yield part
+    pieces = ((a, rec.t[a:b], inputs[a:b], rec.outputs[a:b]) for a, b in
+              (progress(parts, len(parts), f"{label}, {N} samples in parts") if show_progress else parts))
+    yield from _steps(filt, stepper, backend, pieces, again, rec.path, lambda k: rec.t[k], rec.holes, rec.notes)
+
+
+def _stream_pieces(grid, foh: bool, chunk: int):
+    """(first grid index, t, step inputs, outputs) from a GridStream's blocks, at most ``chunk``
+    samples each and cut where the states restart. A first-order hold steps with [u[k], u[k+1]]:
+    the last sample of a block waits for the first of the next (the last of all holds its input)."""
+    held = None
+    for blk in grid:
+        if held is not None:
+            blk = type(blk)(held.k0, np.concatenate([held.t, blk.t]), np.concatenate([held.inputs, blk.inputs]),
+                            np.concatenate([held.outputs, blk.outputs]))
+            held = None
+        if foh:
+            m = len(blk.t) - 1
+            u = np.hstack([blk.inputs[:m], blk.inputs[1:]])
+            held = type(blk)(blk.k0 + m, blk.t[m:], blk.inputs[m:], blk.outputs[m:])
+        else:
+            m, u = len(blk.t), blk.inputs
+        yield from _cut(grid, blk.k0, blk.t[:m], u, blk.outputs[:m], chunk)
+    if held is not None:
+        yield from _cut(grid, held.k0, held.t, np.hstack([held.inputs, held.inputs]), held.outputs, chunk)
+
+
+def _cut(grid, k0, t, u, y, chunk):
+    m = len(t)
+    cuts = sorted({0, m} | set(range(0, m, chunk)) | {k - k0 for k in grid.restarts if k0 < k < k0 + m})
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        yield k0 + a, t[a:b], u[a:b], y[a:b]
+
+
+def iter_run_stream(filt: DerivedFilter, grid, *, backend: str = "python", real: str = "double",
+                    show_progress: bool = True, label: str | None = None, cache_dir=None,
+                    chunk: int | None = None):
+    """:func:`iter_run` over a :class:`~skigen.grid.GridStream` (a CSV file read block by block):
+    the same parts, sample for sample, while memory holds a block and not the recording. The
+    parts carry no holes or notes: ``grid.holes`` and ``grid.notes`` are complete at the end."""
+    model = filt.aug.model
+    want = (tuple(model.input_names), tuple(model.output_names))
+    if (grid.input_names, grid.output_names) != want:
+        raise ValueError(f"{grid.stream.source}: the stream reads {grid.input_names + grid.output_names}, "
+                         f"model '{model.name}' has {want[0] + want[1]}")
+    stepper = _stepper(filt, backend, real, show_progress, cache_dir)
+    chunk = chunk or CHUNK[backend]
+    label = label or f"{model.name} {filt.kind} ({backend})"
+    pieces = _stream_pieces(grid, model.input_hold == "foh", chunk)
+    if show_progress:
+        pieces = progress(pieces, None, f"{label}, parts of a streamed file")
+    yield from _steps(filt, stepper, backend, pieces, grid.restarts, grid.stream.source, grid.time)
 
 
 def run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", real: str = "double",

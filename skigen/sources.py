@@ -20,7 +20,8 @@ import numpy as np
 
 from .recording import RecordingError
 
-__all__ = ["Group", "Samples", "read_samples", "TIME_NAMES", "MISSING", "parse_number"]
+__all__ = ["Group", "Samples", "read_samples", "stream_csv", "CsvStream", "NotStreamable", "TIME_NAMES", "MISSING",
+           "parse_number", "is_csv"]
 
 TIME_NAMES = ("t", "time", "timestamp")           # looked for (case-insensitive) when no --time is given
 MISSING = ("", "nan", "NaN", "N/A")               # cells that mean "no sample"
@@ -151,19 +152,30 @@ def _csv_header(path) -> list[str]:
     return header
 
 
-def _csv_fast(path, header, wanted, columns, time_col, real) -> Group:
-    """pyarrow's streaming reader: blocks of 4 MB, only the used columns. Raises _Retry on anything odd."""
+BLOCK_SIZE = 4 << 20          # bytes per block of pyarrow's streaming CSV reader (whole-file reading)
+STREAM_BLOCK_SIZE = 1 << 20   # the same when streaming: pyarrow reads up to 32 blocks ahead
+
+
+def _open_csv(path, header, wanted, block_size=BLOCK_SIZE):
+    """pyarrow's streaming reader of the used columns, as float64 (NaN for the missing spellings)."""
     import pyarrow as pa
     import pyarrow.csv as pc
 
+    return pc.open_csv(
+        path, read_options=pc.ReadOptions(column_names=header, skip_rows=1, block_size=block_size,
+                                          use_threads=True),
+        parse_options=pc.ParseOptions(ignore_empty_lines=False),
+        convert_options=pc.ConvertOptions(include_columns=wanted, null_values=list(MISSING),
+                                          column_types={c: pa.float64() for c in wanted},
+                                          quoted_strings_can_be_null=True))
+
+
+def _csv_fast(path, header, wanted, columns, time_col, real) -> Group:
+    """pyarrow's streaming reader: blocks of 4 MB, only the used columns. Raises _Retry on anything odd."""
+    import pyarrow as pa
+
     try:
-        reader = pc.open_csv(
-            path, read_options=pc.ReadOptions(column_names=header, skip_rows=1, block_size=4 << 20,
-                                              use_threads=True),
-            parse_options=pc.ParseOptions(ignore_empty_lines=False),
-            convert_options=pc.ConvertOptions(include_columns=wanted, null_values=list(MISSING),
-                                              column_types={c: pa.float64() for c in wanted},
-                                              quoted_strings_can_be_null=True))
+        reader = _open_csv(path, header, wanted)
         chunks = {c: [] for c in wanted}
         for batch in reader:
             for c in wanted:
@@ -226,6 +238,74 @@ def _read_csv(path, names, mapping, time, real) -> Samples:
     except _Retry:
         g = _csv_exact(path, header, wanted, columns, time_col, real)
     return Samples(str(path), [g], columns, time_col)
+
+
+class NotStreamable(Exception):
+    """The streamed path met something only the whole-file path decides (a malformed row, time going
+    backwards, a grid it cannot bound): read the file whole instead, which gives the verdict."""
+
+
+@dataclass
+class CsvStream:
+    """A CSV file's used columns as a sequence of :class:`Group` blocks (see :func:`stream_csv`)."""
+
+    source: str
+    columns: dict[str, str]
+    time_column: str
+    real: str
+    header: list[str]
+    block_size: int = STREAM_BLOCK_SIZE
+    rows: int | None = None              # re-cut the blocks into pieces of at most this many rows (tests)
+    notes: list[str] = field(default_factory=list)
+
+    def __iter__(self):
+        import pyarrow as pa
+
+        wanted = list(dict.fromkeys([self.time_column, *self.columns.values()]))
+        first, last = 0, None            # data rows before this block; the last time stamp before it
+
+        def retry(i, col, msg):
+            raise NotStreamable(msg)
+        try:
+            reader = _open_csv(self.source, self.header, wanted, self.block_size)
+            for batch in reader:
+                data = {c: batch.column(c).to_numpy(zero_copy_only=False) for c in wanted}
+                step = self.rows or max(len(data[self.time_column]), 1)
+                for a in range(0, len(data[self.time_column]), step):
+                    t = data[self.time_column][a:a + step]
+                    g = Group(t, {n: data[c][a:a + step] for n, c in self.columns.items()},
+                              lambda i, o=first + a: f"row {o + i + 2}")
+                    check_group(g, self.columns, self.time_column, self.real, retry)
+                    if last is not None and t[0] < last:
+                        raise NotStreamable("time goes backwards between blocks")
+                    last = t[-1]
+                    yield g
+                first += len(data[self.time_column])
+        except (pa.ArrowInvalid, pa.ArrowTypeError) as e:
+            raise NotStreamable(str(e)) from None
+
+
+def is_csv(source) -> bool:
+    """True when ``source`` is a path the CSV reader would read (not Parquet, ULog or a DataFrame)."""
+    return not (hasattr(source, "columns") and hasattr(source, "index")) and _kind(Path(source)) == "csv"
+
+
+def stream_csv(path, names, *, columns=None, time=None, real: str = "double", block_size: int = STREAM_BLOCK_SIZE,
+               rows: int | None = None) -> CsvStream:
+    """The CSV file ``path`` for the model ``names`` as blocks of rows, read as they are used.
+
+    The header, the time column and the mapped columns are checked now, as :func:`read_samples`
+    does. Iterating yields a :class:`Group` per block (``block_size`` bytes of file, cut into pieces
+    of at most ``rows`` rows if given). pyarrow reads up to 32 blocks ahead in a thread, so memory
+    holds at most about 32 ``block_size`` of the file, however long it is. Iterating raises
+    :class:`NotStreamable` on anything the exact whole-file reader must name (a malformed cell or
+    row, time going backwards, a non-finite value).
+    """
+    header = _csv_header(path)
+    cols = _columns_for(list(names), columns)
+    time_col = _time_column(header, time, path)
+    _require(cols, header, path, time_col)
+    return CsvStream(str(path), cols, time_col, real, header, block_size, rows)
 
 
 # --------------------------------------------------------------------------- Parquet and DataFrame

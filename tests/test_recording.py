@@ -165,3 +165,31 @@ def test_slow_symbolic_derivation_is_announced(monkeypatch, capsys):
     assert "deriving the ski step of 'wingrock' symbolically (n = 8" in capsys.readouterr().err
     runtime.run(filt, rec)
     assert "deriving" not in capsys.readouterr().err
+
+
+def _digits(text: str) -> int:
+    """Significant digits of a number's text."""
+    mantissa = text.lower().split("e")[0].lstrip("+-").replace(".", "")
+    return len(mantissa.strip("0")) or 1
+
+
+def test_result_numbers_are_exact_and_shortest_in_a_background_writer(tmp_path):
+    from skigen.recording import TableWriter
+
+    rng = np.random.default_rng(0)
+    x = rng.normal(size=3000) * 10.0 ** rng.integers(-300, 300, 3000)
+    x[:6] = [0.1 + 0.2, 1e-5, 5e-324, 1.7976931348623157e308, -0.0, np.nan]
+    path = tmp_path / "x.csv"
+    with TableWriter(path, background=True, queue=1) as w:
+        for a in range(0, 3000, 700):
+            w.write({"x": x[a:a + 700], "k": np.arange(a, min(a + 700, 3000)), "s": np.full(len(x[a:a + 700]), "ok")})
+    rows = open(path).read().splitlines()
+    assert rows[0] == "x,k,s" and rows[6] == ",5,ok"                    # NaN: an empty cell
+    cells = [r.split(",")[0] for r in rows[1:]]
+    back = np.array([float(c) if c else np.nan for c in cells])
+    assert np.array_equal(back, x, equal_nan=True)                       # exact
+    assert all(_digits(c) <= _digits(repr(v)) for c, v in zip(cells, x.tolist()) if c)   # shortest
+    assert [int(r.split(",")[1]) for r in rows[1:]] == list(range(3000))
+    with pytest.raises(ValueError):
+        with TableWriter(path, background=True) as w:
+            w.write({"a": [1.0, 2.0], "b": [1.0]})

@@ -1,0 +1,214 @@
+"""`skigen run` streams a CSV file: the grid laid block by block equals the whole-file grid
+sample for sample (jitter, holes, separate rows, faster and slower logs, first-order hold, blocks
+cut anywhere), the result file is the same byte for byte, and memory does not grow with the file."""
+import tracemalloc
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import skigen
+from skigen.cli import main
+from skigen.grid import to_grid
+from skigen.recording import load_recording, stream_recording
+from skigen.sources import NotStreamable, read_samples
+
+
+def small_model(hold="zoh"):
+    """Two states, two inputs (u fast, g slow), two outputs: a quick model to derive and step."""
+    m = skigen.Model(f"small_{hold}", dt=0.02, input_hold=hold)
+    x = m.state("x", std=1.0, process_std=1e-2)
+    v = m.state("v", std=1.0, process_std=1e-2)
+    u, g = m.input("u"), m.input("g")
+    m.dynamics({x: v, v: u - 0.5 * v + 0.1 * g})
+    m.output("xm", x, noise_std=0.1)
+    m.output("vm", v, noise_std=0.2)
+    return m
+
+
+def awkward_log(seed=0, seconds=30.0):
+    """A log with everything that makes a grid hard: jittered stamps, inputs and outputs on their own
+    rows, an output faster than the model, one slower, outputs before the inputs are known, an input
+    hole (a restart), output holes, empty cells, rows without any value at the end, duplicate stamps."""
+    rng = np.random.default_rng(seed)
+    k = np.arange(int(seconds / 0.02))
+    t = 0.3 + k * 0.02 + rng.uniform(-0.4, 0.4, len(k)) * 0.02
+    t = np.maximum.accumulate(t)
+    u = np.sin(0.3 * t) + rng.normal(0, 0.1, len(t))
+    ins = pd.DataFrame({"t": t, "u": u})
+    ins = ins[(ins.t < 9.0) | (ins.t > 10.7)]                          # an input hole: restart
+    slow = pd.DataFrame({"t": np.arange(0.25, seconds, 0.1), "g": 1.0})
+    slow.loc[::7, "g"] = 2.0
+    tf = np.sort(rng.uniform(0.0, seconds, int(seconds * 120)))         # faster than the model
+    outs = pd.DataFrame({"t": tf, "xm": np.cos(tf) + rng.normal(0, 0.1, len(tf))})
+    outs = outs[(outs.t < 15) | (outs.t > 17.5)]                        # an output-only hole
+    tv = np.arange(0.1, seconds, 0.04)
+    vm = pd.DataFrame({"t": tv, "vm": np.where(rng.random(len(tv)) < 0.1, np.nan, np.sin(tv))})
+    tail = pd.DataFrame({"t": seconds + np.arange(5) * 0.02})           # rows with no value
+    df = pd.concat([ins, slow, outs, vm, tail]).sort_values("t", kind="stable").reset_index(drop=True)
+    df.loc[len(df) // 2, "t"] = df.loc[len(df) // 2 - 1, "t"]          # a duplicate stamp
+    df.insert(1, "mode", "AUTO")
+    return df
+
+
+@pytest.fixture(scope="module")
+def log_csv(tmp_path_factory):
+    path = tmp_path_factory.mktemp("stream") / "log.csv"
+    awkward_log().to_csv(path, index=False)
+    return path
+
+
+def streamed_grid(path, model, **kw):
+    grid = stream_recording(path, model, **kw)
+    blocks = list(grid)
+    cat = lambda a: np.concatenate([getattr(b, a) for b in blocks])
+    return grid, cat("t"), cat("inputs"), cat("outputs"), [b.k0 for b in blocks]
+
+
+@pytest.mark.parametrize("hold", ["zoh", "foh"])
+@pytest.mark.parametrize("rows, block", [(1, 5), (2, 1 << 16), (3, 7), (17, 3), (250, 100), (None, 1 << 16)])
+def test_the_streamed_grid_is_the_whole_file_grid(log_csv, hold, rows, block):
+    model = small_model(hold)
+    rec = load_recording(log_csv, model)
+    grid, t, inputs, outputs, k0 = streamed_grid(log_csv, model, rows=rows, block=block)
+    assert k0[0] == 0 and len(t) == len(rec.t)
+    assert np.array_equal(t, rec.t) and np.array_equal(inputs, rec.inputs)
+    assert np.array_equal(outputs, rec.outputs, equal_nan=True)
+    assert grid.holes == rec.holes and tuple(grid.notes) == rec.notes
+    assert grid.restart_list == skigen.runtime.restarts(rec, model.dt) != []
+    assert len(rec.holes) >= 2 and any("faster than the model" in n for n in rec.notes)
+
+
+def test_blocks_of_a_few_bytes_and_mapped_columns(tmp_path):
+    df = awkward_log(seed=1, seconds=6).rename(columns={"u": "cmd"})
+    path = tmp_path / "log.csv"
+    df.to_csv(path, index=False)
+    model = small_model()
+    rec = load_recording(path, model, columns={"u": "cmd"}, max_gap=0.5)
+    _, t, inputs, outputs, _ = streamed_grid(path, model, columns={"u": "cmd"}, max_gap=0.5, block_size=97)
+    assert np.array_equal(t, rec.t) and np.array_equal(inputs, rec.inputs)
+    assert np.array_equal(outputs, rec.outputs, equal_nan=True)
+
+
+def test_a_late_input_and_outputs_before_it(tmp_path):
+    """The grid starts where the last input is first known, many blocks in: the outputs before are
+    counted as not used, and what is kept meanwhile does not grow."""
+    rng = np.random.default_rng(2)
+    t = np.arange(3000) * 0.01
+    df = pd.DataFrame({"t": t, "u": np.where(t > 4, rng.normal(size=len(t)), np.nan),
+                       "g": np.where(t > 12.345, 1.0, np.nan), "xm": rng.normal(size=len(t)), "vm": np.nan})
+    path = tmp_path / "late.csv"
+    df.to_csv(path, index=False)
+    for hold in ("zoh", "foh"):
+        model = small_model(hold)
+        rec = load_recording(path, model)
+        grid, tt, inputs, outputs, _ = streamed_grid(path, model, rows=10)
+        assert np.array_equal(tt, rec.t) and np.array_equal(inputs, rec.inputs)
+        assert np.array_equal(outputs, rec.outputs, equal_nan=True) and tuple(grid.notes) == rec.notes
+        assert any("before the inputs are known" in n for n in rec.notes)
+
+
+@pytest.mark.parametrize("hold", ["zoh", "foh"])
+def test_epoch_stamps_and_an_input_that_stops_before_the_end(tmp_path, hold):
+    """Stamps of 1.7e9 s, an input that stops 1.5 s before the last output (a hole to the end: the
+    states restart near the last sample, known only at the end of the file)."""
+    df = awkward_log(seed=5, seconds=8)
+    df["t"] += 1.7e9
+    df.loc[df.t > 1.7e9 + 6.4, "u"] = np.nan
+    path = tmp_path / "epoch.csv"
+    df.to_csv(path, index=False, float_format="%.17g")
+    model = small_model(hold)
+    rec = load_recording(path, model)
+    for rows in (3, 40):
+        grid, t, inputs, outputs, _ = streamed_grid(path, model, rows=rows)
+        assert np.array_equal(t, rec.t) and np.array_equal(inputs, rec.inputs)
+        assert np.array_equal(outputs, rec.outputs, equal_nan=True) and grid.holes == rec.holes
+        assert grid.restart_list == skigen.runtime.restarts(rec, model.dt)
+    assert rec.holes[-1].inputs and rec.holes[-1].columns[0] == "u" and rec.holes[-1].t1 >= rec.t[-1] - model.dt
+
+
+def run_cli(tmp_path, data, name, *args):
+    out = tmp_path / name
+    assert main(["run", *args, str(data), "--out", str(out)]) == 0
+    return out.read_bytes()
+
+
+@pytest.mark.parametrize("hold, backend", [("zoh", "python"), ("foh", "python"), ("foh", "c")])
+def test_skigen_run_streams_csv_with_the_same_result(tmp_path, monkeypatch, capsys, hold, backend):
+    df = awkward_log(seed=3, seconds=12)
+    path = tmp_path / "log.csv"
+    df.to_csv(path, index=False)
+    spec = tmp_path / "m.py"
+    spec.write_text(f"import sys\nsys.path.insert(0, {str(__import__('pathlib').Path(__file__).parent)!r})\n"
+                    f"from test_stream import small_model\nmodel = small_model({hold!r})\n")
+    args = [str(spec), "--filter", "ekf", "--backend", backend]
+    from skigen import runtime, sources
+    whole = tmp_path / "whole.parquet"                  # the whole-file path: the same samples, not a CSV
+    df.to_parquet(whole)
+    expected = run_cli(tmp_path, whole, "whole.csv", *args)
+    printed_whole = capsys.readouterr().out
+    streamed = {}
+    for rows in (None, 5, 64):
+        monkeypatch.setattr(sources.CsvStream, "rows", rows)
+        monkeypatch.setitem(runtime.CHUNK, backend, 33)
+        streamed[rows] = run_cli(tmp_path, path, f"s{rows}.csv", *args)
+        assert streamed[rows] == expected
+    printed = capsys.readouterr().out
+    assert printed.split("->")[0] == printed_whole.split("->")[0].replace("whole.parquet", "log.csv")
+    assert "hole(s) longer than the maximum gap" in printed and printed.count("mean NIS") == 3
+
+
+def test_errors_are_those_of_the_whole_file_reader(tmp_path, capsys, monkeypatch):
+    """Time going backwards between blocks, a bad cell in a later block: the message names the row."""
+    from skigen import sources
+    monkeypatch.setattr(sources.CsvStream, "rows", 50)                  # row 302 starts a block
+    t = np.arange(400) * 0.02
+    df = pd.DataFrame({"t": t, "u": 0.1, "g": 1.0, "xm": 0.0, "vm": 0.0})
+    df.loc[300, "t"] = 1.0
+    path = tmp_path / "back.csv"
+    df.to_csv(path, index=False)
+    spec = "tests.test_stream:MODEL"
+    with pytest.raises(NotStreamable):
+        list(stream_recording(path, MODEL, rows=50))
+    assert main(["run", spec, str(path), "--filter", "ekf", "--out", str(tmp_path / "o.csv")]) == 2
+    err = capsys.readouterr().err
+    assert "row 302, column 't'" in err and "time goes backwards" in err
+    assert not (tmp_path / "o.csv").exists()
+    df.loc[300, "t"] = 6.0
+    df["u"] = df["u"].astype(object)
+    df.loc[350, "u"] = "0x10"
+    df.to_csv(path, index=False)
+    assert main(["run", spec, str(path), "--filter", "ekf", "--out", str(tmp_path / "o.csv")]) == 2
+    assert "row 352, column 'u': '0x10' is not a number" in capsys.readouterr().err
+
+
+MODEL = small_model()
+
+
+def peak_kept(path, model, rows):
+    """The most samples a GridStream keeps at once, and the peak traced memory (bytes), over a run."""
+    tracemalloc.start()
+    grid = stream_recording(path, model, rows=rows, block=rows, block_size=1 << 16)
+    most, n = 0, 0
+    for blk in grid:
+        most = max(most, sum(len(c.t) for c in grid.cols.values()))
+        n += len(blk.t)
+    peak = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    return most, peak, n
+
+
+def test_memory_does_not_grow_with_the_file(tmp_path):
+    rng = np.random.default_rng(4)
+    sizes = {}
+    for n in (20_000, 80_000):
+        t = np.arange(n) * 0.02 + rng.uniform(-0.005, 0.005, n)
+        df = pd.DataFrame({"t": t, "u": rng.normal(size=n), "g": 1.0, "xm": rng.normal(size=n),
+                           "vm": np.where(np.arange(n) % 3 == 0, rng.normal(size=n), np.nan)})
+        path = tmp_path / f"long{n}.csv"
+        df.to_csv(path, index=False)
+        sizes[n] = peak_kept(path, MODEL, 500)
+        assert sizes[n][2] == n
+    (kept_short, peak_short, _), (kept_long, peak_long, _) = sizes[20_000], sizes[80_000]
+    assert kept_long <= 4 * 600 and kept_long <= kept_short + 10
+    assert peak_long < 1.3 * peak_short                 # 4x the rows, not 4x the memory
