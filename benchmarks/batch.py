@@ -1,7 +1,7 @@
 """skigen batch on Dask: 200 small logs with 1 and 2 local workers in the same run, against a plain
 loop in one process; the overhead per log is what the batch adds to that loop.
 
-    skigen bench batch [--logs 200] [--seconds 3] [--filter ukf] [--backend python]
+    skigen bench batch [--logs 200] [--seconds 15] [--filter ukf] [--backend python]
                        [--scheduler tcp://host:8786 --dir /shared/path] [--json]
 
 With --scheduler the batch runs on that cluster (whatever workers it has) instead of the local
@@ -95,7 +95,7 @@ def free_cores() -> float:
 def main(argv=None) -> int:
     p = parser("batch", seeds=1)
     p.add_argument("--logs", type=int, default=200)
-    p.add_argument("--seconds", type=float, default=3.0, help="length of each log (s, 50 Hz)")
+    p.add_argument("--seconds", type=float, default=15.0, help="length of each log (s, 50 Hz; default 15)")
     p.add_argument("--filter", default="ukf")
     p.add_argument("--backend", default="python", choices=["python", "c"])
     p.add_argument("--scheduler", default=None, help="a Dask scheduler address instead of local clusters")
