@@ -170,7 +170,7 @@ class _Progress(ca.Callback):
 
     def eval(self, arg):
         if self.label:
-                note(f"{self.label}: iteration {self.iteration}, -log L {float(arg[1]):.7g} "
+            note(f"{self.label}: iteration {self.iteration}, -log L {float(arg[1]):.7g} "
                  f"({time.perf_counter() - self.t0:.1f} s)")
         self.iteration += 1
         return [0]
@@ -243,7 +243,7 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
                        f"{iterations} iterations)")
     stats = dict(stats, iter_count=iterations)
     xi = np.clip(np.asarray(sol["x"]).ravel(), inputs["lbx"], inputs["ubx"])   # IPOPT may overstep a bound by ~1e-8
-    rho, nll = (np.asarray(v) for v in prob.residuals(xi, p))
+    _, nll = (np.asarray(v) for v in prob.residuals(xi, p))
     J, prior, scores = (np.asarray(ca.DM(v)) for v in prob.fisher(xi, p))
     G = _dense(jac_g(xi, p))
     robust = method == "output-error"      # simulation residuals may be coloured; innovations are white
@@ -254,7 +254,7 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     fitted_at = [i for i, k in enumerate(V.kinds) if k in ("parameter", "weight")
                  and V.names[i] in estimate]
     Y = np.asarray(prob.predict(xi, p)).T
-    return _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_at, rho,
+    return _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_at,
                    nll, Y, stats, status, time.perf_counter() - t0, float(sol["f"]), info, robust)
 
 
@@ -295,10 +295,9 @@ def _initial_guess(model: Model, prob: Problem, recs, theta0, data_blocks):
     return out
 
 
-def _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_at, rho, nll, Y,
+def _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_at, nll, Y,
             stats, status, seconds, objective, info, robust) -> FitResult:
     V = prob.variables
-    ny = len(model.output_names)
     fitted = copy.copy(model)
     fitted.parameters = list(model.parameters)
     params, weights = {}, {}
@@ -319,7 +318,7 @@ def _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_
             r = int(rest.split("#")[0])
             if "#" not in rest or rest.endswith("#0"):
                 init[r][state] = dict(value=float(value[i]), std=float(std[i]))
-    noise = _noise(model, V, value, std, rho, Y, recs, method)
+    noise = _noise(model, V, value, std, Y, recs, method)
     if noise.get("Q") is not None:
         fitted.covariances(Q=noise.pop("Q"), R=noise.pop("R"), P0=model.initial_covariance())
     else:
@@ -348,7 +347,7 @@ def _num(x: float):
     return None if not np.isfinite(x) else float(x)
 
 
-def _noise(model, V, value, std, rho, Y, recs, method) -> dict:
+def _noise(model, V, value, std, Y, recs, method) -> dict:
     """Output error: the residual std per output against the declared one; filter error: the fitted
     Q and R scales (value ± std of the scale, not of its log) and the fitted Q and R."""
     out = {}

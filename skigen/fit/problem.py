@@ -89,7 +89,6 @@ class Problem:
     filtered: ca.Function          # (θ, data per recording) → the EKF's posterior state, one column per
                                    #   sample, recordings one after another
     lengths: list[int]             # samples per recording
-    n_rho: int                     # pseudo-residuals per sample
     shooting: int                  # samples per shooting interval (output error)
     progress: object = None        # the solver's iteration callback
 
@@ -227,7 +226,6 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
             rho_all.append(rho[:, :n])
             nll_all.append(nll[:, :n])
             yhat_all.append(y_hat[:, :n])
-        n_rho = ny
     else:
         for i in q_rows:
             V.add(f"Q_scale_{model.state_names[i]}", "noise", 1.0, 0.0, -LOG_SCALE_BOUND, LOG_SCALE_BOUND)
@@ -243,7 +241,6 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
             rho_all.append(rho_fn.map(n)(e, S, L))
             nll_all.append(nll)
             yhat_all.append(y_hat)
-        n_rho = ny + ny * ny
     rho, nll = ca.horzcat(*rho_all), ca.horzcat(*nll_all)
     prior_idx = [i for i, s in enumerate(V.prior_std) if s is not None]
     prior_sd = ca.DM([V.prior_std[i] for i in prior_idx])
@@ -270,7 +267,7 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
                    ca.Function("residuals", [xi, p], [rho, nll]),
                    ca.Function("fisher", [xi, p], [J, prior_prec, ca.jacobian(ca.vec(nll), xi)]),
                    ca.Function("predict", [xi, p], [ca.horzcat(*yhat_all)]),
-                   filtered, list(lengths), n_rho, shooting or max(lengths))
+                   filtered, list(lengths), shooting or max(lengths))
 
 
 def _chol_function(ny: int) -> ca.Function:
