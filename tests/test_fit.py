@@ -12,7 +12,7 @@ Measured on the development machine (fixed seeds below):
   a 0.98, c 0.96, fc 0.96, b 0.98; filter error: a 0.98, c 0.98, fc 0.96, b 0.96.
 - Duffing, filter error, 1500 samples: k 0.96, d 0.92, k3 0.96, b 0.98 (see FE_SAMPLES).
 
-Whole file: about 105 s on one core.
+Whole file: about 3 minutes on one core (the 1500-sample filter-error Duffing runs take 100 s).
 """
 import json
 import shutil
