@@ -6,12 +6,11 @@ import importlib
 import sys
 from pathlib import Path
 
-import numpy as np
 
 from .derive import FILTERS
 from .emit.c import AUTO_LOOPS_ABOVE_N, LOOPS_KINDS, STYLES
 from .model import Model, ModelError
-from .modelfile import ModelFileError, load_model as _load_model
+from .modelfile import ModelFileError, canonical_spec, load_model as _load_model
 from .recording import RecordingError
 
 __all__ = ["main", "load_model"]
@@ -183,7 +182,7 @@ def _fit(args) -> int:
         checks = validate(result, held_out, init_samples=args.init_samples)
     except FitError as exc:
         raise CliError(str(exc)) from None
-    spec = args.model if ":" in args.model and not Path(args.model).exists() else str(Path(args.model).resolve())
+    spec = canonical_spec(args.model)
     write_outputs(result, args.out, recs, model_spec=spec, validation=checks, validation_recordings=held_out,
                   figures=not args.no_figures)
     print(f"{model.name} fitted by {args.method}: {result.status.replace('_', ' ').lower()} in "

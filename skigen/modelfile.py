@@ -8,17 +8,28 @@ from pathlib import Path
 
 from .model import Model, ModelError
 
-__all__ = ["ModelFileError", "load_model"]
+__all__ = ["ModelFileError", "canonical_spec", "is_module_spec", "load_model"]
 
 
 class ModelFileError(ValueError):
     """A model file that cannot be found, imported or does not define a model."""
 
 
+def is_module_spec(spec) -> bool:
+    """True for ``package.module:attribute``, False for a path (which may itself hold a colon)."""
+    return ":" in str(spec) and not Path(spec).exists()
+
+
+def canonical_spec(spec) -> str:
+    """The spec as another process should see it: an existing file's absolute path, else as given."""
+    spec = str(spec)
+    return str(Path(spec).resolve()) if not is_module_spec(spec) and Path(spec).exists() else spec
+
+
 def load_model(spec: str) -> Model:
     """A checked model from ``path/to/file.py`` (its ``model``) or ``package.module:attribute``."""
     spec = str(spec)
-    if ":" in spec and not Path(spec).exists():
+    if is_module_spec(spec):
         module_name, attr = spec.split(":", 1)
         try:
             module = importlib.import_module(module_name)

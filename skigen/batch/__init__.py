@@ -27,6 +27,7 @@ import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..modelfile import canonical_spec
 from ..progress import progress
 from .summary import moves, order_rows, plot_summary, write_summary
 from .task import MARKER, log_digest, model_digest, quantity_names, run_log
@@ -104,10 +105,7 @@ def _spec(model) -> str:
     if isinstance(model, Model):
         raise BatchError("batch needs the model as a file path or package.module:attribute (each worker "
                          "loads it again), not a Model object")
-    spec = str(model)
-    if ":" in spec and not Path(spec).exists():
-        return spec
-    return str(Path(spec).resolve()) if Path(spec).exists() else spec
+    return canonical_spec(model)
 
 
 def _fingerprint(options: dict, log: Path) -> str:

@@ -22,6 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..modelfile import is_module_spec
+
 __all__ = ["run_log", "MARKER", "model_digest", "log_digest"]
 
 MARKER = "done.json"
@@ -30,7 +32,7 @@ _FILTERS: dict = {}     # (spec, digest, kind, estimate) -> DerivedFilter (its s
 
 
 def _spec_file(spec: str) -> Path | None:
-    if ":" in spec and not Path(spec).exists():
+    if is_module_spec(spec):
         found = importlib.util.find_spec(spec.split(":", 1)[0])
         return Path(found.origin) if found and found.origin and Path(found.origin).is_file() else None
     return Path(spec) if Path(spec).is_file() else None

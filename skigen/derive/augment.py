@@ -10,7 +10,7 @@ from scipy.linalg import block_diag
 from ..discretize import discretize
 from ..model import Model, ModelError
 
-__all__ = ["Augmented", "augment", "step_inputs"]
+__all__ = ["Augmented", "augment", "memory_values", "step_inputs"]
 
 
 @dataclass(frozen=True)
@@ -114,6 +114,17 @@ def augment(model: Model, estimate=(), *, online: bool = True) -> Augmented:
         s0=s0, w_index=np.arange(nx, nx + nw),
         names=model.state_names + [name for name, *_ in weights] + [p.name for p in estimated],
         p_index=np.arange(nx + nw, nx + nw + len(estimated)))
+
+
+def memory_values(model: Model, inputs) -> np.ndarray:
+    """The model's input history at every sample of the recorded inputs (N × nu):
+    u[k − lag] per remembered input, 0 before the start (as the filters begin)."""
+    inputs = np.asarray(inputs, float).reshape(len(inputs), -1)
+    N = len(inputs)
+    out = np.zeros((N, len(model.memory)))
+    for i, m in enumerate(model.memory):
+        out[m.lag:, i] = inputs[:N - m.lag, model.input_names.index(m.source)]
+    return out
 
 
 def step_inputs(model: Model, inputs) -> np.ndarray:

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import numpy as np
 
@@ -21,14 +20,13 @@ def load(model, recording, **read) -> tuple[Model, str | None, Recording]:
     """(model, its file or module spec if any, recording) from objects, paths or a DataFrame;
     ``read``: options of :func:`skigen.recording.load_recording`."""
     if isinstance(model, (str, os.PathLike)):
-        from ..modelfile import ModelFileError
+        from ..modelfile import ModelFileError, canonical_spec
         spec = str(model)
         try:
             model = T.load_model_file(spec)
         except ModelFileError as exc:
             raise DiagnosisError(str(exc)) from None
-        if ":" not in spec or Path(spec).exists():
-            spec = str(Path(spec).resolve())
+        spec = canonical_spec(spec)
     elif isinstance(model, Model):
         spec = None
     else:

@@ -14,6 +14,7 @@ import casadi as ca
 import numpy as np
 from scipy.linalg import block_diag
 
+from ..derive.augment import memory_values as input_history
 from ..model import Model, Variable
 
 __all__ = ["copy_model", "symbols", "formula", "rate", "add_term", "add_state", "replace_input",
@@ -185,11 +186,7 @@ def with_disturbance(model: Model, equations, process_std, std) -> tuple[Model, 
 
 def memory_values(model: Model, rec) -> np.ndarray:
     """The model's input history at every sample of a recording: u[k − lag] (0 before the start)."""
-    out = np.zeros((len(rec.t), len(model.memory)))
-    for i, m in enumerate(model.memory):
-        j = model.input_names.index(m.source)
-        out[m.lag:, i] = rec.inputs[:len(rec.t) - m.lag, j]
-    return out
+    return input_history(model, rec.inputs)
 
 
 def load_model_file(spec: str) -> Model:

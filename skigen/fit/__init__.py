@@ -285,10 +285,9 @@ def _initial_guess(model: Model, prob: Problem, recs, theta0, data_blocks):
     n_theta = sum(k in ("parameter", "weight") for k in V.kinds)
     X = np.asarray(prob.filtered(theta0[:n_theta], *data_blocks))
     starts = np.cumsum([0] + [len(r.t) for r in recs])
-    for i, name in enumerate(V.names):
-        if V.kinds[i] == "initial":
-            state, rest = name.split("@")
-            r, j = (int(v) for v in (rest.split("#") + ["0"])[:2])
+    for i, node in enumerate(V.node):
+        if node is not None:
+            state, r, j = node
             value = X[model.state_names.index(state), starts[r] + j * prob.shooting]
             if np.isfinite(value):
                 out[i] = value
@@ -312,12 +311,10 @@ def _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_
         fitted.set_parameters({n: v["value"] for n, v in params.items()},
                               std={n: v["std"] for n, v in params.items() if v["std"] > 0})
     init = [dict() for _ in recs]
-    for i, name in enumerate(V.names):
-        if V.kinds[i] == "initial":
-            state, rest = name.split("@")
-            r = int(rest.split("#")[0])
-            if "#" not in rest or rest.endswith("#0"):
-                init[r][state] = dict(value=float(value[i]), std=float(std[i]))
+    for i, node in enumerate(V.node):
+        if node is not None and node[2] == 0:            # the state at each recording's first sample
+            state, r, _ = node
+            init[r][state] = dict(value=float(value[i]), std=float(std[i]))
     noise = _noise(model, V, value, std, Y, recs, method)
     if noise.get("Q") is not None:
         fitted.covariances(Q=noise.pop("Q"), R=noise.pop("R"), P0=model.initial_covariance())

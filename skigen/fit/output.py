@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..modelfile import is_module_spec
 from ..simulate import free_run
 from . import FitResult, fit
 
@@ -72,7 +73,7 @@ def _json(x):
 
 def _write_model_file(path: Path, result: FitResult, spec: str, recordings) -> Path:
     """A model file that loads the original declaration and sets the fitted values."""
-    if ":" in spec and not Path(spec).exists():
+    if is_module_spec(spec):
         where = repr(spec)
     else:
         rel = os.path.relpath(Path(spec).resolve(), path.parent.resolve())

@@ -32,7 +32,7 @@ from types import SimpleNamespace
 import casadi as ca
 import numpy as np
 
-from ..derive.augment import augment, step_inputs
+from ..derive.augment import augment, memory_values, step_inputs
 from ..derive.common import innovation_stats, masked_noise_factor
 from ..derive.ekf import ekf_predict, ekf_update
 from ..derive.linalg import chol, forward
@@ -55,9 +55,9 @@ class Variables:
     upper: list[float] = field(default_factory=list)
     initial: list[float] = field(default_factory=list)
     prior_std: list[float | None] = field(default_factory=list)
-    recording: list[int | None] = field(default_factory=list)
+    node: list[tuple | None] = field(default_factory=list)   # initial states: (state, recording, interval)
 
-    def add(self, name, kind, scale, initial, lower=-np.inf, upper=np.inf, prior_std=None, recording=None):
+    def add(self, name, kind, scale, initial, lower=-np.inf, upper=np.inf, prior_std=None, node=None):
         self.names.append(name)
         self.kinds.append(kind)
         self.scale.append(float(scale))
@@ -65,13 +65,10 @@ class Variables:
         self.lower.append(float(lower))
         self.upper.append(float(upper))
         self.prior_std.append(prior_std)
-        self.recording.append(recording)
+        self.node.append(node)
 
     def __len__(self) -> int:
         return len(self.names)
-
-    def index(self, kind: str) -> np.ndarray:
-        return np.array([i for i, k in enumerate(self.kinds) if k == kind], dtype=int)
 
 
 @dataclass
@@ -107,17 +104,10 @@ def _plant(model: Model, estimate: list[str]):
 
 def data_matrix(model: Model, rec) -> np.ndarray:
     """One column per sample: [step inputs; input history; y (0 where missing); valid (1/0)]."""
-    aug = augment(model, online=False)
-    U = step_inputs(model, rec.inputs)
-    N = len(U)
-    mem = np.zeros((N, aug.mem.shape[0]))
-    if aug.mem.shape[0]:
-        shift = ca.Function("shift", [aug.u, aug.mem], [aug.mem_next])
-        for k in range(1, N):
-            mem[k] = np.asarray(shift(U[k - 1], mem[k - 1])).ravel()
     Y = np.asarray(rec.outputs, float)
     valid = np.isfinite(Y)
-    return np.hstack([U, mem, np.where(valid, Y, 0.0), valid.astype(float)]).T
+    return np.hstack([step_inputs(model, rec.inputs), memory_values(model, rec.inputs),
+                      np.where(valid, Y, 0.0), valid.astype(float)]).T
 
 
 def _split_data(aug, d):
@@ -209,7 +199,7 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
             for j in range(K):
                 for i, v in enumerate(model.states):
                     V.add(f"{v.name}@{r}" + (f"#{j}" if K > 1 else ""), "initial",
-                          model.x_std[i] or 1.0, model.x0[i], recording=r)
+                          model.x_std[i] or 1.0, model.x0[i], node=(v.name, r, j))
         xi, sc = ca.MX.sym("xi", len(V)), ca.MX.sym("scale", len(V))
         th = xi[:n_theta] * sc[:n_theta]
         offset = n_theta
