@@ -29,8 +29,10 @@ from ..model import Model, ModelError
 from ..recording import RecordingError
 from . import catalog as C
 from . import transform as T
-from .correct import emit_filter, header_lines, write_model_file
-from .detect import Consistency, consistency, normalised_innovations
+from .calibrate import calibrate
+from .correct import emit_filter, header_lines, refit_jointly, write_model_file
+from .cv import DEFAULT_FOLDS, Folds, fold_loglik
+from .detect import Consistency, consistency, judge, normalised_innovations, remaining
 from .errors import DiagnosisError
 from .evidence import weigh
 from .fastrun import run_fast
@@ -38,7 +40,9 @@ from .figures import diagnosis_figures, plot_residuals
 from .fit import evaluate_fit
 from .inputs import MIN_SAMPLES, check, load
 from .locate import Location, locate
-from .name import Correction, basis_rms, name_terms, refit
+from .name import Correction, basis_rms, name_terms, shape_search
+from .name import refit as refit_terms
+from .plausible import screen
 from .report import write_json, write_markdown
 
 __all__ = ["diagnose", "Report", "DiagnosisError", "MIN_SAMPLES"]
@@ -87,28 +91,31 @@ class _Stages:
             self.stream.flush()
 
 
-def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01, validation: float = 0.3,
-             horizon: float = 1.0, equations=None, figures: bool = True, emit: bool = True,
+def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01, folds: int = DEFAULT_FOLDS,
+             validate=(), equations=None, figures: bool = True, emit: bool = True, refit: bool = True,
              show_progress: bool = True, time=None, time_unit: str = "s", columns=None,
              max_gap: float = 1.0) -> Report:
     """Diagnose ``model`` (a :class:`Model`, a model file or ``package.module:attribute``) against
-    ``recording`` (a :class:`Recording`, a CSV, Parquet or ULog path, or a DataFrame); write report.json, report.md, figures and
-    the corrected model into ``out_dir``.
+    ``recording`` (a :class:`Recording`, a CSV, Parquet or ULog path, or a DataFrame); write report.json,
+    report.md, figures and the corrected model into ``out_dir``.
 
     candidates: extra additive terms, ``(name, equation, formula)`` — the formula in the model's
     state and input names (``"-tanh(v/0.001)"``). alpha: false-alarm rate of the whole decision.
-    validation: held-out last fraction. horizon: free-run length (s) for the fit table.
-    equations: equations to test for a disturbance (default: the rate equations; kinematic
-    identities ṗ = v are exact by definition). time, time_unit, columns, max_gap: how to read
-    ``recording`` when it is a path or a DataFrame (see :func:`skigen.recording.load_recording`).
+    folds: contiguous folds of the blocked cross-validation. validate: further recordings, never
+    fitted on, on which the nominal and corrected models are compared. equations: equations to
+    test for a disturbance (default: the rate equations; kinematic identities ṗ = v are exact by
+    definition). refit: refit the corrected model jointly with `skigen fit` (filter error).
+    time, time_unit, columns, max_gap: how to read recordings given as paths or DataFrames
+    (see :func:`skigen.recording.load_recording`).
     """
     t_start = perf_counter()
     stage = _Stages(show_progress)
+    read = dict(time=time, time_unit=time_unit, columns=columns, max_gap=max_gap)
     try:
-        user, spec, rec = load(model, recording, time=time, time_unit=time_unit, columns=columns,
-                               max_gap=max_gap)
+        user, spec, rec = load(model, recording, **read)
         nominal = T.copy_model(user, unknowns=False)
-        check(nominal, rec, validation)
+        check(nominal, rec, folds)
+        others = [load(nominal, r, **read)[2] for r in (validate or [])]
         user_cands = C.user_candidates(nominal, candidates) + C.declared_candidates(user)
         unknown = [e for e in equations or [] if e not in nominal.state_names]
         if unknown:
@@ -121,83 +128,142 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     N = len(rec.t)
-    n_fit = int((1 - validation) * N)
-    t_val = float(rec.t[n_fit])
+    cv = Folds.of(N, folds)
 
-    stage("nominal filter")
-    nominal_run = run_fast(derive(nominal, "ekf"), rec)
-    cons = consistency(nominal_run, nominal.output_names, alpha)
-    before = evaluate_fit(nominal, rec, n_fit, horizon, run=nominal_run)
+    stage("calibrating the noise")
+    declared_run = run_fast(derive(T.constants(nominal), "ekf"), rec)
+    declared, noise = calibrate(nominal, [rec])
+    calibrated = T.constants(declared)          # parameters at their values, for every test below
+    stage("testing the calibrated model")
+    nominal_run = run_fast(derive(calibrated, "ekf"), rec)
+    eqs = list(equations) if equations else C.rate_equations(nominal)
+    verdict = judge(calibrated, rec, nominal_run, eqs, alpha)
+    cons = verdict.consistency
+    before = evaluate_fit(calibrated, rec, run=nominal_run)
     eps = normalised_innovations(nominal_run)
-    fit_note = (f"t = {t_val:.2f}–{rec.t[-1]:.2f} s, samples {n_fit}–{N - 1} (the last {validation:.0%}): "
-                f"no coefficient or parameter is fitted on it (it ranks the candidate changes and weighs "
-                f"each finding); free runs of {horizon:g} s from the filtered state, restarted every {horizon:g} s")
-    data = {"mismatch_detected": cons.mismatch, "consistency": cons.asdict(),
-            "located": {"outputs": [], "equations": [], "windows": []}, "findings": [],
-            "fit": {"before": before.metrics, "after": None, "validation": fit_note}, "corrected_model": None}
-    meta = dict(model=spec or user.name, recording=rec.path, samples=N, n_fit=n_fit, dt=nominal.dt,
-                horizon=horizon, figures=[], kinematic=[])
+    data = {"mismatch_detected": verdict.mismatch, "noise": noise.asdict(),
+            "consistency": dict(cons.asdict(), declared_noise=consistency(declared_run, nominal.output_names,
+                                                                          alpha).asdict(),
+                                disturbance_gain=verdict.gains, disturbance_threshold=verdict.threshold),
+            "located": {"outputs": [], "equations": [], "windows": []}, "findings": [], "compensating": [],
+            "not_identifiable": [],
+            "fit": {"before": before.metrics, "after": None, "folds": None, "validation": _fit_note(folds),
+                    "recordings": []},
+            "remaining": {"mismatch": verdict.mismatch, "where": None}, "corrected_model": None}
+    meta = dict(model=spec or user.name, recording=rec.path, samples=N, dt=nominal.dt, folds=folds,
+                figures=[], kinematic=[])
     report = Report(data, out, cons)
-    if not cons.mismatch:
+    if not verdict.mismatch:
+        data["fit"]["recordings"] = [{"before": evaluate_fit(calibrated, r).metrics, "after": None} for r in others]
         if figures:
             meta["figures"].append(plot_residuals(out / "residuals.png", rec.t, eps, nominal.output_names, [],
-                                                  t_val, "normalised innovations of the nominal model"))
+                                                  None, "normalised innovations of the calibrated nominal model"))
         return _finish(report, meta, t_start, stage)
 
     stage("locating the equations")
-    eqs = list(equations) if equations else C.rate_equations(nominal)
     meta["kinematic"] = [k for k in C.kinematic_equations(nominal) if k not in eqs]
-    loc = locate(nominal, rec, n_fit, nominal_run, cons, alpha, equations=eqs)
+    loc = locate(calibrated, rec, nominal_run, cons, alpha, equations=eqs, tested=verdict.tested)
     report.location = loc
     data["located"] = loc.asdict()
 
     stage("naming: instantiating the catalog")
     scale = {n: float(np.sqrt(np.mean(loc.states[:, i] ** 2))) for i, n in enumerate(nominal.state_names)}
     rate_eqs = [e for e in loc.equations if e in C.rate_equations(nominal)] or C.rate_equations(nominal)
-    additive = C.additive_candidates(nominal, rate_eqs, scale)
-    additive += user_cands
-    structural = C.structural_candidates(nominal, rate_eqs, np.asarray(rec.inputs))
+    additive = C.additive_candidates(calibrated, rate_eqs, scale, loc.states) + user_cands
+    structural = C.structural_candidates(calibrated, rate_eqs, np.asarray(rec.inputs))
     size = {e: float(np.sqrt(np.mean(d ** 2))) for e, (d, _) in loc.disturbance.items()}
     for c in additive:
         size.setdefault(c.equation, loc.scales.get(c.equation, 1.0))
-    corr, history = name_terms(nominal, rec, n_fit, loc.equations, loc.states, size, additive, structural,
-                               alpha, progress=lambda s: stage(f"naming: {s}"))
-    rms = dict(zip(additive, basis_rms(nominal, rec, loc.states, additive))) if additive else {}
-    stage("weighing the findings on validation data")
-    corr, ev = weigh(nominal, corr, rec, n_fit, alpha,
-                     lambda c: refit(nominal, c, rec.slice(0, n_fit), rms, size))
+    corr, history, rms, size = name_terms(calibrated, rec, cv, loc.equations, loc.states, size, additive,
+                                          structural, alpha, progress=lambda s: stage(f"naming: {s}"))
+    stage("searching the shapes")
+    variants = {}
+    for c in additive:
+        variants.setdefault((c.effect, c.equation), []).append(c)
+    rms.update({c: r for c, r in zip(additive, basis_rms(calibrated, rec, loc.states, additive))})
+    corr, shapes = shape_search(calibrated, corr, variants, rec, rms, size)
+    stage("weighing the findings (drop-one cross-validation)")
+    corr, rejected = screen(calibrated, corr, loc.states, rec, alpha)
+    if rejected["compensating"] or rejected["not_identifiable"]:
+        corr = refit_terms(calibrated, corr, rec, rms, size)
+    corr, ev, cv_after = weigh(calibrated, corr, rec, cv, alpha, rms, size)
     report.correction = corr
-    meta["proposals"] = [f"round {i + 1}: best proposal {p.label} ({p.kind}), validation log-likelihood "
+    meta["proposals"] = [f"round {i + 1}: best proposal {p.label} ({p.kind}), cross-validated log-likelihood "
                          f"gain {p.gain:+.1f}" for i, p in enumerate(history)]
-    data["findings"] = _findings(nominal, corr, ev)
+    data["findings"] = _findings(nominal, corr, ev, shapes)
+    data["compensating"], data["not_identifiable"] = rejected["compensating"], rejected["not_identifiable"]
+    cv_before = fold_loglik(calibrated, rec, cv)
+    data["fit"]["folds"] = [{"span": list(cv.span(f, rec.t)), "loglik_before": float(cv_before[f]),
+                             "loglik_after": float(cv_after[f])} for f in range(len(cv))]
 
+    corrected = None
     if not corr.empty:
-        stage("writing the corrected model")
+        stage("refitting the corrected model jointly (skigen fit, filter error)")
+        corrected, names, notes, refit_info = refit_jointly(nominal, declared, corr, rec, loc.equations, refit)
+        data["refit"] = refit_info
+        _update_findings(data["findings"], names, refit_info.get("parameters", {}))
         path = out / "corrected_model.py"
         head = header_lines(user.name, spec or "a model given in Python", rec.path, data["findings"])
-        corrected = write_model_file(path, nominal, corr, name=f"{nominal.name}_corrected", header=head)
+        corrected = write_model_file(path, T.copy_model(corrected, f"{nominal.name}_corrected"), notes, header=head)
         report.corrected = corrected
         data["corrected_model"] = str(path)
         if emit:
             stage("emitting the corrected filter's C")
             meta["generated"] = [str(p) for p in emit_filter(corrected, out / "generated")]
-        stage("validation fit")
-        after = evaluate_fit(corrected, rec, n_fit, horizon)
+        stage("fit of the corrected model")
+        after = evaluate_fit(corrected, rec)
         data["fit"]["after"] = after.metrics
+        stage("testing what remains")
+        data["remaining"] = remaining(T.constants(corrected), rec, after.run, eqs, alpha, out if figures else None)
+        if data["remaining"].get("figure"):
+            meta["figures"].append(Path(data["remaining"].pop("figure")))
     else:
         after = None
+        data["remaining"] = {"mismatch": True, "where": {"equations": loc.equations, "windows": data["located"]["windows"],
+                                                          "regime": loc.regime},
+                             "note": "no candidate explains the mismatch: it remains as detected"}
+    data["fit"]["recordings"] = [{"before": evaluate_fit(calibrated, r).metrics,
+                                  "after": evaluate_fit(corrected, r).metrics if corrected is not None else None}
+                                 for r in others]
     if figures:
         stage("figures")
-        meta["figures"] = diagnosis_figures(out, nominal, rec, eps, loc, before, after, t_val)
+        meta["figures"] = diagnosis_figures(out, calibrated, rec, eps, loc, before, after, None) + meta["figures"]
     return _finish(report, meta, t_start, stage)
 
 
-def _findings(nominal: Model, corr: Correction, ev: dict) -> list[dict]:
+def _update_findings(findings: list[dict], names: dict, fitted: dict) -> None:
+    """The refitted values in the findings; the std keeps the shape search's share."""
+    by_effect = {(c.effect, c.equation): n for n, c in names.items() if c is not None}
+    for f in findings:
+        n = by_effect.get((f["effect"], f["equation"]))
+        if f["kind"] != "additive" or n not in fitted:
+            continue
+        spread = f.get("shape_search", {}).get("coefficient_std_from_shape", 0.0)
+        f["cv_coefficient"], f["cv_std"] = f["coefficient"], f["std"]
+        f["coefficient"] = fitted[n]["value"]
+        std = fitted[n]["std"]
+        f["std"] = float(np.hypot(std, spread)) if std is not None and np.isfinite(std) else std
+        f["parameter"] = n
+
+
+def _fit_note(folds: int) -> str:
+    return (f"blocked cross-validation over {folds} contiguous folds: each fold is scored with coefficients "
+            f"fitted on the other folds (fit.folds); fit.before and fit.after are the whole recording, "
+            f"the corrected model fitted on all of it; fit.recordings are the --validate recordings, "
+            f"never fitted on")
+
+
+def _findings(nominal: Model, corr: Correction, ev: dict, shapes: dict) -> list[dict]:
     out = []
     for c, coef, std in corr.additive:
-        out.append({"effect": c.effect, "equation": c.equation, "expression": c.formula,
-                    "coefficient": coef, "std": std, "evidence": ev[c], "kind": "additive",
-                    "reading": c.reading + (f" ({c.variant})" if c.variant else "")})
+        f = {"effect": c.effect, "equation": c.equation, "expression": c.formula,
+             "coefficient": coef, "std": std, "evidence": ev[c], "kind": "additive",
+             "reading": c.reading + (f" ({c.variant})" if c.variant else "")}
+        if c.shape:
+            f["shape"] = dict(c.shape)
+        if c in shapes:
+            f["shape_search"] = shapes[c]
+        out.append(f)
     for s, value, std in corr.structural:
         eqs = [e for e in nominal.state_names
                if any(v.name == s.input and ca.depends_on(nominal.rhs[e], v.sym) for v in nominal.inputs)]

@@ -20,7 +20,7 @@ from . import transform as T
 
 __all__ = ["Additive", "Structural", "EFFECTS", "READINGS", "evaluate", "additive_candidates",
            "structural_candidates", "user_candidates", "declared_candidates", "rate_equations",
-           "kinematic_equations", "pairs"]
+           "kinematic_equations", "pairs", "COULOMB_WIDTHS"]
 
 VELOCITY_ROLES = ("velocity", "rate")
 POSITION_ROLES = ("position", "angle", "altitude")
@@ -33,6 +33,9 @@ READINGS = {
     "quadratic_drag": "drag growing with the square of the speed (aerodynamic or hydrodynamic)",
     "coulomb_friction": "dry (Coulomb) friction: a constant force opposing the motion",
     "cubic_stiffness": "a hardening spring: a restoring force growing with the cube of the displacement",
+    "linear_stiffness": "a spring the model leaves out or misjudges: a restoring force proportional to the displacement",
+    "physical_limit": "a state that cannot pass a bound (an end stop, a tank that overflows, a vehicle resting "
+                      "on the ground): a stiff restoring rate beyond it",
     "input_gain": "the input acts more or less strongly than modelled (actuator gain, mass or inertia error)",
     "ground_effect": "extra thrust close to the ground, decaying with height",
     "input_delay": "the plant responds to the input a few samples late (transport or computation delay)",
@@ -58,6 +61,8 @@ class Additive:
     reading: str
     variant: str = ""         # e.g. "h = 0.1 m": several variants of one effect compete
     expr: ca.SX | None = field(default=None, compare=False, repr=False)   # when not a formula
+    shape: tuple = ()         # the variant's shape parameters, (("width", 0.01),) …
+    sign: int = 0             # +1: only a positive coefficient is physical (friction, drag, a limit)
 
     def sx(self, model: Model) -> ca.SX:
         """The term as SX over ``model``'s symbols."""
@@ -114,21 +119,51 @@ def _num(x: float) -> str:
     return f"{float(f'{x:.3g}'):g}"
 
 
-def additive_candidates(model: Model, equations, scale: dict[str, float]) -> list[Additive]:
+COULOMB_WIDTHS = (0.005, 0.02, 0.08)         # × the RMS rate: the smoothing of sign(v)
+LIMIT_QUANTILES = (0.9, 0.97, 0.99, 0.997)    # where a bound may sit, on the state's own distribution
+
+
+def _limit_states(model: Model, eq: str) -> list[str]:
+    """States a bound may stop through equation ``eq``: the positions it drives (ẋ = v), or the
+    state itself when its equation is first order (a tank level)."""
+    roles = {v.name: v.role for v in model.states}
+    out = [q for q in pairs(model, eq) if q != eq]
+    if roles[eq] not in VELOCITY_ROLES and not out:
+        out.append(eq)
+    return out
+
+
+def additive_candidates(model: Model, equations, scale: dict[str, float],
+                        states: np.ndarray | None = None) -> list[Additive]:
     """Catalog terms for each listed rate equation. ``scale``: RMS of each state along the
-    recording (sets the Coulomb smoothing ε = 2 % of the RMS rate)."""
+    recording (the Coulomb smoothing widths are fractions of it); ``states`` (N, nx): the smoothed
+    trajectory, where the bounds of a physical limit are searched."""
     units = {v.name: v.unit for v in model.states}
     out = []
     for eq in equations:
-        add = lambda effect, formula, variant="": out.append(Additive(effect, eq, formula, READINGS[effect], variant))
+        def add(effect, formula, variant="", shape=(), sign=0):
+            out.append(Additive(effect, eq, formula, READINGS[effect], variant, shape=shape, sign=sign))
         add("bias", "1")
         rate_like = eq in [v.name for v in model.states if v.role in VELOCITY_ROLES] or not pairs(model, eq)
         if rate_like:
             add("viscous_damping", f"-{eq}")
-            add("quadratic_drag", f"-{eq}*abs({eq})")
-            add("coulomb_friction", f"-tanh({eq}/{_num(max(0.02 * scale.get(eq, 1.0), 1e-12))})")
+            add("quadratic_drag", f"-{eq}*abs({eq})", sign=1)
+            for k in COULOMB_WIDTHS:
+                w = _num(max(k * scale.get(eq, 1.0), 1e-12))
+                add("coulomb_friction", f"-tanh({eq}/{w})", f"width {w} {units[eq]}".rstrip(),
+                    (("width", float(w)),), sign=1)
         for q in pairs(model, eq):
+            if q != eq:
+                add("linear_stiffness", f"-{q}")
             add("cubic_stiffness", f"-{q}**3")
+        if states is not None:
+            for q in _limit_states(model, eq):
+                x = states[:, model.state_names.index(q)]
+                for side, qs in (("upper", LIMIT_QUANTILES), ("lower", [1 - a for a in LIMIT_QUANTILES])):
+                    for b in sorted({float(_num(v)) for v in np.quantile(x, qs)}):
+                        formula = f"-fmax({q} - {_num(b)}, 0)" if side == "upper" else f"fmax({_num(b)} - {q}, 0)"
+                        add("physical_limit", formula, f"{q} {'≤' if side == 'upper' else '≥'} {_num(b)} {units[q]}".rstrip(),
+                            (("bound", b), ("side", side), ("state", q)), sign=1)
         for u in _inputs_of(model, eq):
             add("input_gain", u)
         alt = [q for q in pairs(model, eq) if next(v.role for v in model.states if v.name == q) == "altitude"]
@@ -136,7 +171,8 @@ def additive_candidates(model: Model, equations, scale: dict[str, float]) -> lis
             per_m = LENGTH_UNITS.get(units[z], 1.0)
             for u in _inputs_of(model, eq):
                 for h in GROUND_EFFECT_HEIGHTS:
-                    add("ground_effect", f"exp(-{z}/{_num(h * per_m)})*{u}", f"h = {_num(h * per_m)} {units[z]}")
+                    add("ground_effect", f"exp(-{z}/{_num(h * per_m)})*{u}", f"h = {_num(h * per_m)} {units[z]}",
+                        (("height", float(_num(h * per_m))),))
     return out
 
 

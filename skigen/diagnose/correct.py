@@ -19,10 +19,12 @@ import numpy as np
 
 from ..derive import augment, derive
 from ..model import Model
+from . import catalog as C
+from . import transform as T
 from .name import Correction
 from .source import to_python
 
-__all__ = ["write_model_file", "same_model", "emit_filter"]
+__all__ = ["write_model_file", "same_model", "emit_filter", "parametrised", "liftable", "refit_jointly"]
 
 
 def _split(expr: ca.SX, k: int):
@@ -38,7 +40,8 @@ def _split(expr: ca.SX, k: int):
 
 
 def _value(x) -> str:
-    return repr(float(x))
+    x = float(x)
+    return repr(x) if np.isfinite(x) else ("np.inf" if x > 0 else "-np.inf")
 
 
 def _state_line(m: Model, i: int, note: str = "") -> str:
@@ -52,15 +55,23 @@ def _matrix(M) -> str:
     return "np.array(" + repr(np.asarray(M, float).tolist()) + ")"
 
 
-def write_model_file(path, nominal: Model, corr: Correction, *, name: str, header: list[str]) -> Model:
-    """Write the corrected model to ``path``; returns the model the file declares."""
-    final = corr.build(nominal, name)
-    nominal_states = set(nominal.state_names)
+def write_model_file(path, final: Model, added: dict, *, header: list[str]) -> Model:
+    """Write ``final`` (the corrected model) to ``path``; ``added``: per equation, the comment of
+    each term added to the nominal rate, in order. Returns the model the file declares."""
+    nominal_states = set(final.state_names[:len(final.state_names)])
+    hold = f", input_hold={final.input_hold!r}" if final.input_hold != "zoh" else ""
     lines = ['"""' + header[0], ""] + header[1:] + ['"""', "import casadi as ca", "import numpy as np", "",
                                                     "from skigen import Model", "",
                                                     f"model = Model({final.name!r}, dt={_value(final.dt)}, "
                                                     f"discretization={final.discretization!r}, "
-                                                    f"substeps={final.substeps})"]
+                                                    f"substeps={final.substeps}{hold})"]
+    for p in final.parameters:
+        args = [repr(p.name), _value(p.value), f"unit={p.unit!r}"]
+        if p.std is not None:
+            args.append(f"std={_value(p.std)}")
+        if np.isfinite(p.bounds).any():
+            args.append(f"bounds=({_value(p.bounds[0])}, {_value(p.bounds[1])})")
+        lines.append(f"{p.name} = model.parameter({', '.join(args)})")
     for i, v in enumerate(final.states):
         lines.append(_state_line(final, i, "" if v.name in nominal_states else "added: the lagged actuator"))
     for v in final.inputs:
@@ -72,25 +83,22 @@ def write_model_file(path, nominal: Model, corr: Correction, *, name: str, heade
         names = [f"{u}_d{j}" for j in range(1, n + 1)]
         lines.append(f"{', '.join(names)}, = model.input_history({u}, {n})  # input history (delay)")
     lines.append("model.dynamics({")
-    per_eq: dict[str, list] = {}
-    for c, coef, std in corr.additive:
-        per_eq.setdefault(c.equation, []).append((c, coef, std))
     for eq in final.state_names:
-        terms = per_eq.get(eq, [])
-        split = _split(final.rhs[eq], len(terms))
+        notes = added.get(eq, [])
+        split = _split(final.rhs[eq], len(notes)) if notes else None
         if split is None:
             lines.append(f"    {eq}: {to_python(final.rhs[eq])},")
             continue
         base, parts = split
-        lines.append(f"    {eq}: {to_python(base)}" + ("," if not terms else ""))
-        for j, ((c, coef, std), (sign, part)) in enumerate(zip(terms, parts)):
-            end = "," if j == len(terms) - 1 else ""
+        lines.append(f"    {eq}: {to_python(base)}")
+        for j, (note, (sign, part)) in enumerate(zip(notes, parts)):
+            end = "," if j == len(notes) - 1 else ""
             text = to_python(part)
             if part.op() in (ca.OP_ADD, ca.OP_SUB):
                 text = f"({text})" if sign == "-" else text
             elif text.startswith("-"):            # "- -0.8 * w" reads as "+ 0.8 * w"
                 sign, text = ("+" if sign == "-" else "-"), text[1:]
-            lines.append(f"        {sign} {text}{end}  # {c.effect}: {coef:.6g} ± {std:.2g} × ({c.formula})")
+            lines.append(f"        {sign} {text}{end}  # {note}")
     lines.append("})")
     for i, v in enumerate(final.outputs):
         noise = "None" if final.r_std[i] is None else _value(final.r_std[i])
@@ -105,6 +113,86 @@ def write_model_file(path, nominal: Model, corr: Correction, *, name: str, heade
     written = load_model_file(str(path))
     same_model(final, written)
     return written
+
+
+def _unique_name(model: Model, name: str) -> str:
+    taken = set(model.names) | set(model.parameter_names)
+    out, i = name, 2
+    while out in taken:
+        out, i = f"{name}_{i}", i + 1
+    return out
+
+
+def parametrised(base: Model, corr: Correction, lift: list[tuple[str, str, str]] = ()) -> tuple[Model, dict, dict]:
+    """``base`` plus the correction, each additive coefficient a declared parameter (a physical
+    sign as its bound), plus ``lift``: (effect, equation, formula) corrections of the nominal's own
+    linear terms, parameters starting at 0. Returns (model, {parameter: finding candidate or None},
+    {equation: [comment per added term]})."""
+    m = T.copy_model(base, unknowns=False)
+    names, notes = {}, {}
+    for c, coef, std in corr.additive:
+        name = _unique_name(m, f"{c.effect}_{c.equation}")
+        p = m.parameter(name, float(coef), bounds=(0.0, np.inf) if c.sign > 0 and coef >= 0 else None)
+        m.rhs[c.equation] = m.rhs[c.equation] + T.rate(m, p * c.sx(m))
+        names[name] = c
+        notes.setdefault(c.equation, []).append(f"{c.effect}: {name} × ({c.formula})")
+    for effect, eq, formula in lift:
+        name = _unique_name(m, f"{effect}_{eq}_correction")
+        p = m.parameter(name, 0.0)
+        m.rhs[eq] = m.rhs[eq] + T.rate(m, p * T.formula(m, formula))
+        names[name] = None
+        notes.setdefault(eq, []).append(f"correction of the nominal {effect.replace('_', ' ')}: {name} × ({formula})")
+    for s, value, _ in corr.structural:
+        m = s.build(m, value)
+    return m, names, notes
+
+
+def liftable(nominal: Model, corr: Correction, equations) -> list[tuple[str, str, str]]:
+    """The nominal's own linear terms on the located equations — stiffness of the positions an
+    equation drives, its damping, its input gains — when the nominal has them, declares no
+    parameters, and no finding already covers them: their constants are refitted with the findings."""
+    if nominal.parameters:
+        return []
+    found = {(c.effect, c.equation) for c, *_ in corr.additive}
+    syms = T.symbols(nominal)
+    out = []
+    for eq in equations:
+        rhs = nominal.rhs[eq]
+        terms = [("linear_stiffness", q, f"-{q}") for q in C.pairs(nominal, eq) if q != eq]
+        terms += [("viscous_damping", eq, f"-{eq}")]
+        terms += [("input_gain", u, u) for u in nominal.input_names]
+        for effect, var, formula in terms:
+            if (effect, eq) not in found and ca.depends_on(rhs, syms[var]):
+                out.append((effect, eq, formula))
+    return out
+
+
+def refit_jointly(nominal: Model, calibrated: Model, corr: Correction, rec, equations,
+                  enabled: bool = True) -> tuple[Model, dict, dict, dict]:
+    """The corrected model refitted by `skigen fit` (filter error): the nominal's declared
+    parameters, the found coefficients, the lifted linear corrections and the noise, jointly.
+    Returns (fitted model, {parameter: candidate}, comments per equation, what the refit did)."""
+    from ..fit import FitError, fit
+    lift = liftable(nominal, corr, equations)
+    tries = [lift, []] if lift else [[]]
+    info = {"method": "filter-error", "lifted": [], "note": ""}
+    for attempt in tries:
+        model, names, notes = parametrised(calibrated, corr, attempt)
+        if not enabled:
+            info["note"] = "not refitted (refit=False): coefficients from the cross-validated search"
+            return model, names, notes, info
+        try:
+            res = fit(model, [rec], method="filter-error", show_progress=False)
+        except FitError as exc:
+            info["note"] += f"joint refit with {len(attempt)} lifted corrections failed: {exc}. "
+            continue
+        info.update(parameters=res.parameters, noise=res.noise.get("scales"), converged=res.converged,
+                    seconds=res.seconds, iterations=res.iterations,
+                    lifted=[dict(effect=e, equation=q, formula=f) for e, q, f in attempt])
+        return res.model, names, notes, info
+    info["note"] += "coefficients from the cross-validated search"
+    model, names, notes = parametrised(calibrated, corr, [])
+    return model, names, notes, info
 
 
 def same_model(a: Model, b: Model, points: int = 16, tol: float = 1e-9) -> None:

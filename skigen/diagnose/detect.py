@@ -95,3 +95,50 @@ def consistency(res: RunResult, output_names, alpha: float = 0.01) -> Consistenc
         note = ("NIS below its lower bound: the model states more noise than the data show "
                 "(a noise-tuning issue, not missing physics)")
     return Consistency(nis_sum / N, dof / N, (lo / N, hi / N), p_nis, p_white, lags, alpha, N, mismatch, per, note)
+
+
+@dataclass
+class Verdict:
+    """The decision on a calibrated model: its consistency, the disturbance test, the verdict."""
+
+    consistency: Consistency
+    gains: dict                 # equation → log-likelihood gain of a random-walk disturbance
+    threshold: float
+    tested: tuple               # (gains, steps, scales) for :func:`locate`
+    mismatch: bool
+
+
+def judge(model, rec, run: RunResult, equations, alpha: float = 0.01) -> Verdict:
+    """Mismatch on a noise-calibrated model: its innovations are not white (α/2, Bonferroni over
+    the outputs), or a slowly varying disturbance on some equation buys significant likelihood
+    (α/2, Bonferroni over the equations). The NIS is reported but not tested: calibration makes
+    its mean match by construction."""
+    from .locate import disturbance_gains, disturbance_threshold
+    cons = consistency(run, model.output_names, alpha)
+    tested = disturbance_gains(model, rec, run, equations)
+    threshold = disturbance_threshold(alpha / 2, len(equations))
+    white = cons.whiteness_pvalue >= alpha / 2
+    drift = max(tested[0].values(), default=-np.inf) > threshold
+    cons.mismatch = bool(not white or drift)
+    cons.note = ("judged on the calibrated model: "
+                 + ("innovations not white" if not white else "innovations white")
+                 + ("; a slowly varying disturbance is significant" if drift else "; no significant slowly varying disturbance"))
+    return Verdict(cons, {k: float(v) for k, v in tested[0].items()}, float(threshold), tested, cons.mismatch)
+
+
+def remaining(model, rec, run: RunResult, equations, alpha: float, out_dir=None) -> dict:
+    """After correction: is the corrected (refitted, noise-calibrated) model consistent? If not,
+    where, in which regime, the state or input that best explains what is left (a figure), and a
+    candidate to try."""
+    from .locate import locate
+    from .suggest import explain
+    v = judge(model, rec, run, equations, alpha)
+    out = {"mismatch": v.mismatch, "whiteness_pvalue": v.consistency.whiteness_pvalue,
+           "disturbance_gain": v.gains, "disturbance_threshold": v.threshold, "where": None}
+    if not v.mismatch:
+        return out
+    loc = locate(model, rec, run, v.consistency, alpha, equations=equations, tested=v.tested)
+    out["where"] = {"equations": loc.equations, "windows": [[float(a), float(b)] for a, b in loc.windows],
+                    "regime": loc.regime}
+    out.update(explain(model, rec, loc, out_dir))
+    return out

@@ -15,6 +15,7 @@ import casadi as ca
 import numpy as np
 
 from ..derive import DerivedFilter, derive
+from ..derive.augment import step_inputs
 from ..emit.c import Status
 from ..model import Model
 from ..recording import Recording
@@ -62,19 +63,20 @@ def _blocks(a, N: int, n: int) -> np.ndarray:
     return np.asarray(a).reshape(n, N, n).transpose(1, 0, 2)
 
 
-def run_fast(filt: DerivedFilter, rec: Recording, *, trace: bool = False):
-    """Filter ``rec``; returns a :class:`RunResult` (or a :class:`Trace` when ``trace``)."""
+def run_fast(filt: DerivedFilter, rec: Recording, *, trace: bool = False, init: dict | None = None):
+    """Filter ``rec``; returns a :class:`RunResult` (or a :class:`Trace` when ``trace``).
+    init: the filter state before the first sample (default :meth:`DerivedFilter.initial`)."""
     aug, model = filt.aug, filt.aug.model
     check_columns(model, rec)
     N, d, ski = len(rec.t), aug.shapes, filt.has_ard
     n = d["n"]
-    init = filt.initial()
+    init = init or filt.initial()
     Y = np.asarray(rec.outputs, float)
     valid = np.isfinite(Y)
     chain, M = _chain(filt, N)
     pad = lambda a: np.vstack([a, np.repeat(a[-1:], M - N, axis=0)]).T     # prediction-only steps after N
     args = [init["z"], init["C"]] + ([init["s"]] if ski else []) + [init["mem"]]
-    args += [pad(np.asarray(rec.inputs, float)), pad(np.where(valid, Y, 0.0)), pad(np.zeros_like(Y))]
+    args += [pad(step_inputs(model, np.asarray(rec.inputs, float))), pad(np.where(valid, Y, 0.0)), pad(np.zeros_like(Y))]
     args[-1][:, :N] = valid.T
     with np.errstate(all="ignore"):
         out = [np.asarray(o)[:, :N * (o.shape[1] // M)] for o in chain(*args)]
@@ -82,7 +84,7 @@ def run_fast(filt: DerivedFilter, rec: Recording, *, trace: bool = False):
     z_post, C_post, e, ev, nis, ll, mem = out[k0:k0 + 7]
     arrays = [out[0], out[1], z_post, C_post, e, ev, nis, ll] + ([out[k0 + 7]] if ski else [])
     if not all(np.all(np.isfinite(a)) for a in arrays) or not np.all(np.isfinite(rec.inputs)):
-        if trace:
+        if trace or init is not None:
             raise FloatingPointError(f"the {filt.kind} filter of '{model.name}' produced non-finite numbers")
         return run(filt, rec, show_progress=False)
     Cp = _blocks(C_post, N, n)

@@ -92,16 +92,17 @@ def diagnosis_figures(out, nominal, rec, eps, loc, before, after, t_val) -> list
         panels[eq] = (d, sd, ident, f"{unit}/s" if unit else "")
     figs.append(plot_disturbance(out / "disturbance.png", rec.t, panels, loc.windows, t_val,
                                  "where the nominal model needs help, and what the found terms supply"))
-    span = (t_val, min(rec.t[-1], t_val + 10.0))
+    t0 = max(rec.t[0], loc.windows[0][0] - 2.0) if loc.windows else rec.t[0]
+    span = (t0, min(rec.t[-1], t0 + 10.0))
     figs.append(plot_fit(out / "fit.png", rec.t, np.asarray(rec.outputs), before.free,
                          None if after is None else after.free, nominal.output_names, span,
-                         "validation: measured vs free-run prediction, before and after"))
+                         "measured vs free-run simulation, nominal and corrected"))
     return figs
 
 
 def identified_rate(nominal: Model, after, rec: Recording, eq: str) -> np.ndarray:
     """Corrected minus nominal rate of ``eq`` along the corrected filter's trajectory."""
-    corrected = after.run.filter.aug.model
+    corrected, nominal = T.constants(after.run.filter.aug.model), T.constants(nominal)
     xs = ca.vertcat(*[v.sym for v in corrected.states])
     u = ca.vertcat(*[v.sym for v in corrected.inputs])
     mem = ca.vertcat(*[m.sym for m in corrected.memory]) if corrected.memory else ca.SX(0, 1)

@@ -1,11 +1,10 @@
-"""Show the fit: nominal and corrected model side by side on the validation segment.
+"""Show the fit: a model's statistics on a recording, the nominal and the corrected side by side.
 
-Both models' EKFs run over the whole recording (the corrected model's
-coefficients were fitted on the first part only); every statistic is taken
-on the held-out validation samples: innovation RMS per output, mean NIS,
-summed predictive log-likelihood, and the RMSE of free runs — the model
-simulated from the filtered state with the recorded inputs, without
-measurement updates, over ``horizon`` seconds, restarted every horizon.
+Per recording: the EKF's innovation RMS per output, mean NIS and summed
+predictive log-likelihood, and the RMSE of a free-run simulation over the whole
+record — the model driven by the recorded inputs alone, from the EKF's state
+at sample ``k0`` (the first 1 %, at least 50 samples, settle the filter and
+are not scored).
 """
 from __future__ import annotations
 
@@ -15,63 +14,69 @@ import casadi as ca
 import numpy as np
 
 from ..derive import augment, derive
+from ..derive.augment import step_inputs
 from ..model import Model
 from ..recording import Recording
 from ..runtime import RunResult
 from .fastrun import run_fast
 from .transform import memory_values
 
-__all__ = ["Fit", "evaluate_fit", "free_run"]
+__all__ = ["Fit", "evaluate_fit", "free_run", "settle"]
 
 
 @dataclass
 class Fit:
     metrics: dict
     run: RunResult
-    free: np.ndarray        # (N, ny) free-run prediction on the validation segment (NaN elsewhere)
+    free: np.ndarray        # (N, ny) free-run prediction (NaN before k0)
 
 
-def free_run(model: Model, run: RunResult, rec: Recording, start: int, horizon: int) -> np.ndarray:
-    """Outputs of free runs from the filtered state at start, start + horizon, … over the samples
-    after each start up to the next (NaN at the starts themselves)."""
+def settle(n: int) -> int:
+    """Samples not scored at the start of a free run."""
+    return int(min(max(50, n // 100), n // 2))
+
+
+def free_run(model: Model, run: RunResult, rec: Recording, k0: int) -> np.ndarray:
+    """Outputs of one free run from the filtered state at ``k0`` to the end (NaN up to ``k0``)."""
     aug = augment(model)
     nx = len(model.states)
     x = aug.z[:nx]
-    F = ca.Function("F", [x, aug.u, aug.mem], [aug.f[:nx]])
-    H = ca.Function("H", [x, aug.u, aug.mem], [aug.h])
+    f, h = aug.f[:nx], aug.h
+    if aug.z.shape[0] > nx:                                # weights, estimated parameters: as declared
+        f, h = (ca.substitute(e, aug.z[nx:], ca.DM(aug.z0[nx:])) for e in (f, h))
+    F = ca.Function("F", [x, aug.u, aug.mem], [f])
+    H = ca.Function("H", [x, aug.u, aug.mem], [h])
     N = len(rec.t)
-    starts = np.arange(start, N - 1, horizon)
+    U = step_inputs(model, rec.inputs)
     mem = memory_values(model, rec)
+    n = N - 1 - k0
     out = np.full((N, len(model.outputs)), np.nan)
-    X = run.mean[starts, :nx].T                          # posterior at each start
-    Fm, Hm = F.map(len(starts)), H.map(len(starts))
-    for j in range(1, horizon):
-        k_prev = starts + j - 1
-        ok = k_prev + 1 < N
-        kp = np.minimum(k_prev, N - 1)
-        X = np.asarray(Fm(X, rec.inputs[kp].T, mem[kp].T))
-        k = np.minimum(kp + 1, N - 1)
-        Y = np.asarray(Hm(X, rec.inputs[k].T, mem[k].T)).T
-        out[k[ok]] = Y[ok]
+    if n <= 0:
+        return out
+    sim = F.mapaccum("sim", n)
+    X = np.asarray(sim(run.mean[k0, :nx], U[k0:N - 1].T, mem[k0:N - 1].T))
+    out[k0 + 1:] = np.asarray(H.map(n)(X, U[k0 + 1:].T, mem[k0 + 1:].T)).T
     return out
 
 
-def evaluate_fit(model: Model, rec: Recording, n_fit: int, horizon_s: float = 1.0,
-                 run: RunResult | None = None) -> Fit:
-    """Validation statistics of ``model`` (see the module docstring)."""
+def evaluate_fit(model: Model, rec: Recording, run: RunResult | None = None) -> Fit:
+    """Statistics of ``model`` on ``rec`` (see the module docstring)."""
     run = run or run_fast(derive(model, "ekf"), rec)
-    val = slice(n_fit, None)
-    e = run.innovation[val]
-    horizon = max(2, int(round(horizon_s / model.dt)))
-    free = free_run(model, run, rec, n_fit, horizon)
-    err = free[val] - rec.outputs[val]
+    k0 = settle(len(rec.t))
+    free = free_run(model, run, rec, k0)
+    err = free - rec.outputs
+    e = run.innovation
     names = model.output_names
     with np.errstate(invalid="ignore"):
         metrics = {
+            "recording": str(rec.path), "samples": len(rec.t),
             "innovation_rms": {n: float(np.sqrt(np.nanmean(e[:, i] ** 2))) for i, n in enumerate(names)},
-            "nis_mean": float(np.nanmean(run.nis[val])),
-            "loglik": float(np.sum(run.loglik[val])),
-            "loglik_per_sample": float(np.mean(run.loglik[val])),
-            "free_run_rmse": {n: float(np.sqrt(np.nanmean(err[:, i] ** 2))) for i, n in enumerate(names)},
+            "nis_mean": float(np.nanmean(run.nis)),
+            "loglik": float(np.sum(run.loglik)),
+            "loglik_per_sample": float(np.mean(run.loglik)),
+            "free_run_rmse": {n: float(np.sqrt(np.nanmean(err[k0 + 1:, i] ** 2))) for i, n in enumerate(names)},
+            "free_run_from": float(rec.t[k0]),
         }
+    for k in ("free_run_rmse",):
+        metrics[k] = {n: (v if np.isfinite(v) else None) for n, v in metrics[k].items()}
     return Fit(metrics, run, free)

@@ -13,7 +13,7 @@ from .errors import DiagnosisError
 
 __all__ = ["MIN_SAMPLES", "load", "check"]
 
-MIN_SAMPLES = 300          # 210 to fit, 90 to validate, and ≥ 5 Ljung–Box lags
+MIN_SAMPLES = 300          # ≥ 60 per fold of 5, and ≥ 5 Ljung–Box lags
 
 
 def load(model, recording, **read) -> tuple[Model, str | None, Recording]:
@@ -32,13 +32,6 @@ def load(model, recording, **read) -> tuple[Model, str | None, Recording]:
     else:
         raise DiagnosisError(f"expected a skigen.Model or a model file, got {type(model).__name__}")
     model.check()
-    if model.input_hold != "zoh":
-        raise DiagnosisError(f"model '{model.name}' interpolates its inputs (input_hold='{model.input_hold}'); "
-                             f"the diagnosis handles zero-order-hold models only so far")
-    if model.parameters:
-        raise DiagnosisError(f"model '{model.name}' declares parameters ({', '.join(model.parameter_names)}); "
-                             f"the diagnosis takes them as constants only once `skigen fit` has fixed them: "
-                             f"fit first, or declare them as numbers")
     if not isinstance(recording, Recording):
         rec = load_recording(recording, model, **read)
     else:
@@ -50,20 +43,22 @@ def load(model, recording, **read) -> tuple[Model, str | None, Recording]:
     return model, spec, rec
 
 
-def check(model: Model, rec: Recording, validation: float):
+def check(model: Model, rec: Recording, folds: int):
     """Long enough to decide, sampled at the model's dt, every output measured often enough."""
     N = len(rec.t)
-    if not 0.05 <= validation <= 0.5:
-        raise DiagnosisError(f"validation fraction must be within [0.05, 0.5], got {validation}")
-    need = max(MIN_SAMPLES, int(np.ceil(90 / validation)))
+    if not 2 <= int(folds) <= 20:
+        raise DiagnosisError(f"the cross-validation needs 2 to 20 folds, got {folds}")
+    need = max(MIN_SAMPLES, 60 * int(folds))
     if N < need:
         raise DiagnosisError(
             f"{rec.path}: {N} samples ({N * model.dt:g} s at dt = {model.dt:g} s) are too few to decide; "
-            f"the diagnosis needs at least {need} ({need * model.dt:g} s): "
-            f"{int((1 - validation) * need)} to fit and {need - int((1 - validation) * need)} to validate")
+            f"the diagnosis needs at least {need} ({need * model.dt:g} s): 60 per fold of {folds}")
     if abs(rec.dt - model.dt) > 0.01 * model.dt:
         raise DiagnosisError(f"{rec.path}: samples are {rec.dt:g} s apart but model '{model.name}' has "
                              f"dt = {model.dt:g} s; resample the recording or declare the model's dt")
+    if not np.isfinite(rec.inputs).all():
+        k = int(np.argwhere(~np.isfinite(rec.inputs))[0, 0])
+        raise DiagnosisError(f"{rec.path}: input missing at t = {rec.t[k]:g} s; the diagnosis needs every input")
     measured = np.isfinite(rec.outputs).sum(axis=0)
     if measured.min() < 0.5 * need:
         name = model.output_names[int(np.argmin(measured))]

@@ -30,7 +30,8 @@ from .smoother import smooth
 from .fastrun import loglik
 from .transform import with_disturbance
 
-__all__ = ["Location", "locate", "rate_scales", "windows_of", "regime_stump"]
+__all__ = ["Location", "locate", "rate_scales", "windows_of", "regime_stump", "disturbance_gains",
+           "disturbance_threshold", "features"]
 
 GRID = 10.0 ** np.arange(-6.0, -0.5, 1.0)    # disturbance step per sample, × the equation's rate scale
 Z_WINDOW = 3.0
@@ -147,7 +148,7 @@ def regime_stump(features: dict[str, tuple[np.ndarray, str]], active: np.ndarray
     return best[1]
 
 
-def _features(model: Model, rec: Recording, states: np.ndarray) -> dict:
+def features(model: Model, rec: Recording, states: np.ndarray) -> dict:
     out = {}
     for i, v in enumerate(model.states):
         out[v.name] = (states[:, i], v.unit)
@@ -172,24 +173,38 @@ def _outputs(nominal_run, names, alpha: float, lags: int) -> list[str]:
     return flagged or [names[int(np.argmin(pvals))]]
 
 
-def locate(nominal: Model, rec: Recording, n_fit: int, nominal_run, cons: Consistency,
-           alpha: float = 0.01, equations=None) -> Location:
-    """See the module docstring. ``nominal_run``: the nominal EKF over the whole recording."""
-    fit = rec.slice(0, n_fit)
+def disturbance_gains(nominal: Model, rec: Recording, nominal_run, equations) -> tuple[dict, dict, dict]:
+    """Per equation: the log-likelihood gain of the best random-walk disturbance over the whole
+    recording, its step per sample, and the equation's rate scale."""
     scales = rate_scales(nominal, rec, nominal_run.mean)
-    ll0 = float(np.sum(nominal_run.loglik[:n_fit]))
-    eqs = list(equations or nominal.state_names)
+    ll0 = float(np.sum(nominal_run.loglik))
     steps, gains = {}, {}
-    for e in eqs:
-        (steps[e],), gains[e] = _best_step(nominal, [e], scales, fit, ll0)
-    threshold = 0.5 * stats.chi2.ppf(1 - alpha / len(eqs), 2)
+    for e in equations:
+        (steps[e],), gains[e] = _best_step(nominal, [e], scales, rec, ll0)
+    return gains, steps, scales
+
+
+def disturbance_threshold(alpha: float, n_equations: int) -> float:
+    """Log-likelihood gain a disturbance needs: 0.5·χ²₂(1 − α/n), two parameters (step and
+    start), Bonferroni over the equations."""
+    return 0.5 * stats.chi2.ppf(1 - alpha / max(1, n_equations), 2)
+
+
+def locate(nominal: Model, rec: Recording, nominal_run, cons: Consistency, alpha: float = 0.01,
+           equations=None, tested=None) -> Location:
+    """See the module docstring. ``nominal_run``: the nominal EKF over the whole recording;
+    ``tested``: :func:`disturbance_gains` already computed for ``equations``."""
+    eqs = list(equations or nominal.state_names)
+    gains, steps, scales = tested or disturbance_gains(nominal, rec, nominal_run, eqs)
+    ll0 = float(np.sum(nominal_run.loglik))
+    threshold = disturbance_threshold(alpha, len(eqs))
     order = sorted(eqs, key=lambda e: -gains[e])
     chosen = [order[0]] if gains[order[0]] > threshold else []
     for e in order[1:]:
         if chosen and gains[e] > threshold:
             m, _ = with_disturbance(nominal, chosen + [e], [steps[c] for c in chosen + [e]],
                                     [scales[c] for c in chosen + [e]])
-            if loglik(m, fit) - ll0 - gains[chosen[0]] > threshold:
+            if loglik(m, rec) - ll0 - gains[chosen[0]] > threshold:
                 chosen.append(e)
     if not chosen:
         chosen = [order[0]]
@@ -206,7 +221,7 @@ def locate(nominal: Model, rec: Recording, n_fit: int, nominal_run, cons: Consis
     active |= _local_gain(sm.trace.result.loglik - nominal_run.loglik, nominal.dt, alpha)
     duration = rec.t[-1] - rec.t[0]
     windows = windows_of(rec.t, active, merge=max(0.5, 0.01 * duration), shortest=max(0.2, 10 * nominal.dt))
-    regime = regime_stump(_features(nominal, rec, sm.mean[:, :nx]),
+    regime = regime_stump(features(nominal, rec, sm.mean[:, :nx]),
                           significant if significant.mean() > 0.02 else active)
     return Location(_outputs(nominal_run, nominal.output_names, alpha, cons.lags), chosen, gains, steps,
                     windows, regime, dist, sm.mean[:, :nx], active, scales)

@@ -1,25 +1,28 @@
 """Name: which catalog (or user) terms explain the located mismatch, with what coefficients.
 
-Greedy rounds; every coefficient and parameter is fitted on the fit segment,
-and the competing changes are compared on the validation segment, data not
-used to fit them:
+Greedy rounds, every proposal scored by blocked cross-validation
+(:mod:`skigen.diagnose.cv`): its coefficients are fitted without the fold
+each part of the recording is scored on.
 
 1. additive candidates on the located equations compete jointly in one SKI run
-   over the fit segment (priors scale-aware: each candidate alone could explain
-   the smoothed disturbance twice over); a term is kept if |ŵ| > z·σ, z the
-   two-sided normal quantile of α / (number of candidates), one variant per effect;
-2. each structural candidate is profiled over its parameter grid (refined
-   between grid points) by the fit segment's EKF log-likelihood of the
-   transformed model;
-3. each proposal (the kept additive set, or one structural change) is scored
-   by its gain in predictive log-likelihood on the validation segment; the best
-   is accepted if 2·gain exceeds the χ² quantile 1 − α/(number of candidates)
-   for its number of parameters and, after the first round, adds at least 1 %
-   of the gain so far; repeat (three rounds at most).
+   (priors scale-aware: each candidate alone could explain the smoothed
+   disturbance twice over); a term is kept if |ŵ| > z·σ, z the two-sided normal
+   quantile of α / (number of candidates), one variant per effect. The
+   procedure is repeated without each fold and the fold scored with what it kept;
+2. each structural candidate's parameter is chosen, per fold, on the grid
+   point with the best log-likelihood over the other folds; the final value is
+   refined on the whole recording;
+3. the best proposal is accepted if 2·(cross-validated gain) exceeds the χ²
+   quantile 1 − α/(number of candidates) for its number of parameters and,
+   after the first round, adds at least 1 % of the gain so far; repeat (three
+   rounds at most).
 
-Additive coefficients are refitted jointly (fit segment, augmented UKF without
-ARD) after each accepted change. The evidence of each finding is weighed
-afterwards (:mod:`skigen.diagnose.evidence`).
+Additive coefficients are then refitted jointly on the whole recording
+(augmented UKF without ARD); an effect with variants (a Coulomb smoothing
+width, a ground-effect decay height, a limit) has its shape chosen by
+likelihood, and the spread of the coefficient over the shapes the data do not
+rule out is added to its std (:func:`shape_search`). The evidence of each
+finding is weighed afterwards (:mod:`skigen.diagnose.evidence`).
 """
 from __future__ import annotations
 
@@ -36,9 +39,10 @@ from ..model import Model
 from ..recording import Recording
 from . import transform as T
 from .catalog import Additive, Structural, _num
-from .fastrun import loglik, run_fast
+from .cv import Folds, fit_without, fold_loglik
+from .fastrun import Trace, run_fast
 
-__all__ = ["Correction", "Proposal", "name_terms", "refit", "basis_rms", "distinct"]
+__all__ = ["Correction", "Proposal", "name_terms", "refit", "basis_rms", "distinct", "start_trace"]
 
 MAX_ROUNDS = 3
 MIN_SHARE = 0.01   # a further change must add ≥ 1 % of the gain so far: below that it only
@@ -82,10 +86,11 @@ class Correction:
 @dataclass
 class Proposal:
     kind: str
-    gain: float
+    gain: float               # cross-validated log-likelihood gain over the current correction
     params: int
-    correction: Correction
+    correction: Correction    # coefficients fitted on the whole recording
     label: str
+    folds: np.ndarray | None = None     # per-fold cross-validated log-likelihood
 
 
 def basis_values(model: Model, rec: Recording, states: np.ndarray, cands: list[Additive]) -> np.ndarray:
@@ -113,60 +118,99 @@ def distinct(model: Model, rec: Recording, states: np.ndarray, cands: list[Addit
     return [cands[i] for i in keep]
 
 
-def _ski(nominal, current: Correction, cands, fit, rms, size, alpha):
-    """One SKI run; returns the kept (candidate, ŵ, σ) triples."""
-    s0 = (2.0 * np.array([size[c.equation] for c in cands]) / rms) ** 2
-    m = current.build(nominal, unknown=cands, prior_variance=s0)
-    res = run_fast(derive(m, "ski"), fit)
-    w, sd = res.weights[-1], res.weight_std[-1]
-    z_min = stats.norm.isf(alpha / (2 * len(cands)))
+
+
+def start_trace(model: Model, rec: Recording) -> Trace:
+    """The EKF trace of ``model``: where a fit without a fold restarts after the gap."""
+    return run_fast(derive(model, "ekf"), rec, trace=True)
+
+
+def _prior(cands, rms, size) -> np.ndarray:
+    """ARD/UKF prior variance per candidate: alone, it could explain the disturbance twice over."""
+    return np.array([(2.0 * size[c.equation] / rms[c]) ** 2 for c in cands])
+
+
+def _kept(cands, w, sd, alpha: float, n_tests: int) -> list[tuple]:
+    """(candidate, ŵ, σ) with |ŵ| > z·σ, the best variant per (effect, equation)."""
+    z_min = stats.norm.isf(alpha / (2 * n_tests))
     keep: dict[tuple[str, str], tuple] = {}
     for c, wi, si in zip(cands, w, sd):
         z = abs(wi) / max(si, 1e-300)
         if z > z_min and (keep.get((c.effect, c.equation)) is None or z > keep[(c.effect, c.equation)][3]):
             keep[(c.effect, c.equation)] = (c, float(wi), float(si), z)
-    return [k[:3] for k in keep.values()], res
+    return [k[:3] for k in keep.values()]
 
 
-def _profile(model: Model, s: Structural, fit: Recording):
-    """Best parameter of ``s`` on ``model`` by fit log-likelihood: (value, ll, std).
+def _additive(nominal, current: Correction, cands, rec, folds: Folds, start: Trace, rms, size,
+              alpha) -> Proposal | None:
+    """The SKI proposal: kept on the whole recording, cross-validated by redoing it without each fold."""
+    m = current.build(nominal, unknown=cands, prior_variance=_prior(cands, rms, size))
+    w, sd = fit_without(m, "ski", rec, folds, None, start)
+    kept = _kept(cands, w, sd, alpha, len(cands))
+    if not kept:
+        return None
+    scores = np.zeros(len(folds))
+    for f in range(len(folds)):
+        try:
+            wf, sdf = fit_without(m, "ski", rec, folds, f, start)
+        except (FloatingPointError, RuntimeError):
+            wf, sdf = w, np.full_like(sd, np.inf)
+        fold_corr = Correction(current.additive + _kept(cands, wf, sdf, alpha, len(cands)), current.structural)
+        scores[f] = fold_loglik(fold_corr.build(nominal), rec, folds)[f]
+    label = ", ".join(f"{c.effect} on {c.equation}" for c, *_ in kept)
+    return Proposal("additive", 0.0, len(kept), Correction(current.additive + kept, current.structural),
+                    label, scores)
 
-    The grid, then Brent's search between the best grid point's neighbours (on a log scale
-    for scale parameters, values kept to 3 significant digits); integers: powers of two, then every integer between
-    the best one's neighbours. std from the curvature of the profile at its maximum."""
-    seen: dict[float, float] = {}
 
-    def ll(v):
+def _structural(base: Model, s: Structural, rec: Recording, folds: Folds):
+    """(value refined on the whole recording, its std, per-fold cross-validated log-likelihood):
+    per fold, the grid point best on the other folds."""
+    table: dict[float, np.ndarray] = {}
+
+    def per_fold(v):
         v = float(round(v)) if s.integer else float(_num(v))
-        if v not in seen:
+        if v not in table:
             try:
-                seen[v] = loglik(s.build(model, v), fit)
+                table[v] = fold_loglik(s.build(base, v), rec, folds)
             except ValueError:            # a parameter the transformation refuses
-                seen[v] = -np.inf
-        return seen[v]
-
-    def bracket():
-        xs = np.array(sorted(seen))
-        ys = np.array([seen[x] for x in xs])
-        return xs, ys, int(np.argmax(ys))
+                table[v] = np.full(len(folds), -np.inf)
+        return table[v]
 
     grid = list(s.grid)
     if s.integer:
         coarse = sorted({g for g in grid if g & (g - 1) == 0} | {grid[-1]})
-        vals = [ll(g) for g in coarse]
-        i = int(np.argmax(vals))
-        for g in range(int(coarse[max(i - 1, 0)]), int(coarse[min(i + 1, len(coarse) - 1)]) + 1):
-            ll(g)
-    else:
-        for g in grid:
-            ll(g)
-        xs, ys, j = bracket()
-        if 0 < j < len(xs) - 1 and np.isfinite(ys[j]):
-            to = (lambda x: np.log(x)) if s.log else (lambda x: x)
-            back = (lambda x: float(np.exp(x))) if s.log else float
-            minimize_scalar(lambda x: -ll(back(x)), bounds=(to(xs[j - 1]), to(xs[j + 1])),
-                            method="bounded", options={"xatol": 2e-3 * (1 if s.log else abs(xs[j]))})
+        totals = [per_fold(g).sum() for g in coarse]
+        i = int(np.argmax(totals))
+        grid = list(range(int(coarse[max(i - 1, 0)]), int(coarse[min(i + 1, len(coarse) - 1)]) + 1))
+    for g in grid:
+        per_fold(g)
+    xs = np.array(sorted(table))
+    L = np.array([table[x] for x in xs])                     # (grid, folds)
+    others = L.sum(axis=1, keepdims=True) - L
+    cv = L[np.argmax(others, axis=0), np.arange(len(folds))]
+    value, _, std = _profile(lambda v: per_fold(v).sum(), s, xs)
+    return value, std, cv
+
+
+def _profile(total, s: Structural, evaluated) -> tuple[float, float, float]:
+    """Best parameter by whole-recording log-likelihood ``total(v)``: Brent's search between the
+    best evaluated point's neighbours (log scale for scale parameters); std from the curvature."""
+    seen = {float(x): total(x) for x in evaluated}
+    def bracket():
+        xs = np.array(sorted(seen))
+        ys = np.array([seen[x] for x in xs])
+        return xs, ys, int(np.argmax(ys))
     xs, ys, j = bracket()
+    if not s.integer and 0 < j < len(xs) - 1 and np.isfinite(ys[j]):
+        to = (lambda x: np.log(x)) if s.log else (lambda x: x)
+        back = (lambda x: float(np.exp(x))) if s.log else float
+        def f(x):
+            v = float(_num(back(x)))
+            seen[v] = total(v)
+            return -seen[v]
+        minimize_scalar(f, bounds=(to(xs[j - 1]), to(xs[j + 1])), method="bounded",
+                        options={"xatol": 2e-3 * (1 if s.log else abs(xs[j]))})
+        xs, ys, j = bracket()
     std = np.nan
     if 0 < j < len(xs) - 1 and np.all(np.isfinite(ys[j - 1:j + 2])):
         x3 = np.log(xs[j - 1:j + 2]) if s.log else xs[j - 1:j + 2]
@@ -177,25 +221,61 @@ def _profile(model: Model, s: Structural, fit: Recording):
     return float(xs[j]), float(ys[j]), std
 
 
-def refit(nominal: Model, corr: Correction, fit: Recording, rms: dict, size: dict) -> Correction:
-    """Additive coefficients re-estimated jointly under the accepted structure (UKF, no ARD)."""
+def refit(nominal: Model, corr: Correction, rec: Recording, rms: dict, size: dict) -> Correction:
+    """Additive coefficients re-estimated jointly on the whole recording under the accepted
+    structure (augmented UKF, no ARD)."""
     if not corr.additive:
         return corr
     cands = [a[0] for a in corr.additive]
-    s0 = np.array([(2.0 * size[c.equation] / rms[c]) ** 2 for c in cands])
     base = Correction([], corr.structural)
-    m = base.build(nominal, unknown=cands, prior_variance=s0)
-    res = run_fast(derive(m, "ukf"), fit)
-    w, sd = res.weights[-1], res.weight_std[-1]
+    m = base.build(nominal, unknown=cands, prior_variance=_prior(cands, rms, size))
+    w, sd = fit_without(m, "ukf", rec, Folds.of(len(rec.t), 1), None, None)
     return Correction([(c, float(wi), float(si)) for c, wi, si in zip(cands, w, sd)], corr.structural)
 
 
-def name_terms(nominal: Model, rec: Recording, n_fit: int, equations: list[str], states: np.ndarray,
+def shape_search(nominal: Model, corr: Correction, variants: dict, rec: Recording, rms: dict,
+                 size: dict) -> tuple[Correction, dict]:
+    """For each additive finding with variants (same effect and equation, another shape), the
+    variant with the best whole-recording log-likelihood after a joint refit; the coefficient's
+    std gets the spread over the variants weighted by their likelihood (Bayesian model
+    averaging over the shape). Returns the correction and {candidate: shape summary}."""
+    shapes = {}
+    for i, (c, _, _) in enumerate(list(corr.additive)):
+        alts = variants.get((c.effect, c.equation), [])
+        if len(alts) < 2:
+            continue
+        fits, lls = [], []
+        for alt in alts:
+            trial = Correction(corr.additive[:i] + [(alt, 0.0, 0.0)] + corr.additive[i + 1:], corr.structural)
+            try:
+                trial = refit(nominal, trial, rec, rms, size)
+                ll = float(fold_loglik(trial.build(nominal), rec, Folds.of(len(rec.t), 1))[0])
+            except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):
+                continue
+            fits.append(trial)
+            lls.append(ll)
+        if not fits:
+            continue
+        lls = np.array(lls)
+        weights = np.exp(lls - lls.max())
+        weights /= weights.sum()
+        best = fits[int(np.argmax(lls))]
+        coefs = np.array([t.additive[i][1] for t in fits])
+        c_best, w_best, s_best = best.additive[i]
+        spread = float(np.sqrt(np.sum(weights * (coefs - w_best) ** 2)))
+        corr = Correction(corr.additive[:i] + [(c_best, w_best, float(np.hypot(s_best, spread)))]
+                          + corr.additive[i + 1:], corr.structural)
+        shapes[c_best] = {"variant": c_best.variant, "coefficient_std_from_shape": spread,
+                          "tried": {a.variant: float(l) for a, l in zip(alts, lls - lls.max())}}
+    return corr, shapes
+
+
+def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str], states: np.ndarray,
                disturbance_rms: dict[str, float], additive: list[Additive], structural: list[Structural],
-               alpha: float = 0.01, progress=None) -> tuple[Correction, list[Proposal]]:
+               alpha: float = 0.01, progress=None) -> tuple[Correction, list[Proposal], dict, dict]:
     """See the module docstring. ``states``: smoothed nominal states (for candidate scales);
-    ``disturbance_rms``: RMS of the located disturbance per equation (the missing rate's size)."""
-    fit = rec.slice(0, n_fit)
+    ``disturbance_rms``: RMS of the located disturbance per equation (the missing rate's size).
+    Returns (correction, proposals accepted or not, candidate RMS, per-equation sizes)."""
     tick = progress or (lambda label: None)
     size = {eq: disturbance_rms.get(eq, 1.0) for eq in {c.equation for c in additive}}
     additive = distinct(nominal, rec, states, additive) if additive else []
@@ -203,40 +283,41 @@ def name_terms(nominal: Model, rec: Recording, n_fit: int, equations: list[str],
     rms = {c: r for c, r in zip(additive, rms_arr)}
     n_cands = max(1, len(additive) + len(structural))
     corr = Correction()
-    held_out = lambda c: loglik(c.build(nominal), rec, n_fit)
-    ll_cur = held_out(corr)
+    current = fold_loglik(nominal, rec, folds)
+    start = start_trace(nominal, rec)
     history = []
     for _ in range(MAX_ROUNDS):
         proposals = []
         used = {(a[0].effect, a[0].equation) for a in corr.additive}
         cands = [c for c in additive if (c.effect, c.equation) not in used]
         if cands:
-            tick("SKI over the additive candidates")
+            tick("SKI over the additive candidates, per fold")
             try:
-                kept, _ = _ski(nominal, corr, cands, fit, np.array([rms[c] for c in cands]), size, alpha)
-            except RuntimeError:          # the SKI run diverged: no additive proposal this round
-                kept = []
-            if kept:
-                new = Correction(corr.additive + kept, corr.structural)
-                proposals.append(Proposal("additive", held_out(new) - ll_cur, len(kept), new,
-                                          ", ".join(f"{c.effect} on {c.equation}" for c, *_ in kept)))
+                p = _additive(nominal, corr, cands, rec, folds, start, rms, size, alpha)
+            except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):   # diverged: no proposal
+                p = None
+            if p is not None:
+                proposals.append(p)
         done = {(s[0].effect, s[0].input) for s in corr.structural}
         base = corr.build(nominal)
         for s in structural:
             if (s.effect, s.input) in done:
                 continue
             tick(f"{s.effect} of {s.input}")
-            value, _, std = _profile(base, s, fit)
-            new = Correction(corr.additive, corr.structural + [(s, value, std)])
-            proposals.append(Proposal("structural", held_out(new) - ll_cur, 1, new, f"{s.effect} of {s.input}"))
+            value, std, cv = _structural(base, s, rec, folds)
+            proposals.append(Proposal("structural", 0.0, 1, Correction(corr.additive, corr.structural + [(s, value, std)]),
+                                      f"{s.effect} of {s.input}", cv))
         if not proposals:
             break
+        for p in proposals:
+            p.gain = float(np.sum(p.folds) - np.sum(current))
         best = max(proposals, key=lambda p: p.gain)
         history.append(best)
-        if 2 * best.gain <= stats.chi2.ppf(1 - alpha / n_cands, best.params):
+        if not 2 * best.gain > stats.chi2.ppf(1 - alpha / n_cands, best.params):
             break
         if history[:-1] and best.gain < MIN_SHARE * sum(p.gain for p in history[:-1]):
             break
-        corr = refit(nominal, best.correction, fit, rms, size)
-        ll_cur = held_out(corr)
-    return corr, history
+        corr = refit(nominal, best.correction, rec, rms, size)
+        current = fold_loglik(corr.build(nominal), rec, folds)
+        start = start_trace(corr.build(nominal), rec)
+    return corr, history, rms, size

@@ -31,36 +31,67 @@ def _fmt(x, spec=".4g"):
     return "–" if x is None else format(x, spec)
 
 
+def _noise_table(noise: dict) -> list[str]:
+    d, c = noise["declared"], noise["calibrated"]
+    L = ["| noise std | declared | calibrated |", "|---|---|---|"]
+    for kind, label in (("process_std", "process, per sample"), ("measurement_std", "measurement")):
+        for k, v in d[kind].items():
+            if v or c[kind][k]:
+                L.append(f"| {label} `{k}` | {v:.4g} | {c[kind][k]:.4g} |")
+    return L
+
+
+def _metrics_table(rows: list[tuple[str, dict, dict | None]]) -> list[str]:
+    """rows: (label, before metrics, after metrics or None)."""
+    L = ["| recording | | nominal | corrected |", "|---|---|---|---|"]
+    for label, b, a in rows:
+        get = lambda m, k, sub=None: None if m is None else (m[k][sub] if sub else m[k])
+        L.append(f"| {label} | log-likelihood | {b['loglik']:.1f} | {_fmt(get(a, 'loglik'), '.1f')} |")
+        L.append(f"| | mean NIS | {b['nis_mean']:.3g} | {_fmt(get(a, 'nis_mean'), '.3g')} |")
+        for k in b["innovation_rms"]:
+            L.append(f"| | innovation RMS `{k}` | {b['innovation_rms'][k]:.4g} | "
+                     f"{_fmt(get(a, 'innovation_rms', k))} |")
+        for k in b["free_run_rmse"]:
+            L.append(f"| | free-run RMSE `{k}` (whole record from t = {b['free_run_from']:.3g} s) | "
+                     f"{_fmt(b['free_run_rmse'][k])} | {_fmt(get(a, 'free_run_rmse', k))} |")
+    return L
+
+
 def write_markdown(path, data: dict, meta: dict) -> Path:
-    """meta: model, recording, samples, alpha, figures, equations tested, timing, notes."""
-    c, loc, fit = data["consistency"], data["located"], data["fit"]
+    """meta: model, recording, samples, dt, folds, figures, kinematic, proposals, generated, seconds."""
+    c, loc, fit, rem = data["consistency"], data["located"], data["fit"], data["remaining"]
     L = [f"# Diagnosis of `{meta['model']}` on `{meta['recording']}`", ""]
-    verdict = "**A significant mismatch exists.**" if data["mismatch_detected"] else \
-        "**No significant mismatch: the model explains the recording.**"
-    L += [verdict, "",
-          f"{meta['samples']} samples, dt = {meta['dt']:g} s. Validation segment: {fit['validation']}.", ""]
-    L += ["## 1. Detect", "",
-          f"The nominal model's EKF over the whole recording (false-alarm rate α = {c['alpha']:g}: α/2 for the "
-          f"NIS test, two-sided, α/2 for whiteness):", "",
-          "| test | value | expected under the model | verdict |", "|---|---|---|---|",
-          f"| mean NIS | {c['nis_mean']:.4g} | {c['nis_expected']:.4g}, bounds [{c['nis_bounds'][0]:.4g}, "
-          f"{c['nis_bounds'][1]:.4g}] | {'inconsistent' if c['nis_mean'] > c['nis_bounds'][1] else 'ok'} |",
+    if not data["mismatch_detected"]:
+        verdict = "**No significant mismatch: the model, with calibrated noise, explains the recording.**"
+    elif rem.get("mismatch"):
+        verdict = ("**A significant mismatch exists, and a mismatch remains after the correction.**"
+                   if data["findings"] else "**A significant mismatch exists; no candidate explains it.**")
+    else:
+        verdict = "**A significant mismatch exists; the corrected model explains it.**"
+    L += [verdict, "", f"{meta['samples']} samples, dt = {meta['dt']:g} s. {fit['validation']}.", ""]
+    L += ["## 1. Calibrate the noise", "", data["noise"]["method"] + ":", ""] + _noise_table(data["noise"]) + [""]
+    dn = c.get("declared_noise")
+    if dn:
+        L += [f"With the declared noise the mean NIS is {dn['nis_mean']:.4g} (expected {dn['nis_expected']:.4g}) "
+              f"and the whiteness p-value {dn['whiteness_pvalue']:.3g}: the noise guess alone decides nothing "
+              f"below.", ""]
+    L += ["## 2. Detect (on the calibrated model)", "",
+          f"False-alarm rate α = {c['alpha']:g}: α/2 for whiteness (Bonferroni over outputs), α/2 for a slowly "
+          f"varying disturbance (Bonferroni over equations).", "",
+          "| test | value | threshold | verdict |", "|---|---|---|---|",
           f"| whiteness (mean + Ljung–Box, {c['lags']} lags), p-value | {c['whiteness_pvalue']:.3g} | "
-          f"≥ {c['alpha'] / 2:g} | {'not white' if c['whiteness_pvalue'] < c['alpha'] / 2 else 'ok'} |", ""]
-    for o in c["outputs"]:
-        L.append(f"- output `{o['name']}`: NIS {o['nis_mean']:.4g}, innovation mean {o['innovation_mean']:+.3g}σ, "
-                 f"whiteness p = {o['whiteness_pvalue']:.3g}")
-    if c.get("note"):
-        L += ["", f"Note: {c['note']}."]
+          f"≥ {c['alpha'] / 2:g} | {'not white' if c['whiteness_pvalue'] < c['alpha'] / 2 else 'ok'} |"]
+    for eq, g in c.get("disturbance_gain", {}).items():
+        L.append(f"| random-walk disturbance on `{eq}`, log-likelihood gain | {g:+.1f} | "
+                 f"{c['disturbance_threshold']:.1f} | {'significant' if g > c['disturbance_threshold'] else 'ok'} |")
+    L.append(f"| mean NIS (not tested: calibrated) | {c['nis_mean']:.4g} | – | – |")
     L.append("")
     if not data["mismatch_detected"]:
         L += ["Nothing further to locate or name: no findings, no corrected model.", ""]
     else:
-        L += ["## 2. Locate", "",
+        L += ["## 3. Locate", "",
               f"- outputs that disagree: {', '.join(f'`{o}`' for o in loc['outputs'])}",
-              f"- equation(s) that absorb the error: {', '.join(f'`{e}`' for e in loc['equations'])} "
-              f"(random-walk disturbance per equation, log-likelihood gain on the fit segment: "
-              + ", ".join(f"`{k}` {v:+.1f}" for k, v in loc.get("loglik_gain", {}).items()) + ")"]
+              f"- equation(s) that absorb the error: {', '.join(f'`{e}`' for e in loc['equations'])}"]
         if meta.get("kinematic"):
             L.append(f"- kinematic equation(s) {', '.join(f'`{k}`' for k in meta['kinematic'])} "
                      "(the rate of a position is a declared state) are exact by definition and were not tested")
@@ -68,42 +99,64 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
         L.append(f"- significant in {len(w)} window(s): " +
                  (", ".join(f"{a:.2f}–{b:.2f} s" for a, b in w[:12]) + (" …" if len(w) > 12 else "") if w else "none"))
         L.append(f"- regime: {loc['regime'] or 'no single-feature regime: present throughout, or no simple rule'}")
-        L += ["", "## 3. Name", ""]
+        L += ["", "## 4. Name", ""]
         if data["findings"]:
-            L += ["| effect | equation | term | coefficient ± std | evidence (validation log-lik. gain) |",
-                  "|---|---|---|---|---|"]
+            L += ["Evidence: the cross-validated log-likelihood each finding adds given the others (drop-one; "
+                  "the findings' evidences need not add up).", "",
+                  "| effect | equation | term | coefficient ± std | shape | evidence |", "|---|---|---|---|---|---|"]
             for f in data["findings"]:
+                shape = ", ".join(f"{k} {v}" for k, v in f.get("shape", {}).items() if k != "state") or "–"
                 L.append(f"| {f['effect']} | `{f['equation']}` | `{f['expression']}` | "
-                         f"{_fmt(f['coefficient'])} ± {_fmt(f['std'], '.2g')} {f.get('unit', '')} | "
+                         f"{_fmt(f['coefficient'])} ± {_fmt(f['std'], '.2g')} {f.get('unit', '')} | {shape} | "
                          f"{f['evidence']:+.1f} |")
             L.append("")
             for f in data["findings"]:
                 L.append(f"- **{f['effect']}**: {f['reading']}.")
             L.append("")
         else:
-            L += ["No catalog or user candidate explains the mismatch significantly; supply candidates "
-                  "(`--candidate NAME:EQUATION:FORMULA`).", ""]
+            L += ["No catalog or user candidate explains the mismatch significantly.", ""]
+        for key, title in (("compensating", "Compensating, not findings"), ("not_identifiable", "Not identifiable")):
+            for f in data.get(key, []):
+                L.append(f"- {title}: {f['effect']} on `{f['equation']}` (`{f['expression']}`, "
+                         f"{_fmt(f['coefficient'])} ± {_fmt(f['std'], '.2g')}): {f['note']}.")
         for line in meta.get("proposals", []):
             L.append(f"- {line}")
-        L += ["", "## 4. Model", ""]
-        line = (f"Corrected model file: `{data['corrected_model']}`" if data["corrected_model"] else
-                "No corrected model (nothing was named).")
+        L += ["", "## 5. Model", ""]
+        line = (f"Corrected model file: `{data['corrected_model']}`, its coefficients declared as parameters at "
+                f"their fitted values ± std" if data["corrected_model"] else "No corrected model (nothing was named).")
         if meta.get("generated"):
             line += f"; its EKF in C: {', '.join(f'`{Path(p).name}`' for p in meta['generated'])} in " \
                     f"`{Path(meta['generated'][0]).parent}`."
         L.append(line)
-        L += ["", "## 5. Fit on the validation segment", ""]
-        b, a = fit["before"], fit["after"]
-        if a:
-            L += ["| | nominal | corrected |", "|---|---|---|",
-                  f"| log-likelihood (sum) | {b['loglik']:.1f} | {a['loglik']:.1f} |",
-                  f"| mean NIS | {b['nis_mean']:.3g} | {a['nis_mean']:.3g} |"]
-            for k in b["innovation_rms"]:
-                L.append(f"| innovation RMS `{k}` | {b['innovation_rms'][k]:.4g} | {a['innovation_rms'][k]:.4g} |")
-            for k in b["free_run_rmse"]:
-                L.append(f"| free-run RMSE `{k}` ({meta['horizon']:g} s) | {b['free_run_rmse'][k]:.4g} | "
-                         f"{a['free_run_rmse'][k]:.4g} |")
+        r = data.get("refit")
+        if r:
+            L += ["", f"Refit ({r['method']}, jointly with the noise): {r.get('note') or 'converged'}"]
+            for n, p in (r.get("parameters") or {}).items():
+                L.append(f"- `{n}` = {_fmt(p['value'])} ± {_fmt(p['std'], '.2g')} (from {_fmt(p['initial'])})")
+        L += ["", "## 6. Fit", ""]
+        rows = [(f"this recording (in-sample)", fit["before"], fit["after"])]
+        rows += [(Path(v["before"]["recording"]).name, v["before"], v["after"]) for v in fit.get("recordings", [])]
+        L += _metrics_table(rows) + [""]
+        if fit.get("folds"):
+            L += ["Cross-validated log-likelihood per fold (coefficients fitted without the fold):", "",
+                  "| fold | nominal | corrected |", "|---|---|---|"]
+            for f in fit["folds"]:
+                L.append(f"| {f['span'][0]:.2f}–{f['span'][1]:.2f} s | {f['loglik_before']:.1f} | "
+                         f"{f['loglik_after']:.1f} |")
             L.append("")
+        L += ["## 7. What remains", ""]
+        if not rem.get("mismatch"):
+            L.append("The corrected model, refitted with calibrated noise, is consistent with the recording.")
+        else:
+            where = rem.get("where") or {}
+            L.append("**A mismatch remains** " + (f"in `{'`, `'.join(where.get('equations', []))}`" if where else "")
+                     + (f", {where['regime']}" if where.get("regime") else "") + ".")
+            if rem.get("explained_by"):
+                L.append(f"What is left follows `{rem['explained_by']}` best (weighted R² {rem['r2']:.2f} for "
+                         f"`{rem['shape']}`); to test it: `--candidate '{rem['suggested_candidate']}'`.")
+            if rem.get("note"):
+                L.append(rem["note"] + ".")
+        L.append("")
     if meta.get("figures"):
         L += ["## Figures", ""] + [f"![{Path(p).stem}]({Path(p).name})" for p in meta["figures"]] + [""]
     L.append(f"Diagnosis took {meta['seconds']:.1f} s.")

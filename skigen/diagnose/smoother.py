@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from ..derive.augment import step_inputs
 from ..derive import DerivedFilter
 from ..recording import Recording
 from .fastrun import Trace, run_fast
@@ -41,7 +42,7 @@ def smooth(filt: DerivedFilter, rec: Recording) -> Smoothed:
     if filt.kind != "ekf":
         raise ValueError("the smoother works on an EKF run")
     tr = run_fast(filt, rec, trace=True)
-    A = _jacobians(filt, tr, rec.inputs)
+    A = _jacobians(filt, tr, step_inputs(filt.aug.model, rec.inputs))
     x, P = tr.result.mean, tr.C_post
     N, n = x.shape
     xs, Ps = x.copy(), P.copy()

@@ -17,7 +17,7 @@ from scipy.linalg import block_diag
 from ..derive.augment import memory_values as input_history
 from ..model import Model, Variable
 
-__all__ = ["copy_model", "symbols", "formula", "rate", "add_term", "add_state", "replace_input",
+__all__ = ["copy_model", "constants", "symbols", "formula", "rate", "add_term", "add_state", "replace_input",
            "input_delay", "actuator_lag", "input_saturation", "dead_zone", "smooth_dead_zone",
            "with_disturbance", "memory_values", "load_model_file"]
 
@@ -26,12 +26,29 @@ def copy_model(model: Model, name: str | None = None, unknowns: bool = True) -> 
     """An independent copy (same symbols); ``unknowns=False`` drops the unknown term."""
     return dataclasses.replace(
         model, name=name or model.name, states=list(model.states), inputs=list(model.inputs),
-        outputs=list(model.outputs), memory=list(model.memory),
+        outputs=list(model.outputs), memory=list(model.memory), parameters=list(model.parameters),
         unknowns=[dataclasses.replace(b, terms=list(b.terms), prior_variance=b.prior_variance.copy(),
                                       process_std=b.process_std.copy()) for b in model.unknowns] if unknowns else [],
         x0=list(model.x0), x_std=list(model.x_std), q_std=list(model.q_std), r_std=list(model.r_std),
         rhs=dict(model.rhs), Q=None if model.Q is None else model.Q.copy(),
         R=None if model.R is None else model.R.copy(), P0=None if model.P0 is None else model.P0.copy())
+
+
+def constants(model: Model) -> Model:
+    """A copy whose declared parameters are constants at their values (in the dynamics, the
+    outputs and the unknown term's basis): what the filters see, as a plain model."""
+    if not model.parameters:
+        return copy_model(model)
+    m = copy_model(model)
+    syms = ca.vertcat(*[p.sym for p in m.parameters])
+    vals = ca.DM([p.value for p in m.parameters])
+    sub = lambda e: ca.substitute(ca.SX(e), syms, vals)
+    m.rhs = {k: sub(e) for k, e in m.rhs.items()}
+    m.outputs = [dataclasses.replace(v, sym=sub(v.sym)) for v in m.outputs]
+    for b in m.unknowns:
+        b.terms = [dataclasses.replace(t, expr=sub(t.expr)) for t in b.terms]
+    m.parameters = []
+    return m
 
 
 def symbols(model: Model) -> dict[str, ca.SX]:

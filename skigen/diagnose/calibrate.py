@@ -1,0 +1,66 @@
+"""Calibrate: the noise intensities the recording supports, before anything is judged.
+
+A wrong noise guess (process noise declared 10× too large, measurement noise
+2× too small) makes a right model's innovations coloured or too large or too
+small: it must not read as missing physics. So the nominal model's noise is
+re-estimated first, by maximum likelihood with :func:`skigen.fit`'s filter
+error (one scale on Q per equation that has process noise, one on R per
+output; the model's constants and parameters stay as declared), and every
+later test runs on the calibrated model. Missing physics then shows as what
+white noise cannot explain: innovations that are not white, a disturbance
+that drifts slowly or depends on the state, the input or the regime.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..fit import FitError, fit
+from ..model import Model
+from ..recording import Recording
+from .errors import DiagnosisError
+
+__all__ = ["Noise", "calibrate"]
+
+
+@dataclass
+class Noise:
+    """Declared and calibrated noise std (``{"process_std": {state: …}, "measurement_std": {output: …}}``,
+    per sample and in output units), the fitted scales (on the variances) ± std, and the seconds spent."""
+
+    declared: dict
+    calibrated: dict
+    scales: dict
+    seconds: float
+
+    def asdict(self) -> dict:
+        """The ``noise`` object of report.json."""
+        return {"declared": self.declared, "calibrated": self.calibrated, "scales": self.scales,
+                "method": "maximum likelihood of the nominal EKF's innovations (skigen fit, filter error): "
+                          "one scale on Q per equation with process noise, one on R per output"}
+
+
+def calibrate(model: Model, recs: list[Recording], show_progress: bool = False) -> tuple[Model, Noise]:
+    """(``model`` with its calibrated Q and R, the :class:`Noise` record)."""
+    try:
+        res = fit(model, recs, method="filter-error", estimate=[], show_progress=show_progress)
+    except FitError as exc:
+        raise DiagnosisError(f"could not calibrate the noise of '{model.name}' on this recording: {exc}") from None
+    noise = res.noise
+    return res.model, Noise(noise["declared"], noise["calibrated"], noise["scales"], res.seconds)
+
+
+def scaled(model: Model, q: float = 1.0, r: float = 1.0) -> Model:
+    """A copy with the process noise std × q and the measurement noise std × r (test helper and
+    the mis-declared-noise scenarios)."""
+    from .transform import copy_model
+    m = copy_model(model)
+    m.covariances(Q=model.process_noise() * q ** 2, R=model.measurement_noise() * r ** 2,
+                  P0=model.initial_covariance())
+    return m
+
+
+def declared_std(model: Model) -> dict:
+    return dict(process_std=dict(zip(model.state_names, np.sqrt(np.diag(model.process_noise())).tolist())),
+                measurement_std=dict(zip(model.output_names, np.sqrt(np.diag(model.measurement_noise())).tolist())))

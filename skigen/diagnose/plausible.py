@@ -1,0 +1,65 @@
+"""Screen the named terms: a finding needs a coefficient the recording pins down and a sign
+physics allows.
+
+- *Not identifiable*: the coefficient's std is not finite, or the coefficient is within
+  z·std of zero (z the two-sided normal quantile of α): the recording cannot tell it
+  from nothing; the report says which signal would need more excitation.
+- *Compensating*: friction, drag and a physical limit only ever oppose the motion
+  (a positive coefficient on their restoring form), and the total damping of an
+  equation cannot be negative: a term that only helps with the impossible sign is
+  compensating for something else (another missing effect, a wrong constant) and is
+  reported as such, not as a finding.
+"""
+from __future__ import annotations
+
+import re
+
+import casadi as ca
+import numpy as np
+from scipy import stats
+
+from ..model import Model
+from ..recording import Recording
+from .name import Correction
+
+__all__ = ["screen", "nominal_damping"]
+
+
+def nominal_damping(model: Model, eq: str, states: np.ndarray, rec: Recording) -> float:
+    """−∂(rate of eq)/∂eq, the median along the trajectory (1/s): the damping the model already has."""
+    x = ca.vertcat(*[v.sym for v in model.states])
+    u = ca.vertcat(*[v.sym for v in model.inputs]) if model.inputs else ca.SX(0, 1)
+    me = model.state_names.index(eq)
+    J = ca.jacobian(model.rhs[eq], x[me])
+    f = ca.Function("J", [x, u] + [p.sym for p in model.parameters], [J])
+    vals = np.asarray(f.map(len(rec.t))(states[:, :len(model.states)].T, rec.inputs.T,
+                                        *[p.value for p in model.parameters])).ravel()
+    if model.discretization == "discrete":
+        vals = (vals - 1.0) / model.dt
+    return float(-np.median(vals))
+
+
+def _signals(formula: str, model: Model) -> list[str]:
+    names = set(model.state_names + model.input_names)
+    return [n for n in dict.fromkeys(re.findall(r"[A-Za-z_]\w*", formula)) if n in names]
+
+
+def screen(model: Model, corr: Correction, states: np.ndarray, rec: Recording,
+           alpha: float) -> tuple[Correction, dict]:
+    """(the correction without implausible terms, {"compensating": [...], "not_identifiable": [...]})."""
+    z = stats.norm.isf(alpha / 2)
+    kept, comp, lost = [], [], []
+    for c, coef, std in corr.additive:
+        item = {"effect": c.effect, "equation": c.equation, "expression": c.formula, "coefficient": coef, "std": std}
+        if not (np.isfinite(std) and std > 0 and abs(coef) > z * std):
+            sig = _signals(c.formula, model) or [c.equation]
+            lost.append(dict(item, note=f"not identifiable from this recording (|coefficient| < {z:.2f} std): "
+                                        f"excite {', '.join(sig)} over a wider range or for longer"))
+        elif c.sign > 0 and coef < 0:
+            comp.append(dict(item, note="fits only with a sign physics forbids (it would push the motion "
+                                        "instead of opposing it): compensating for something else"))
+        elif c.effect == "viscous_damping" and coef + nominal_damping(model, c.equation, states, rec) < 0:
+            comp.append(dict(item, note="would make the total damping negative: compensating for something else"))
+        else:
+            kept.append((c, coef, std))
+    return Correction(kept, corr.structural), {"compensating": comp, "not_identifiable": lost}

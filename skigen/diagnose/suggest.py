@@ -1,0 +1,84 @@
+"""What remains: the state or input that best explains a disturbance the catalog did not, and a
+candidate term to try (``--candidate NAME:EQUATION:FORMULA``).
+
+The smoothed disturbance d(t) of the located equation is regressed on simple
+shapes of each state and input x along the filtered trajectory — x, x·|x|,
+x³, tanh(x/s), and sin/cos(2πx/L) for periods L from the range of x down to
+1/20 of it — each with an intercept, weighted by d's precision; the shape with
+the largest weighted R² names the feature and the suggested formula. It is a
+hint for a person, not a finding: it is not cross-validated.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .catalog import _num
+from .locate import Location, features
+
+__all__ = ["explain"]
+
+
+def _shapes(name: str, x: np.ndarray):
+    """(formula, values) of each shape of feature ``name`` (a state or an input, not |x|)."""
+    s = float(np.std(x)) or 1.0
+    yield name, x
+    yield f"{name}*abs({name})", x * np.abs(x)
+    yield f"{name}**3", x ** 3
+    yield f"tanh({name}/{_num(0.05 * s)})", np.tanh(x / (0.05 * s))
+    span = float(np.ptp(x)) or 1.0
+    for L in span / np.array([1, 2, 3, 5, 8, 12, 20]):
+        for fn, f in (("sin", np.sin), ("cos", np.cos)):
+            yield f"{fn}(2*pi*{name}/{_num(L)})", f(2 * np.pi * x / L)
+
+
+def _r2(d: np.ndarray, w: np.ndarray, phi: np.ndarray) -> tuple[float, np.ndarray]:
+    A = np.column_stack([np.ones_like(phi), phi]) * np.sqrt(w)[:, None]
+    b = d * np.sqrt(w)
+    coef, *_ = np.linalg.lstsq(A, b, rcond=None)
+    res = b - A @ coef
+    tot = b - np.sqrt(w) * np.average(d, weights=w)
+    return float(1 - res @ res / max(tot @ tot, 1e-300)), coef
+
+
+def explain(model, rec, loc: Location, out_dir=None) -> dict:
+    """{"explained_by", "r2", "suggested_candidate"[, "figure"]} for the first located equation."""
+    eq = loc.equations[0]
+    d, sd = loc.disturbance[eq]
+    w = 1.0 / np.maximum(sd, 1e-12 * (np.abs(d).max() + 1e-300)) ** 2
+    w = w / w.mean()
+    best = (-np.inf, None, None, None, None)
+    for name, (x, _) in features(model, rec, loc.states).items():
+        if name.startswith("|") or np.ptp(x) == 0:
+            continue
+        for formula, phi in _shapes(name, x):
+            r2, coef = _r2(d, w, phi)
+            if r2 > best[0]:
+                best = (r2, name, formula, phi, coef)
+    r2, name, formula, phi, coef = best
+    if name is None:
+        return {"explained_by": None, "r2": None, "suggested_candidate": None}
+    out = {"explained_by": name, "r2": r2, "shape": formula,
+           "suggested_candidate": f"remaining:{eq}:{formula}"}
+    if out_dir is not None:
+        out["figure"] = str(_plot(Path(out_dir) / "remaining.png", loc, eq, features(model, rec, loc.states)[name][0],
+                                  name, d, sd, phi, coef, formula))
+    return out
+
+
+def _plot(path: Path, loc, eq, x, name, d, sd, phi, coef, formula) -> Path:
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from ..plots import save_figure
+    fig, ax = plt.subplots(figsize=(6.5, 4))
+    ax.errorbar(x, d, yerr=2 * sd, fmt=".", ms=1.5, lw=0.2, color="tab:orange", alpha=0.4,
+                label="what remains: smoothed disturbance ±2σ")
+    order = np.argsort(x)
+    ax.plot(x[order], coef[0] + coef[1] * phi[order], color="k", lw=1, label=f"best shape: {formula}")
+    ax.set_xlabel(name)
+    ax.set_ylabel(f"d{eq}/dt left unexplained")
+    ax.legend(fontsize=7)
+    ax.set_title(f"the corrected model still misses something in {eq}: it follows {name}")
+    return save_figure(fig, path, dpi=100)
