@@ -139,15 +139,18 @@ def _diagnose(args) -> int:
         candidates.append(tuple(p.strip() for p in parts))
     try:
         report = diagnose(args.model, args.data, args.out, candidates=candidates, alpha=args.alpha,
-                          validation=args.validation, horizon=args.horizon, figures=not args.no_figures,
+                          folds=args.folds, validate=args.validate, figures=not args.no_figures,
                           **_read_options(args))
     except DiagnosisError as exc:
         raise CliError(str(exc)) from None
     d = report.data
-    c = d["consistency"]
+    c, cal = d["consistency"], d["noise"]["calibrated"]
+    print("calibrated noise: " + ", ".join(f"{k} {v:.3g}" for kind in ("process_std", "measurement_std")
+                                             for k, v in cal[kind].items() if v))
     print(f"{'mismatch detected' if d['mismatch_detected'] else 'no significant mismatch'}: "
-          f"mean NIS {c['nis_mean']:.3g} (expected {c['nis_expected']:.3g}, bounds "
-          f"{c['nis_bounds'][0]:.3g}-{c['nis_bounds'][1]:.3g}), whiteness p = {c['whiteness_pvalue']:.3g}")
+          f"whiteness p = {c['whiteness_pvalue']:.3g}, slowly varying disturbance gain "
+          + ", ".join(f"{k} {v:+.1f}" for k, v in c["disturbance_gain"].items())
+          + f" (threshold {c['disturbance_threshold']:.1f})")
     if d["mismatch_detected"]:
         loc = d["located"]
         print(f"located: outputs {', '.join(loc['outputs'])}; equations {', '.join(loc['equations'])}; "
@@ -155,11 +158,19 @@ def _diagnose(args) -> int:
         for f in d["findings"]:
             print(f"finding: {f['effect']} on {f['equation']}: {f['expression']}, coefficient "
                   f"{f['coefficient']:.4g} ± {f['std'] if f['std'] is None else format(f['std'], '.2g')}, "
-                  f"validation log-likelihood gain {f['evidence']:+.1f}")
+                  f"cross-validated evidence {f['evidence']:+.1f}")
+        for f in d["compensating"] + d["not_identifiable"]:
+            print(f"not a finding: {f['effect']} on {f['equation']}: {f['note']}")
         if d["fit"]["after"]:
             b, a = d["fit"]["before"], d["fit"]["after"]
-            print(f"validation log-likelihood {b['loglik']:.1f} -> {a['loglik']:.1f}, "
-                  f"mean NIS {b['nis_mean']:.3g} -> {a['nis_mean']:.3g}")
+            print(f"log-likelihood {b['loglik']:.1f} -> {a['loglik']:.1f}, free-run RMSE "
+                  + ", ".join(f"{k} {b['free_run_rmse'][k]:.4g} -> {a['free_run_rmse'][k]:.4g}"
+                              for k in b["free_run_rmse"] if b['free_run_rmse'][k] is not None
+                              and a['free_run_rmse'][k] is not None))
+        rem = d["remaining"]
+        print("what remains: " + ("a mismatch remains" + (f"; it follows {rem['explained_by']}: try --candidate "
+                                                          f"'{rem['suggested_candidate']}'" if rem.get("explained_by") else "")
+                                  if rem["mismatch"] else "the corrected model is consistent"))
     if d["corrected_model"]:
         print(f"corrected model: {d['corrected_model']}")
     print(f"report: {Path(args.out) / 'report.md'} ({report.seconds:.1f} s)")
@@ -256,8 +267,10 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--candidate", action="append", default=[], metavar="NAME:EQUATION:FORMULA",
                    help="an extra additive candidate, e.g. 'stiction:v:-tanh(v/0.001)' (repeatable)")
     d.add_argument("--alpha", type=float, default=0.01, help="false-alarm rate of the decision (0.01)")
-    d.add_argument("--validation", type=float, default=0.3, help="held-out last fraction (0.3)")
-    d.add_argument("--horizon", type=float, default=1.0, help="free-run length in seconds (1)")
+    d.add_argument("--folds", type=int, default=5, help="contiguous folds of the cross-validation (5)")
+    d.add_argument("--validate", action="append", default=[], metavar="DATA",
+                   help="a further recording to compare the nominal and corrected models on, never fitted on "
+                        "(repeatable)")
     d.add_argument("--no-figures", action="store_true", help="skip the figures")
     _add_data_options(d)
     d.set_defaults(func=_diagnose)

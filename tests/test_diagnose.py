@@ -32,7 +32,7 @@ SEED = 1
 SECONDS = {"quad_ground_effect": 100.0}       # 10 000 samples: the timing requirement
 CONCEALED = {   # scenario: coefficient tolerance (relative)
     "cart_coulomb": 0.05, "cart_bias": 0.15, "cart_cubic": 0.05, "cart_dead_zone": 0.05,
-    "cart_lag": 0.05, "quad_ground_effect": 0.05, "cart_cogging": 0.05,
+    "cart_lag": 0.05, "quad_ground_effect": 0.05, "cart_cogging": 0.05, "cart_delay": 0.0,
 }
 VIA_CLI = {"cart_dead_zone"}                  # diagnosed through `skigen diagnose` in a subprocess
 
@@ -75,6 +75,8 @@ def test_right_effect_on_right_equation(diagnosed, name):
     top = d["findings"][0]
     assert (top["effect"], top["equation"]) == (sc.effect, sc.equation), d["findings"]
     assert top["coefficient"] == pytest.approx(sc.truth, rel=CONCEALED[name])
+    if top["kind"] == "additive":                               # the truth within its error bar
+        assert abs(top["coefficient"] - sc.truth) < 4 * top["std"], top
     assert top["std"] > 0 and top["evidence"] > 0
     assert len(d["findings"]) == 1, d["findings"]            # nothing spurious beside it
 
@@ -87,15 +89,17 @@ def test_located_window_overlaps_the_true_one(diagnosed, name):
 
 
 @pytest.mark.parametrize("name", list(CONCEALED))
-def test_fit_improves_on_validation(diagnosed, name):
-    fit = diagnosed(name)["data"]["fit"]
+def test_fit_improves_on_every_fold_and_nothing_remains(diagnosed, name):
+    d = diagnosed(name)["data"]
+    fit = d["fit"]
     before, after = fit["before"], fit["after"]
-    assert "no coefficient or parameter is fitted on it" in fit["validation"]
-    assert after["loglik"] > before["loglik"] + 50
-    for out, rms in before["innovation_rms"].items():
-        assert after["innovation_rms"][out] < rms
+    assert "cross-validation" in fit["validation"]
+    cv = [(f["loglik_before"], f["loglik_after"]) for f in fit["folds"]]
+    assert len(cv) == 5 and sum(a for _, a in cv) > sum(b for b, _ in cv) + 20, cv
+    assert after["loglik"] > before["loglik"] + 20
+    for out in before["innovation_rms"]:
         assert after["free_run_rmse"][out] < before["free_run_rmse"][out]
-    assert abs(after["nis_mean"] - 1 * len(before["innovation_rms"])) < 0.2 * len(before["innovation_rms"])
+    assert d["remaining"]["mismatch"] is False, d["remaining"]
 
 
 def _track(run):
@@ -141,25 +145,28 @@ def test_clean_recording_has_no_findings(diagnosed, name):
     assert d["mismatch_detected"] is False
     assert d["findings"] == [] and d["corrected_model"] is None
     c = d["consistency"]
-    assert c["nis_bounds"][0] < c["nis_mean"] < c["nis_bounds"][1]
     assert c["whiteness_pvalue"] > c["alpha"] / 2
+    assert max(c["disturbance_gain"].values()) < c["disturbance_threshold"]
 
 
 # ------------------------------------------------------------------ report and corrected model
 def test_report_follows_the_contract(diagnosed):
     r = diagnosed("cart_lag")
     d = json.loads((r["out"] / "report.json").read_text())
-    assert list(d) == ["mismatch_detected", "consistency", "located", "findings", "fit", "corrected_model"]
+    contract = ["mismatch_detected", "noise", "consistency", "located", "findings", "fit", "remaining",
+                "corrected_model"]
+    assert [k for k in d if k in contract] == contract
+    assert {"declared", "calibrated"} <= set(d["noise"]) and {"mismatch", "where"} <= set(d["remaining"])
     assert {"nis_mean", "nis_expected", "whiteness_pvalue"} <= set(d["consistency"])
     assert {"outputs", "equations", "windows"} <= set(d["located"])
     assert all(len(w) == 2 and w[0] < w[1] for w in d["located"]["windows"])
     for f in d["findings"]:
         assert {"effect", "equation", "expression", "coefficient", "std", "evidence"} <= set(f)
-    assert {"before", "after", "validation"} <= set(d["fit"])
+    assert {"before", "after", "validation", "folds"} <= set(d["fit"])
     for name in ("report.md", "residuals.png", "disturbance.png", "fit.png"):
         assert (r["out"] / name).stat().st_size > 0
     md = (r["out"] / "report.md").read_text()
-    assert "actuator_lag" in md and "validation" in md
+    assert "actuator_lag" in md and "cross-validat" in md and "What remains" in md
 
 
 def test_corrected_model_file_is_a_normal_model(diagnosed, tmp_path):
@@ -184,7 +191,8 @@ def test_corrected_model_of_a_delay_uses_input_history(tmp_path):
     from skigen.diagnose.name import Correction
     delay = next(s for s in structural_candidates(nominal, ["v"], np.random.default_rng(0).normal(size=(50, 1)))
                  if s.effect == "input_delay")
-    written = write_model_file(tmp_path / "m.py", nominal, Correction([], [(delay, 3.0, 0.1)]), name="c", header=["x"])
+    written = write_model_file(tmp_path / "m.py", Correction([], [(delay, 3.0, 0.1)]).build(nominal, "c"), {},
+                               header=["x"])
     assert "model.input_history(F, 3)" in (tmp_path / "m.py").read_text()
     assert [m.lag for m in written.memory] == [1, 2, 3]
 

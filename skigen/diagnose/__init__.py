@@ -174,7 +174,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     size = {e: float(np.sqrt(np.mean(d ** 2))) for e, (d, _) in loc.disturbance.items()}
     for c in additive:
         size.setdefault(c.equation, loc.scales.get(c.equation, 1.0))
-    corr, history, rms, size = name_terms(calibrated, rec, cv, loc.equations, loc.states, size, additive,
+    corr, history, rms, size, calibrated = name_terms(calibrated, rec, cv, loc.equations, loc.states, size, additive,
                                           structural, alpha, progress=lambda s: stage(f"naming: {s}"))
     stage("searching the shapes")
     variants = {}

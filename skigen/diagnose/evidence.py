@@ -18,30 +18,10 @@ from scipy import stats
 
 from ..model import Model
 from ..recording import Recording
-from .cv import Folds, fit_without, fold_loglik
-from .name import MIN_SHARE, Correction, _prior, refit, start_trace
+from .cv import Folds
+from .name import MIN_SHARE, Correction, cv_loglik, refit
 
 __all__ = ["weigh", "cv_loglik"]
-
-
-def cv_loglik(nominal: Model, corr: Correction, rec: Recording, folds: Folds, rms: dict, size: dict) -> np.ndarray:
-    """Per-fold log-likelihood of ``corr`` with its additive coefficients fitted without each fold."""
-    if not corr.additive:
-        return fold_loglik(corr.build(nominal), rec, folds)
-    base = Correction([], corr.structural)
-    cands = [a[0] for a in corr.additive]
-    m = base.build(nominal, unknown=cands, prior_variance=_prior(cands, rms, size))
-    start = start_trace(base.build(nominal), rec)
-    out = np.empty(len(folds))
-    for f in range(len(folds)):
-        try:
-            w, sd = fit_without(m, "ukf", rec, folds, f, start)
-        except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):
-            out[f] = -np.inf
-            continue
-        fold_corr = Correction([(c, float(wi), float(si)) for c, wi, si in zip(cands, w, sd)], corr.structural)
-        out[f] = fold_loglik(fold_corr.build(nominal), rec, folds)[f]
-    return out
 
 
 def weigh(nominal: Model, corr: Correction, rec: Recording, folds: Folds, alpha: float, rms: dict,

@@ -120,6 +120,15 @@ def distinct(model: Model, rec: Recording, states: np.ndarray, cands: list[Addit
 
 
 
+def representatives(cands: list[Additive]) -> list[Additive]:
+    """One variant per (effect, equation), the middle one: SKI chooses effects, :func:`shape_search`
+    their shape."""
+    groups: dict[tuple[str, str], list[Additive]] = {}
+    for c in cands:
+        groups.setdefault((c.effect, c.equation), []).append(c)
+    return [g[len(g) // 2] for g in groups.values()]
+
+
 def start_trace(model: Model, rec: Recording) -> Trace:
     """The EKF trace of ``model``: where a fit without a fold restarts after the gap."""
     return run_fast(derive(model, "ekf"), rec, trace=True)
@@ -141,25 +150,37 @@ def _kept(cands, w, sd, alpha: float, n_tests: int) -> list[tuple]:
     return [k[:3] for k in keep.values()]
 
 
-def _additive(nominal, current: Correction, cands, rec, folds: Folds, start: Trace, rms, size,
-              alpha) -> Proposal | None:
-    """The SKI proposal: kept on the whole recording, cross-validated by redoing it without each fold."""
+def cv_loglik(nominal: Model, corr: Correction, rec: Recording, folds: Folds, rms: dict, size: dict) -> np.ndarray:
+    """Per-fold log-likelihood of ``corr`` with its additive coefficients fitted without each fold."""
+    if not corr.additive:
+        return fold_loglik(corr.build(nominal), rec, folds)
+    base = Correction([], corr.structural)
+    cands = [a[0] for a in corr.additive]
+    m = base.build(nominal, unknown=cands, prior_variance=_prior(cands, rms, size))
+    start = start_trace(base.build(nominal), rec)
+    out = np.empty(len(folds))
+    for f in range(len(folds)):
+        try:
+            w, sd = fit_without(m, "ukf", rec, folds, f, start)
+        except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):
+            out[f] = -np.inf
+            continue
+        fold_corr = Correction([(c, float(wi), float(si)) for c, wi, si in zip(cands, w, sd)], corr.structural)
+        out[f] = fold_loglik(fold_corr.build(nominal), rec, folds)[f]
+    return out
+
+
+def _additive(nominal, current: Correction, cands, rec, folds: Folds, rms, size, alpha) -> Proposal | None:
+    """The SKI proposal: the terms SKI keeps on the whole recording, cross-validated with the
+    current and kept terms' coefficients refitted without each fold."""
     m = current.build(nominal, unknown=cands, prior_variance=_prior(cands, rms, size))
-    w, sd = fit_without(m, "ski", rec, folds, None, start)
+    w, sd = fit_without(m, "ski", rec, folds, None, None)
     kept = _kept(cands, w, sd, alpha, len(cands))
     if not kept:
         return None
-    scores = np.zeros(len(folds))
-    for f in range(len(folds)):
-        try:
-            wf, sdf = fit_without(m, "ski", rec, folds, f, start)
-        except (FloatingPointError, RuntimeError):
-            wf, sdf = w, np.full_like(sd, np.inf)
-        fold_corr = Correction(current.additive + _kept(cands, wf, sdf, alpha, len(cands)), current.structural)
-        scores[f] = fold_loglik(fold_corr.build(nominal), rec, folds)[f]
+    new = Correction(current.additive + kept, current.structural)
     label = ", ".join(f"{c.effect} on {c.equation}" for c, *_ in kept)
-    return Proposal("additive", 0.0, len(kept), Correction(current.additive + kept, current.structural),
-                    label, scores)
+    return Proposal("additive", 0.0, len(kept), new, label, cv_loglik(nominal, new, rec, folds, rms, size))
 
 
 def _structural(base: Model, s: Structural, rec: Recording, folds: Folds):
@@ -275,16 +296,16 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
                alpha: float = 0.01, progress=None) -> tuple[Correction, list[Proposal], dict, dict]:
     """See the module docstring. ``states``: smoothed nominal states (for candidate scales);
     ``disturbance_rms``: RMS of the located disturbance per equation (the missing rate's size).
-    Returns (correction, proposals accepted or not, candidate RMS, per-equation sizes)."""
+    Returns (correction, proposals accepted or not, candidate RMS, per-equation sizes, ``nominal``
+    with the noise recalibrated under the correction)."""
     tick = progress or (lambda label: None)
     size = {eq: disturbance_rms.get(eq, 1.0) for eq in {c.equation for c in additive}}
-    additive = distinct(nominal, rec, states, additive) if additive else []
+    additive = representatives(distinct(nominal, rec, states, additive)) if additive else []
     rms_arr = basis_rms(nominal, rec, states, additive) if additive else np.zeros(0)
     rms = {c: r for c, r in zip(additive, rms_arr)}
     n_cands = max(1, len(additive) + len(structural))
     corr = Correction()
     current = fold_loglik(nominal, rec, folds)
-    start = start_trace(nominal, rec)
     history = []
     for _ in range(MAX_ROUNDS):
         proposals = []
@@ -293,7 +314,7 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
         if cands:
             tick("SKI over the additive candidates, per fold")
             try:
-                p = _additive(nominal, corr, cands, rec, folds, start, rms, size, alpha)
+                p = _additive(nominal, corr, cands, rec, folds, rms, size, alpha)
             except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):   # diverged: no proposal
                 p = None
             if p is not None:
@@ -318,6 +339,19 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
         if history[:-1] and best.gain < MIN_SHARE * sum(p.gain for p in history[:-1]):
             break
         corr = refit(nominal, best.correction, rec, rms, size)
-        current = fold_loglik(corr.build(nominal), rec, folds)
-        start = start_trace(corr.build(nominal), rec)
-    return corr, history, rms, size
+        tick("recalibrating the noise")
+        nominal = recalibrated(nominal, corr, rec)
+        corr = refit(nominal, corr, rec, rms, size)
+        current = cv_loglik(nominal, corr, rec, folds, rms, size)
+    return corr, history, rms, size, nominal
+
+
+def recalibrated(nominal: Model, corr: Correction, rec: Recording) -> Model:
+    """``nominal`` with the noise the corrected model calibrates to: what the accepted terms
+    explain is no longer left to the process noise."""
+    from .calibrate import calibrate
+    cal, _ = calibrate(corr.build(nominal), [rec])
+    nx = len(nominal.states)
+    m = T.copy_model(nominal)
+    m.covariances(Q=cal.process_noise()[:nx, :nx], R=cal.measurement_noise(), P0=nominal.initial_covariance())
+    return m
