@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from models import cart
+from models import cart, motor_pendulum as arm, two_tanks as tanks
 from skigen.diagnose import diagnose
 from skigen.recording import Recording, write_recording
 
@@ -68,6 +68,9 @@ class Scenario:
     active: np.ndarray           # samples where the effect truly matters
     run: object                  # the simulator's run (truth)
     candidates: tuple = ()       # user candidates to pass to the diagnosis
+    side: str | None = None      # physical_limit: "upper" or "lower" (truth is the bound)
+    noise_truth: dict | None = None   # the true noise, keyed as `skigen fit`'s noise dict
+    misdeclared: str | None = None    # "process_std" or "measurement_std": declared wrong
 
     def recording(self, path: str = "") -> Recording:
         return Recording(path or self.name, self.t, np.column_stack(list(self.inputs.values())),
@@ -111,6 +114,106 @@ def _quadrotor(name, ground_effect, seconds, seed) -> Scenario:
                     run.t, run.inputs(), run.outputs(), run.effect_acc, active, run)
 
 
+# ------------------------------------------------------------------ unseen systems: tanks and arm
+ARM_FILE = str(ROOT / "models" / "motor_pendulum.py")
+TANKS_FILE = str(ROOT / "models" / "two_tanks.py")
+# the nominal models with mis-declared noise std, for `diagnose(MODEL_SPEC, …)` and the CLI
+TANKS_PROCESS_X10 = tanks.build("two_tanks_q_x10", process_scale=10.0)
+TANKS_MEASUREMENT_X2_5 = tanks.build("two_tanks_r_x2_5", measurement_scale=2.5)
+ARM_MEASUREMENT_HALF = arm.build("motor_pendulum_r_half", measurement_scale=0.5)
+TANKS_NOISE = {"process_std": dict(tanks.LEVEL_STD), "measurement_std": dict(tanks.H_NOISE)}
+ARM_NOISE = {"process_std": {"theta": 0.0, "omega": arm.RATE_STD}, "measurement_std": {"theta_meas": arm.NOISE_STD}}
+
+
+def _strong(a: np.ndarray) -> np.ndarray:
+    """Samples where |a| exceeds a fifth of its 99th percentile (none if a is zero)."""
+    a = np.abs(a)
+    return a > 0.2 * np.percentile(a, 99) if a.any() else a > 0
+
+
+def _arm(name, effect, voltage, concealment, seconds, seed, *, truth=None, active_of=None,
+         model_file=ARM_FILE, noise=None, misdeclared=None) -> Scenario:
+    run = arm.simulate(voltage(seconds, seed), effect=effect, seed=seed)
+    active = active_of(run) if active_of else _strong(run.effect_acc)
+    return Scenario(name, "motor_pendulum", model_file, effect, "omega" if effect else None, truth, concealment,
+                    run.t, run.inputs(), run.outputs(), run.effect_acc, active, run,
+                    noise_truth=noise, misdeclared=misdeclared)
+
+
+def _tanks(name, effect, concealment, seconds, seed, *, equation=None, truth=None, bursts=(), levels=(2.5, 6.0),
+           side=None, active_of=None, model_file=TANKS_FILE, noise=None, misdeclared=None) -> Scenario:
+    simulated = {"physical_limit": "overflow"}.get(effect, effect)
+    pump = tanks.pump_steps(seconds, levels=levels, seed=seed, bursts=bursts)
+    run = tanks.simulate(pump, effect=simulated, seed=seed)
+    col = ["h1", "h2"].index(equation) if equation else 0
+    acc = run.effect_rate[:, col]
+    active = active_of(run) if active_of else acc != 0
+    return Scenario(name, "two_tanks", model_file, effect, equation, truth, concealment, run.t, run.inputs(),
+                    run.outputs(), acc, active, run, side=side, noise_truth=noise, misdeclared=misdeclared)
+
+
+def _arm_noise_only(name, seconds, seed) -> Scenario:
+    """The arm's voltage, and an encoder column of white noise (0.3 rad, the size of a swing)
+    unrelated to it: nothing the model can explain."""
+    clean = _arm(name, None, _arm_multisine(1.2), "", seconds, seed)
+    rng = np.random.default_rng(9000 + seed)
+    outputs = {"theta_meas": rng.normal(0.0, 0.3, len(clean.t))}
+    return Scenario(name, "motor_pendulum", ARM_FILE, None, None, None,
+                    "pure noise: the encoder column is white noise unrelated to the voltage",
+                    clean.t, clean.inputs, outputs, np.zeros(len(clean.t)), np.zeros(len(clean.t), bool), None)
+
+
+def _arm_multisine(first: float, second: float | None = None, switch: float = 0.4):
+    """Voltage(seconds, seed): a 0.3–3 Hz multisine peaking at ``first`` V, then, when given,
+    ``second`` V from the ``switch`` fraction of the run on (the swings ring down in ~5 s)."""
+    def voltage(seconds, seed):
+        env = first if second is None else (lambda t: np.where(t < switch * seconds, first, second))
+        return arm.multisine(seconds, env, seed=seed)
+    return voltage
+
+
+def _overflow_bursts(seconds: float) -> list:
+    """Pump at 7.5 V for 70 s twice (from a fifth and from three fifths of the run): the upper
+    tank fills to its rim and spills."""
+    return [(0.2 * seconds, 0.2 * seconds + 70.0, 7.5), (0.6 * seconds, 0.6 * seconds + 70.0, 7.5)]
+
+
+UNSEEN = {
+    "arm_drag_early": lambda s, seed: _arm(
+        "arm_drag_early", "quadratic_drag", _arm_multisine(4.0, 0.15),
+        "drag grows with ω²: large swings (4 V multisine) only in the first 40 %, then 0.15 V: "
+        "the second half's rate is ten times smaller", s, seed, truth=arm.EFFECTS["quadratic_drag"][0]),
+    "arm_detent": lambda s, seed: _arm(
+        "arm_detent", "detent", lambda sec, sd: arm.chirp(sec, 1.0),
+        f"a torque periodic in the angle ({arm.DETENT_N} per turn), outside the catalog and with no "
+        "user candidate", s, seed, truth=arm.EFFECTS["detent"][0]),
+    "arm_r_half": lambda s, seed: _arm(
+        "arm_r_half", None, _arm_multisine(1.2), "clean; encoder noise declared 2× too small",
+        s, seed, model_file="benchmarks.scenarios:ARM_MEASUREMENT_HALF", noise=ARM_NOISE,
+        misdeclared="measurement_std"),
+    "arm_noise_only": lambda s, seed: _arm_noise_only("arm_noise_only", s, seed),
+    "tanks_overflow": lambda s, seed: _tanks(
+        "tanks_overflow", "physical_limit",
+        "the upper level rests on the rim only during two pump bursts (a few % of the samples); "
+        "the level sensor's updates follow the flat top", s, seed, equation="h1",
+        truth=tanks.EFFECTS["overflow"][0], side="upper", bursts=_overflow_bursts(s)),
+    "tanks_float_valve": lambda s, seed: _tanks(
+        "tanks_float_valve", "float_valve",
+        "a hysteretic refill of the lower tank (opens below 0.08 m, closes above 0.11 m): depends on "
+        "the level's history, outside the catalog, no user candidate", s, seed, equation="h2",
+        truth=tanks.EFFECTS["float_valve"][0] / tanks.A2, levels=(2.0, 4.5), active_of=lambda r: r.valve),
+    "tanks_q_x10": lambda s, seed: _tanks(
+        "tanks_q_x10", None, "clean; process noise declared 10× too large", s, seed,
+        model_file="benchmarks.scenarios:TANKS_PROCESS_X10", noise=TANKS_NOISE, misdeclared="process_std"),
+    "tanks_r_x2_5": lambda s, seed: _tanks(
+        "tanks_r_x2_5", None, "clean; level-sensor noise declared 2.5× too large", s, seed,
+        model_file="benchmarks.scenarios:TANKS_MEASUREMENT_X2_5", noise=TANKS_NOISE,
+        misdeclared="measurement_std"),
+    "tanks_clean": lambda s, seed: _tanks("tanks_clean", None, "the nominal model is right", s, seed),
+    "arm_clean": lambda s, seed: _arm("arm_clean", None, _arm_multisine(1.2), "the nominal model is right", s, seed),
+}
+
+
 SCENARIOS = {
     "cart_coulomb": lambda s, seed: _cart(
         "cart_coulomb", "coulomb_friction", 0.3, "v", 0.3 / cart.M,
@@ -139,12 +242,19 @@ SCENARIOS = {
         s, seed, candidates=[("cogging", "v", f"-sin(2*pi*p/{cart.COGGING_PITCH})")]),
     "cart_clean": lambda s, seed: _cart("cart_clean", None, None, None, None, "the nominal model is right", s, seed),
     "quad_clean": lambda s, seed: _quadrotor("quad_clean", False, s, seed),
+    **UNSEEN,
 }
 
 
-def make(name: str, seconds: float = 60.0, seed: int = 1) -> Scenario:
-    """The scenario ``name`` flown for ``seconds`` with noise seed ``seed``."""
-    return SCENARIOS[name](seconds, seed)
+SECONDS = {   # default length per scenario (s); 60 s otherwise
+    **{k: 30.0 for k in UNSEEN if k.startswith("arm_")},           # 6000 samples at 200 Hz
+    **{k: 400.0 for k in UNSEEN if k.startswith("tanks_")},        # 4000 samples at 10 Hz
+}
+
+
+def make(name: str, seconds: float | None = None, seed: int = 1) -> Scenario:
+    """The scenario ``name`` flown for ``seconds`` (default: SECONDS, else 60 s) with noise seed ``seed``."""
+    return SCENARIOS[name](SECONDS.get(name, 60.0) if seconds is None else seconds, seed)
 
 
 def overlap(windows, t: np.ndarray, active: np.ndarray) -> tuple[float, float]:
