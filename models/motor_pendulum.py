@@ -33,7 +33,7 @@ RATE_STD = 1e-2                    # rad/s per sample, process noise on ω
 DETENT_N = 16                      # detent periods per revolution
 
 EFFECTS = {   # name: (default parameter, what it means)
-    "quadratic_drag": (0.08, "aerodynamic drag c (1/rad): −c·ω|ω|"),
+    "quadratic_drag": (0.15, "aerodynamic drag c (1/rad): −c·ω|ω|"),
     "detent": (2.0, f"detent torque amplitude A (rad/s²): −A·sin({DETENT_N}·θ); not in the catalog"),
 }
 

@@ -10,8 +10,8 @@ an orifice a₁ into the lower tank (level h₂, m), which drains through a₂
 (Torricelli outflow). A₁ = 0.012 m², A₂ = 0.018 m², a₁ = 5·10⁻⁵ m²,
 a₂ = 6·10⁻⁵ m², k_p = 2·10⁻⁵ m³/(s·V). Both levels are measured (a pressure
 sensor on the upper tank, ``h1_meas``, 2 mm; an ultrasonic one on the lower,
-``h2_meas``, 3 mm). 10 Hz, RK4. Process noise (inflow turbulence, sloshing):
-10⁻⁴ m per sample on h₁, 6·10⁻⁵ m on h₂. The levels stay above 2 cm for pump
+``h2_meas``, 2.5 mm). 10 Hz, RK4. Process noise (inflow turbulence, sloshing):
+3·10⁻⁴ m per sample on each level. The levels stay above 2 cm for pump
 commands above 2 V (√h is not differentiable at an empty tank).
 
 :func:`simulate` runs the truth open loop on a pump command; the true plant may
