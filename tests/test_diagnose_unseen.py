@@ -37,7 +37,7 @@ COEF_REL = 0.10
 # noise std is a loose bound on where the flat top is
 BOUND_TOL = 3 * tanks.H_NOISE["h1_meas"]
 # calibrated noise std: within 20 %; `skigen fit` (filter error) estimates them on these
-# recordings to 2–7 % (one std), seeds 1–5 all within 10 %
+# recordings to 1–7 % (one std), seeds 1–5 all within 10 %
 NOISE_REL = 0.20
 
 
