@@ -1,6 +1,6 @@
 """Diagnose every concealed-effect scenario (and the clean ones), print what was found.
 
-    python examples/diagnose_demo.py --out out/diagnose [--seconds 60] [--only cart_lag ...]
+    python examples/diagnose_demo.py --out out/diagnose [--seconds S] [--only cart_lag ...]
     python examples/diagnose_demo.py --timing          # one 10 000-sample diagnosis, timed
 
 For each scenario of ``benchmarks/scenarios.py`` it writes the
@@ -24,7 +24,8 @@ from benchmarks.scenarios import SCENARIOS, one  # noqa: E402
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="out/diagnose")
-    ap.add_argument("--seconds", type=float, default=60.0)
+    ap.add_argument("--seconds", type=float, default=None,
+                    help="length of every recording (default: each scenario's own, benchmarks.scenarios.SECONDS)")
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--only", nargs="*", default=None)
     ap.add_argument("--timing", action="store_true", help="time one 10 000-sample diagnosis per system")
