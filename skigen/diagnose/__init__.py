@@ -179,7 +179,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     stage("searching the shapes")
     variants = {}
     for c in additive:
-        variants.setdefault((c.effect, c.equation), []).append(c)
+        variants.setdefault(c.group, []).append(c)
     rms.update({c: r for c, r in zip(additive, basis_rms(calibrated, rec, loc.states, additive))})
     corr, shapes = shape_search(calibrated, corr, variants, rec, rms, size)
     stage("weighing the findings (drop-one cross-validation)")

@@ -64,6 +64,11 @@ class Additive:
     shape: tuple = ()         # the variant's shape parameters, (("width", 0.01),) …
     sign: int = 0             # +1: only a positive coefficient is physical (friction, drag, a limit)
 
+    @property
+    def group(self) -> tuple:
+        """Variants of one another share it: effect, equation and the non-numeric shape (a side)."""
+        return (self.effect, self.equation) + tuple(v for _, v in self.shape if isinstance(v, str))
+
     def sx(self, model: Model) -> ca.SX:
         """The term as SX over ``model``'s symbols."""
         return self.expr if self.expr is not None else evaluate(model, self.formula)
@@ -120,17 +125,16 @@ def _num(x: float) -> str:
 
 
 COULOMB_WIDTHS = (0.005, 0.02, 0.08)         # × the RMS rate: the smoothing of sign(v)
-LIMIT_QUANTILES = (0.9, 0.97, 0.99, 0.997)    # where a bound may sit, on the state's own distribution
+LIMIT_QUANTILES = (0.8, 0.9, 0.95, 0.99)    # where a bound may sit, on the state's own distribution
 
 
 def _limit_states(model: Model, eq: str) -> list[str]:
-    """States a bound may stop through equation ``eq``: the positions it drives (ẋ = v), or the
-    state itself when its equation is first order (a tank level)."""
-    roles = {v.name: v.role for v in model.states}
-    out = [q for q in pairs(model, eq) if q != eq]
-    if roles[eq] not in VELOCITY_ROLES and not out:
-        out.append(eq)
-    return out
+    """States a bound may stop through equation ``eq``: the positions it drives kinematically
+    (ẋ = v), or the state itself when its equation is first order (a tank level)."""
+    syms = T.symbols(model)
+    out = [v.name for v in model.states if v.name != eq and model.rhs[v.name].is_symbolic()
+           and ca.is_equal(model.rhs[v.name], syms[eq])]
+    return out or [eq]
 
 
 def additive_candidates(model: Model, equations, scale: dict[str, float],

@@ -212,7 +212,7 @@ def same_model(a: Model, b: Model, points: int = 16, tol: float = 1e-9) -> None:
         for _ in range(points):
             args = [rng.normal(size=d["n"]) * 0.5, rng.normal(size=d["nu"]) * 2, rng.normal(size=d["nmem"]) * 2]
             va, vb = np.asarray(fa(*args)), np.asarray(fb(*args))
-            if not np.allclose(va, vb, rtol=tol, atol=tol):
+            if not np.allclose(va, vb, rtol=tol, atol=tol, equal_nan=True):
                 raise AssertionError("written model differs in its dynamics or outputs")
 
 

@@ -123,10 +123,16 @@ def distinct(model: Model, rec: Recording, states: np.ndarray, cands: list[Addit
 def representatives(cands: list[Additive]) -> list[Additive]:
     """One variant per (effect, equation), the middle one: SKI chooses effects, :func:`shape_search`
     their shape."""
-    groups: dict[tuple[str, str], list[Additive]] = {}
+    groups: dict[tuple, list[Additive]] = {}
     for c in cands:
-        groups.setdefault((c.effect, c.equation), []).append(c)
-    return [g[len(g) // 2] for g in groups.values()]
+        groups.setdefault(c.group, []).append(c)
+    return [_innermost(g) if dict(g[0].shape).get("side") else g[len(g) // 2] for g in groups.values()]
+
+
+def _innermost(group: list[Additive]) -> Additive:
+    """The limit variant that acts most often: the lowest upper bound, the highest lower one."""
+    bound = lambda c: dict(c.shape)["bound"]
+    return (min if dict(group[0].shape)["side"] == "upper" else max)(group, key=bound)
 
 
 def start_trace(model: Model, rec: Recording) -> Trace:
@@ -262,7 +268,7 @@ def shape_search(nominal: Model, corr: Correction, variants: dict, rec: Recordin
     averaging over the shape). Returns the correction and {candidate: shape summary}."""
     shapes = {}
     for i, (c, _, _) in enumerate(list(corr.additive)):
-        alts = variants.get((c.effect, c.equation), [])
+        alts = variants.get(c.group, [])
         if len(alts) < 2:
             continue
         fits, lls = [], []
@@ -338,7 +344,13 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
             break
         if history[:-1] and best.gain < MIN_SHARE * sum(p.gain for p in history[:-1]):
             break
-        corr = refit(nominal, best.correction, rec, rms, size)
+        accepted = refit(nominal, best.correction, rec, rms, size)
+        z = stats.norm.isf(alpha / 2)
+        significant = [a for a in accepted.additive[len(corr.additive):] if abs(a[1]) > z * a[2]]
+        if best.kind == "additive" and not significant:
+            break                  # the SKI selection does not survive an honest refit: nothing to add
+        corr = Correction(accepted.additive[:len(corr.additive)] + significant, accepted.structural)
+        corr = refit(nominal, corr, rec, rms, size)
         tick("recalibrating the noise")
         nominal = recalibrated(nominal, corr, rec)
         corr = refit(nominal, corr, rec, rms, size)

@@ -79,8 +79,8 @@ _CACHE: dict = {}
 SCORING_ITERATIONS = 50     # Fisher-scoring iterations before Newton (exact Hessian) takes over
 
 
-def _problem(model, lengths, method, estimate, shooting, max_iter) -> Problem:
-    key = (id(model), tuple(lengths), method, tuple(estimate), shooting, max_iter,
+def _problem(model, lengths, method, estimate, shooting, max_iter, tol=1e-8) -> Problem:
+    key = (id(model), tuple(lengths), method, tuple(estimate), shooting, max_iter, tol,
            tuple((p.name, p.value, p.std, p.bounds) for p in model.parameters), tuple(model.x0),
            tuple(model.x_std))
     if key not in _CACHE:
@@ -90,8 +90,8 @@ def _problem(model, lengths, method, estimate, shooting, max_iter) -> Problem:
         prob.progress = _Progress(prob.nlp["x"].shape[0], prob.nlp["g"].shape[0])
         nlp = {k: prob.nlp[k] for k in ("x", "p", "f", "g")}
         opts = {"print_time": False, "iteration_callback": prob.progress, "ipopt.print_level": 0,
-                "ipopt.sb": "yes", "ipopt.tol": 1e-8, "ipopt.mu_strategy": "adaptive",
-                "ipopt.acceptable_tol": 1e-6, "ipopt.acceptable_iter": 2,
+                "ipopt.sb": "yes", "ipopt.tol": tol, "ipopt.mu_strategy": "adaptive",
+                "ipopt.acceptable_tol": 100 * tol, "ipopt.acceptable_iter": 2,
                 "ipopt.acceptable_obj_change_tol": 1e-12}
         scoring = ca.nlpsol("fit_scoring", "ipopt", nlp, {**opts, "hess_lag": prob.nlp["hess"],
                                                           "ipopt.max_iter": min(max_iter, SCORING_ITERATIONS)})
@@ -177,14 +177,16 @@ class _Progress(ca.Callback):
 
 
 def fit(model: Model, recordings, *, method: str = "output-error", estimate=None,
-        shooting: int | None = None, max_iter: int = 200, show_progress: bool = True) -> FitResult:
+        shooting: int | None = None, max_iter: int = 200, tol: float = 1e-8,
+        show_progress: bool = True) -> FitResult:
     """Fit ``model`` to ``recordings`` (Recording objects, or paths and DataFrames read onto the
     model's grid with :func:`skigen.recording.load_recording`) by ``method``.
 
     estimate: names of parameters and weights to estimate (default: all of
     them); the rest stay at their declared values (weights at 0). shooting:
     output error only, samples per shooting interval (default: one simulation
-    per recording; give a few hundred samples when a free run diverges).
+    per recording; give a few hundred samples when a free run diverges). tol: IPOPT's
+    convergence tolerance.
     """
     t0 = time.perf_counter()
     if method not in METHODS:
@@ -201,7 +203,7 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     if shooting is not None and (method != "output-error" or int(shooting) < 2):
         raise ValueError("shooting applies to output error and needs at least 2 samples per interval")
     lengths = [len(r.t) for r in recs]
-    prob, solver, jac_g = _problem(model, lengths, method, estimate, shooting, max_iter)
+    prob, solver, jac_g = _problem(model, lengths, method, estimate, shooting, max_iter, tol)
     V = prob.variables
     blocks = [data_matrix(model, r) for r in recs]
     data = np.concatenate([np.ravel(b, order="F") for b in blocks])
