@@ -15,8 +15,8 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)  ## declare WingRock, generate C, compile, filter simulated data, print the table, write plots
 	$(PY) examples/demo.py --out out/demo
 
-test: $(STAMP)  ## the whole suite
-	$(PY) -m pytest
+test: $(STAMP)  ## the whole suite, one test file per worker process (pytest-xdist)
+	$(PY) -m pytest -n auto --dist loadfile
 
 test-fast: $(STAMP)
 	$(PY) -m pytest -m "not slow"

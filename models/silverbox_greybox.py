@@ -35,3 +35,4 @@ def build(name="silverbox_greybox", hold="foh", cubic=True):
 
 
 model = build()
+linear = build(name="silverbox_linear", cubic=False)   # the linear nominal `skigen diagnose` starts from
