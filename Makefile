@@ -30,6 +30,7 @@ bench: $(STAMP)  ## accuracy and speed tables (figures land in benchmarks/figure
 	$(PY) -m skigen bench speed
 	$(PY) -m skigen bench footprint
 	$(PY) -m skigen bench diagnose
+	$(PY) -m skigen bench false_alarms
 	$(PY) -m skigen bench fit
 	$(PY) -m skigen bench logs
 	$(PY) -m skigen bench batch

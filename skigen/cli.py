@@ -15,7 +15,8 @@ from .recording import RecordingError
 
 __all__ = ["main", "load_model"]
 
-BENCHMARKS = ("wingrock", "delay", "quadrotor", "mukf", "speed", "footprint", "diagnose", "logs", "batch")
+BENCHMARKS = ("wingrock", "delay", "quadrotor", "mukf", "speed", "footprint", "diagnose", "false_alarms", "fit",
+              "logs", "batch")
 
 
 class CliError(Exception):

@@ -39,13 +39,13 @@ from .fastrun import run_fast
 from .figures import diagnosis_figures, plot_residuals
 from .fit import evaluate_fit
 from .inputs import MIN_SAMPLES, check, load
-from .locate import Location, locate
-from .name import Correction, basis_rms, name_terms, shape_search
+from .locate import Location, locate, windows_from_gain
+from .name import Correction, basis_rms, focus_window, name_terms, shape_search
 from .name import refit as refit_terms
 from .plausible import screen
 from .report import write_json, write_markdown
 
-__all__ = ["diagnose", "Report", "DiagnosisError", "MIN_SAMPLES"]
+__all__ = ["diagnose", "detect", "Report", "DiagnosisError", "MIN_SAMPLES"]
 
 @dataclass
 class Report:
@@ -175,7 +175,9 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     for c in additive:
         size.setdefault(c.equation, loc.scales.get(c.equation, 1.0))
     corr, history, rms, size, calibrated = name_terms(calibrated, rec, cv, loc.equations, loc.states, size, additive,
-                                          structural, alpha, progress=lambda s: stage(f"naming: {s}"))
+                                          structural, alpha, progress=lambda s: stage(f"naming: {s}"),
+                                                      focus=focus_window(sum((d / np.maximum(sd, 1e-300)) ** 2
+                                                                             for d, sd in loc.disturbance.values())))
     stage("searching the shapes")
     variants = {}
     for c in additive:
@@ -199,7 +201,10 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     corrected = None
     if not corr.empty:
         stage("refitting the corrected model jointly (skigen fit, filter error)")
-        corrected, names, notes, refit_info = refit_jointly(nominal, declared, corr, rec, loc.equations, refit)
+        base = T.copy_model(declared)         # the user's parameters, the noise recalibrated while naming
+        base.covariances(Q=calibrated.process_noise(), R=calibrated.measurement_noise(),
+                         P0=declared.initial_covariance())
+        corrected, names, notes, refit_info = refit_jointly(nominal, base, corr, rec, loc.equations, refit)
         data["refit"] = refit_info
         _update_findings(data["findings"], names, refit_info.get("parameters", {}))
         path = out / "corrected_model.py"
@@ -213,6 +218,11 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         stage("fit of the corrected model")
         after = evaluate_fit(corrected, rec)
         data["fit"]["after"] = after.metrics
+        if not loc.windows:          # too fast for a random walk: where the found terms help
+            w, regime = windows_from_gain(calibrated, rec, after.run.loglik - nominal_run.loglik, loc.states, alpha)
+            data["located"].update(windows=[[float(a), float(b)] for a, b in w], regime=regime,
+                                   windows_from="where the corrected model predicts significantly better")
+            loc.windows, loc.regime = w, regime
         stage("testing what remains")
         data["remaining"] = remaining(T.constants(corrected), rec, after.run, eqs, alpha, out if figures else None)
         if data["remaining"].get("figure"):
@@ -244,6 +254,19 @@ def _update_findings(findings: list[dict], names: dict, fitted: dict) -> None:
         std = fitted[n]["std"]
         f["std"] = float(np.hypot(std, spread)) if std is not None and np.isfinite(std) else std
         f["parameter"] = n
+
+
+def detect(model, recording, *, alpha: float = 0.01, equations=None, **read) -> dict:
+    """The first two steps alone — calibrate the noise, then judge — for a quick verdict:
+    {"mismatch_detected", "noise", "consistency"} as in report.json."""
+    user, _, rec = load(model, recording, **read)
+    nominal = T.copy_model(user, unknowns=False)
+    declared, noise = calibrate(nominal, [rec])
+    calibrated = T.constants(declared)
+    run = run_fast(derive(calibrated, "ekf"), rec)
+    v = judge(calibrated, rec, run, list(equations) if equations else C.rate_equations(nominal), alpha)
+    return {"mismatch_detected": v.mismatch, "noise": noise.asdict(),
+            "consistency": dict(v.consistency.asdict(), disturbance_gain=v.gains, disturbance_threshold=v.threshold)}
 
 
 def _fit_note(folds: int) -> str:

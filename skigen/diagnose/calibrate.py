@@ -41,8 +41,25 @@ class Noise:
                           "one scale on Q per equation with process noise, one on R per output"}
 
 
-def calibrate(model: Model, recs: list[Recording], show_progress: bool = False) -> tuple[Model, Noise]:
-    """(``model`` with its calibrated Q and R, the :class:`Noise` record)."""
+MAX_SAMPLES = 10_000        # noise scales from more samples than this gain nothing worth the time
+BLOCKS = 5
+
+
+def blocks(rec: Recording, max_samples: int = MAX_SAMPLES, n: int = BLOCKS) -> list[Recording]:
+    """``rec`` itself, or ``n`` contiguous blocks of max_samples/n samples spread evenly over it
+    (each filtered from the model's initial state)."""
+    N = len(rec.t)
+    if N <= max_samples:
+        return [rec]
+    size = max_samples // n
+    return [rec.slice(int(a), int(a) + size) for a in np.linspace(0, N - size, n)]
+
+
+def calibrate(model: Model, recs: list[Recording], show_progress: bool = False,
+              max_samples: int = MAX_SAMPLES) -> tuple[Model, Noise]:
+    """(``model`` with its calibrated Q and R, the :class:`Noise` record). A recording longer than
+    ``max_samples`` is calibrated on evenly spread blocks of it (:func:`blocks`)."""
+    recs = [b for r in recs for b in blocks(r, max_samples)]
     try:
         res = fit(model, recs, method="filter-error", estimate=[], show_progress=show_progress)
     except FitError as exc:

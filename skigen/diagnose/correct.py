@@ -21,6 +21,7 @@ from ..derive import augment, derive
 from ..model import Model
 from . import catalog as C
 from . import transform as T
+from .calibrate import blocks
 from .name import Correction
 from .source import to_python
 
@@ -175,14 +176,16 @@ def refit_jointly(nominal: Model, calibrated: Model, corr: Correction, rec, equa
     from ..fit import FitError, fit
     lift = liftable(nominal, corr, equations)
     tries = [lift, []] if lift else [[]]
-    info = {"method": "filter-error", "lifted": [], "note": ""}
+    pieces = blocks(rec)
+    info = {"method": "filter-error", "lifted": [], "note": "" if len(pieces) == 1 else
+            f"on {len(pieces)} blocks of {len(pieces[0].t)} samples spread over the recording. "}
     for attempt in tries:
         model, names, notes = parametrised(calibrated, corr, attempt)
         if not enabled:
             info["note"] = "not refitted (refit=False): coefficients from the cross-validated search"
             return model, names, notes, info
         try:
-            res = fit(model, [rec], method="filter-error", show_progress=False)
+            res = fit(model, blocks(rec), method="filter-error", show_progress=False)
         except FitError as exc:
             info["note"] += f"joint refit with {len(attempt)} lifted corrections failed: {exc}. "
             continue

@@ -70,7 +70,7 @@ def run_fast(filt: DerivedFilter, rec: Recording, *, trace: bool = False, init: 
     check_columns(model, rec)
     N, d, ski = len(rec.t), aug.shapes, filt.has_ard
     n = d["n"]
-    init = init or filt.initial()
+    given, init = init is not None, init or filt.initial()
     Y = np.asarray(rec.outputs, float)
     valid = np.isfinite(Y)
     chain, M = _chain(filt, N)
@@ -84,7 +84,7 @@ def run_fast(filt: DerivedFilter, rec: Recording, *, trace: bool = False, init: 
     z_post, C_post, e, ev, nis, ll, mem = out[k0:k0 + 7]
     arrays = [out[0], out[1], z_post, C_post, e, ev, nis, ll] + ([out[k0 + 7]] if ski else [])
     if not all(np.all(np.isfinite(a)) for a in arrays) or not np.all(np.isfinite(rec.inputs)):
-        if trace or init is not None:
+        if trace or given:
             raise FloatingPointError(f"the {filt.kind} filter of '{model.name}' produced non-finite numbers")
         return run(filt, rec, show_progress=False)
     Cp = _blocks(C_post, N, n)

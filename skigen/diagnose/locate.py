@@ -31,7 +31,7 @@ from .fastrun import loglik
 from .transform import with_disturbance
 
 __all__ = ["Location", "locate", "rate_scales", "windows_of", "regime_stump", "disturbance_gains",
-           "disturbance_threshold", "features"]
+           "disturbance_threshold", "features", "windows_from_gain"]
 
 GRID = 10.0 ** np.arange(-6.0, -0.5, 1.0)    # disturbance step per sample, × the equation's rate scale
 Z_WINDOW = 3.0
@@ -127,6 +127,16 @@ def _local_gain(gain: np.ndarray, dt: float, alpha: float, seconds: float = 0.5)
     for k in np.flatnonzero(hit):
         out[k:k + w] = True
     return out
+
+
+def windows_from_gain(nominal: Model, rec: Recording, gain: np.ndarray, states: np.ndarray,
+                      alpha: float) -> tuple[list, str | None]:
+    """Windows and regime where a corrected model predicts significantly better than the nominal
+    (``gain``: per-sample log-likelihood difference): for effects too fast for a random walk."""
+    active = _local_gain(gain, nominal.dt, alpha)
+    duration = rec.t[-1] - rec.t[0]
+    windows = windows_of(rec.t, active, merge=max(0.5, 0.01 * duration), shortest=max(0.2, 10 * nominal.dt))
+    return windows, regime_stump(features(nominal, rec, states), active)
 
 
 def regime_stump(features: dict[str, tuple[np.ndarray, str]], active: np.ndarray,

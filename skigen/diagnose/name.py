@@ -42,7 +42,8 @@ from .catalog import Additive, Structural, _num
 from .cv import Folds, fit_without, fold_loglik
 from .fastrun import Trace, run_fast
 
-__all__ = ["Correction", "Proposal", "name_terms", "refit", "basis_rms", "distinct", "start_trace"]
+__all__ = ["Correction", "Proposal", "name_terms", "refit", "basis_rms", "distinct", "start_trace",
+           "focus_window", "recalibrated"]
 
 MAX_ROUNDS = 3
 MIN_SHARE = 0.01   # a further change must add ≥ 1 % of the gain so far: below that it only
@@ -135,6 +136,20 @@ def _innermost(group: list[Additive]) -> Additive:
     return (min if dict(group[0].shape)["side"] == "upper" else max)(group, key=bound)
 
 
+SKI_MAX_SAMPLES = 20_000
+
+
+def focus_window(strength: np.ndarray, n: int = SKI_MAX_SAMPLES) -> tuple[int, int] | None:
+    """The n contiguous samples where the located disturbance is strongest (``strength`` per
+    sample, e.g. (d/σ)²), or None when the recording is not longer than n."""
+    N = len(strength)
+    if N <= n:
+        return None
+    c = np.concatenate([[0.0], np.cumsum(np.nan_to_num(strength))])
+    a = int(np.argmax(c[n:] - c[:-n]))
+    return a, a + n
+
+
 def start_trace(model: Model, rec: Recording) -> Trace:
     """The EKF trace of ``model``: where a fit without a fold restarts after the gap."""
     return run_fast(derive(model, "ekf"), rec, trace=True)
@@ -176,11 +191,13 @@ def cv_loglik(nominal: Model, corr: Correction, rec: Recording, folds: Folds, rm
     return out
 
 
-def _additive(nominal, current: Correction, cands, rec, folds: Folds, rms, size, alpha) -> Proposal | None:
-    """The SKI proposal: the terms SKI keeps on the whole recording, cross-validated with the
-    current and kept terms' coefficients refitted without each fold."""
+def _additive(nominal, current: Correction, cands, rec, folds: Folds, rms, size, alpha,
+              focus: tuple[int, int] | None = None) -> Proposal | None:
+    """The SKI proposal: the terms SKI keeps on the recording (or on its samples ``focus``),
+    cross-validated with the current and kept terms' coefficients refitted without each fold."""
     m = current.build(nominal, unknown=cands, prior_variance=_prior(cands, rms, size))
-    w, sd = fit_without(m, "ski", rec, folds, None, None)
+    piece = rec.slice(*focus) if focus else rec
+    w, sd = fit_without(m, "ski", piece, Folds.of(len(piece.t), 1), None, None)
     kept = _kept(cands, w, sd, alpha, len(cands))
     if not kept:
         return None
@@ -250,14 +267,22 @@ def _profile(total, s: Structural, evaluated) -> tuple[float, float, float]:
 
 def refit(nominal: Model, corr: Correction, rec: Recording, rms: dict, size: dict) -> Correction:
     """Additive coefficients re-estimated jointly on the whole recording under the accepted
-    structure (augmented UKF, no ARD)."""
+    structure (augmented UKF, no ARD). Coefficients already estimated stay in the model as known
+    terms and the filter estimates their corrections (prior std 3σ, at least 10 %): the sigma
+    points then stay where the model has been seen to hold."""
     if not corr.additive:
         return corr
     cands = [a[0] for a in corr.additive]
-    base = Correction([], corr.structural)
-    m = base.build(nominal, unknown=cands, prior_variance=_prior(cands, rms, size))
+    known = [(c, w, s) for c, w, s in corr.additive if w != 0 and np.isfinite(s) and s > 0]
+    prior = _prior(cands, rms, size)
+    if len(known) == len(cands):
+        prior = np.array([max(3 * s, 0.1 * abs(w)) ** 2 for _, w, s in known])
+    else:
+        known = []
+    m = Correction(known, corr.structural).build(nominal, unknown=cands, prior_variance=prior)
     w, sd = fit_without(m, "ukf", rec, Folds.of(len(rec.t), 1), None, None)
-    return Correction([(c, float(wi), float(si)) for c, wi, si in zip(cands, w, sd)], corr.structural)
+    start = [k[1] for k in known] or [0.0] * len(cands)
+    return Correction([(c, float(w0 + wi), float(si)) for c, w0, wi, si in zip(cands, start, w, sd)], corr.structural)
 
 
 def shape_search(nominal: Model, corr: Correction, variants: dict, rec: Recording, rms: dict,
@@ -299,9 +324,11 @@ def shape_search(nominal: Model, corr: Correction, variants: dict, rec: Recordin
 
 def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str], states: np.ndarray,
                disturbance_rms: dict[str, float], additive: list[Additive], structural: list[Structural],
-               alpha: float = 0.01, progress=None) -> tuple[Correction, list[Proposal], dict, dict]:
+               alpha: float = 0.01, progress=None, focus: tuple[int, int] | None = None
+               ) -> tuple[Correction, list[Proposal], dict, dict, Model]:
     """See the module docstring. ``states``: smoothed nominal states (for candidate scales);
-    ``disturbance_rms``: RMS of the located disturbance per equation (the missing rate's size).
+    ``disturbance_rms``: RMS of the located disturbance per equation (the missing rate's size);
+    ``focus``: the samples [a, b) SKI selects on (all of them by default).
     Returns (correction, proposals accepted or not, candidate RMS, per-equation sizes, ``nominal``
     with the noise recalibrated under the correction)."""
     tick = progress or (lambda label: None)
@@ -320,7 +347,7 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
         if cands:
             tick("SKI over the additive candidates, per fold")
             try:
-                p = _additive(nominal, corr, cands, rec, folds, rms, size, alpha)
+                p = _additive(nominal, corr, cands, rec, folds, rms, size, alpha, focus)
             except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):   # diverged: no proposal
                 p = None
             if p is not None:
@@ -353,9 +380,27 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
         corr = refit(nominal, corr, rec, rms, size)
         tick("recalibrating the noise")
         nominal = recalibrated(nominal, corr, rec)
+        if best.kind == "structural":         # its parameter again, under the noise it leaves
+            corr = reprofiled(nominal, corr, rec)
         corr = refit(nominal, corr, rec, rms, size)
         current = cv_loglik(nominal, corr, rec, folds, rms, size)
     return corr, history, rms, size, nominal
+
+
+def reprofiled(nominal: Model, corr: Correction, rec: Recording) -> Correction:
+    """The last structural change's parameter profiled again on the whole recording."""
+    s, _, _ = corr.structural[-1]
+    base = Correction(corr.additive, corr.structural[:-1]).build(nominal)
+    whole = Folds.of(len(rec.t), 1)
+
+    def total(v):
+        try:
+            return float(fold_loglik(s.build(base, v), rec, whole)[0])
+        except ValueError:
+            return -np.inf
+    grid = s.grid if not s.integer else range(int(min(s.grid)), int(max(s.grid)) + 1)
+    value, _, std = _profile(total, s, [float(g) for g in grid])
+    return Correction(corr.additive, corr.structural[:-1] + [(s, value, std)])
 
 
 def recalibrated(nominal: Model, corr: Correction, rec: Recording) -> Model:
