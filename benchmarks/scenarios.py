@@ -325,7 +325,9 @@ def one(name: str, out: Path, seconds: float | None, seed: int) -> dict:
                found="; ".join(f"{f['effect']} on {f['equation']} {f['coefficient']:.4g}±{f['std'] or 0:.2g}"
                                for f in d["findings"]) or "-",
                right=_right(sc, d),
-               ll=(fit["before"]["loglik"], fit["after"]["loglik"] if fit["after"] else None),
+               ll=(sum(f["loglik_before"] for f in fit["folds"]), sum(f["loglik_after"] for f in fit["folds"]))
+               if fit.get("folds") else (fit["before"]["loglik"], None),
+               remaining=d["remaining"]["mismatch"],
                rmse=(list(fit["before"]["free_run_rmse"].values())[0],
                      list(fit["after"]["free_run_rmse"].values())[0] if fit["after"] else None),
                concealment=sc.concealment)

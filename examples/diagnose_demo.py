@@ -7,7 +7,7 @@ For each scenario of ``benchmarks/scenarios.py`` it writes the
 recording CSV, runs ``skigen diagnose`` (the Python function, as the CLI
 does) into ``OUT/<scenario>/`` and prints: the verdict, the located equation,
 window overlap with the truth, the finding against the truth, and the
-validation log-likelihood and free-run RMSE before and after.
+cross-validated log-likelihood and free-run RMSE before and after.
 """
 from __future__ import annotations
 
@@ -43,8 +43,9 @@ def main() -> None:
               f"{'RIGHT' if r['right'] else 'WRONG'}", flush=True)
         print(f"    truth: {r['truth']}   found: {r['found']}")
         if r["ll"][1] is not None:
-            print(f"    validation log-lik {r['ll'][0]:.0f} -> {r['ll'][1]:.0f}, free-run RMSE "
-                  f"{r['rmse'][0]:.3g} -> {r['rmse'][1]:.3g}; regime: {r['regime']}")
+            print(f"    cross-validated log-lik {r['ll'][0]:.0f} -> {r['ll'][1]:.0f}, free-run RMSE "
+                  f"{r['rmse'][0]:.3g} -> {r['rmse'][1]:.3g}; regime: {r['regime']}; "
+                  f"{'a mismatch remains' if r['remaining'] else 'nothing remains'}")
         print(f"    hidden: {r['concealment']}")
     print(f"\nreports in {out}/<scenario>/report.md")
 

@@ -337,3 +337,40 @@ def test_the_equation_that_absorbs_the_error_is_the_right_one(tmp_path):
     top = rep.findings[0]
     assert (top["effect"], top["equation"]) == ("coulomb_friction", "vy")
     assert top["coefficient"] == pytest.approx(0.4, rel=0.05)
+
+
+def test_a_fold_never_sees_its_own_data():
+    """fit_without(f): the weights estimated without fold f do not change when fold f's
+    measurements do, and do change when another fold's do. (The physical states restart after
+    the gap from the given trace, here the original recording's: the one thing a fold lends.)"""
+    from skigen.diagnose.catalog import additive_candidates
+    from skigen.diagnose.cv import Folds, fit_without
+    from skigen.diagnose.name import Correction, start_trace
+    rec = make("cart_coulomb", 20.0, SEED).recording()
+    nominal = T.copy_model(cart.model, unknowns=False)
+    cands = [c for c in additive_candidates(nominal, ["v"], {"v": 0.1}) if c.effect in ("coulomb_friction", "bias")]
+    model = Correction().build(nominal, unknown=cands, prior_variance=np.ones(len(cands)))
+    folds = Folds.of(len(rec.t), 4)
+    start = start_trace(nominal, rec)
+    w, sd = fit_without(model, "ukf", rec, folds, 1, start)
+    a, b = folds.edges[1], folds.edges[2]
+    for k, same in ((slice(a, b), True), (slice(folds.edges[3], None), False)):
+        y = rec.outputs.copy()
+        y[k] += 0.05 * np.sin(np.arange(y[k].shape[0]))[:, None]
+        other = Recording("w", rec.t, rec.inputs, y, rec.input_names, rec.output_names)
+        w2, _ = fit_without(model, "ukf", other, folds, 1, start)
+        if same:
+            np.testing.assert_allclose(w2, w, rtol=0, atol=1e-9 * np.abs(w).max())
+        else:
+            assert np.max(np.abs(w2 - w)) > 1e-3 * np.abs(w).max()
+    whole, _ = fit_without(model, "ukf", rec, Folds.of(len(rec.t), 1), None, None)
+    np.testing.assert_allclose(whole, run_fast(derive(model, "ukf"), rec).weights[-1], rtol=1e-12)
+
+
+def test_focus_window_is_where_the_disturbance_is():
+    from skigen.diagnose.name import focus_window
+    strength = np.zeros(50_000)
+    strength[31_000:33_000] = 1.0
+    a, b = focus_window(strength, 20_000)
+    assert b - a == 20_000 and a <= 31_000 and b >= 33_000
+    assert focus_window(strength[:1000], 20_000) is None

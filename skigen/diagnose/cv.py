@@ -7,6 +7,9 @@ model's prior state there, carrying the weights' posterior (mean, covariance,
 ARD variances) across the gap — and the candidate model's EKF is then scored
 by its summed one-step predictive log-likelihood over fold f (the filter runs
 over the whole recording: a prediction at sample k uses only data before k).
+The restart state after a gap is the current model's prior there, which has
+seen the fold's last samples: the fold lends the states' starting point, never
+the coefficients' information.
 The sum over folds is the cross-validated log-likelihood; every part of the
 recording is scored, so an effect that acts only early is weighed where it acts.
 """

@@ -280,7 +280,12 @@ def refit(nominal: Model, corr: Correction, rec: Recording, rms: dict, size: dic
     else:
         known = []
     m = Correction(known, corr.structural).build(nominal, unknown=cands, prior_variance=prior)
-    w, sd = fit_without(m, "ukf", rec, Folds.of(len(rec.t), 1), None, None)
+    try:
+        w, sd = fit_without(m, "ukf", rec, Folds.of(len(rec.t), 1), None, None)
+    except (FloatingPointError, RuntimeError, ValueError, np.linalg.LinAlgError):
+        if known:
+            return corr                  # the filter diverged: keep the coefficients it started from
+        raise
     start = [k[1] for k in known] or [0.0] * len(cands)
     return Correction([(c, float(w0 + wi), float(si)) for c, w0, wi, si in zip(cands, start, w, sd)], corr.structural)
 
