@@ -98,8 +98,12 @@ def record():
     return simulate(seed=0, duration=15)
 
 
-def _c(libs, filters, kind, real="double"):
-    return CFilter(libs[kind, real], filters[kind], real)
+def _c(libs, filters, kind, real="double", gate=0.0):
+    """The library through ctypes; the kernel's equality tests run it without the innovation gate
+    (the derived step has none: tests/test_guard.py holds the gate to the reference)."""
+    cf = CFilter(libs[kind, real], filters[kind], real)
+    cf.configure(gate=gate)
+    return cf
 
 
 def _py_step(d, st, u, y):
@@ -180,10 +184,15 @@ def long_record():
 
 @pytest.mark.parametrize("kind", KINDS)
 def test_float_long_run_stays_finite(kind, filters, libs, long_record):
-    cf, rec = _c(libs, filters, kind, "float"), long_record
+    """With the default gate: the UKF and SKI are consistent (no sample gated in 100 001); the
+    EKF's linearisation is over-confident early in the run (|e| up to 9.9 sd at k = 478-491, in
+    double too), which the gate rejects and recovers from with a few restarts."""
+    cf, rec = _c(libs, filters, kind, "float", gate=5.0), long_record
     codes = np.bincount([cf.step((u,), (y,)) for u, y in zip(rec.delta.tolist(), rec.phi.tolist())],
-                        minlength=4)
-    assert codes[Status.OK] == rec.n, f"codes {codes}"
+                        minlength=len(Status))
+    gated = codes[Status.OUTLIER_REJECTED] + codes[Status.REINITIALISED]
+    assert codes[Status.OK] + gated == rec.n, f"codes {codes}"
+    assert gated == 0 if kind != "ekf" else gated < 400, f"codes {codes}"
     for name in cf.shapes:
         assert np.all(np.isfinite(cf.get(name))), name
     assert abs(cf.z_post[0] - rec.theta[-1]) < 1.0            # still tracks the roll angle
