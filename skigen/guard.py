@@ -12,8 +12,7 @@ Per sample, around the derived step (``<prefix>_step`` in ``filter.c.in``, and
    restart: their mean at the declared initial value, their covariance the declared one
    times ``reinit_scale`` and uncorrelated with the rest; the weights and estimated
    parameters keep their mean and covariance. That sample then updates without the
-   gate, and the gate stays off for the next ``reject_limit`` samples with a
-   measurement, while the states settle.
+   gate; the widened covariance lets the next readings through it while the states settle.
 4. **Gate.** Otherwise a measurement whose innovation is more than ``gate`` standard
    deviations, |e_i| > gate·√(Pyy_ii), is rejected (counted per output) and the step
    runs again without it: a rejected sample never changes the state (0: no gate).

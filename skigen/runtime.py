@@ -221,7 +221,7 @@ class PythonStepper:
         ny = self.filt.aug.shapes["ny"]
         self.y_last, self.repeats = np.zeros(ny), np.zeros(ny, int)
         self.rejected, self.stuck = np.zeros(ny, int), np.zeros(ny, int)
-        self.reinits = self.reject_run = self.since_update = self.settle = 0
+        self.reinits = self.reject_run = self.since_update = 0
         self._reset_posterior()
 
     def _reset_posterior(self):
@@ -264,7 +264,7 @@ class PythonStepper:
             self.z, self.C = reinit(self.z, self.C, aug.shapes["nx"], st["z"], st["C"], g.reinit_scale,
                                     self.filt.square_root)
         out, ok = self._run(u, y, valid)
-        if not recover and self.settle == 0 and g.gate > 0:
+        if not recover and g.gate > 0:
             v = np.diag(np.reshape(out["Pyy"], (len(y), len(y))))
             with np.errstate(invalid="ignore", over="ignore"):
                 gated = valid & ~(np.abs(out["e"].ravel()) <= g.gate * np.sqrt(np.where(v > 0, v, 0)))
@@ -275,13 +275,10 @@ class PythonStepper:
                 code = Status.OUTLIER_REJECTED
         if ok and valid.any():
             self.since_update = self.reject_run = 0
-            self.settle = max(self.settle - 1, 0)
         else:
             self.since_update += 1
             self.reject_run += int(bool(present))
-        if recover:
-            self.reinits += 1
-            self.settle = g.reject_limit
+        self.reinits += int(recover)
         self.mem = out["mem_next"].ravel()
         if not ok:
             self._reset_posterior()

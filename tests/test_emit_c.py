@@ -45,9 +45,13 @@ APT = {"aarch64-linux-gnu-gcc": "gcc-aarch64-linux-gnu",
 
 
 def _need(*tools):
+    """Skip without a cross toolchain; in CI (CI=true) its absence is a failure."""
     for tool in tools:
         if shutil.which(tool) is None:
-            pytest.skip(f"{tool} not installed: apt-get install -y {APT[tool]}")
+            why = f"{tool} not installed: apt-get install -y {APT[tool]}"
+            if os.environ.get("CI") == "true":
+                pytest.fail(f"CI=true: {why}")
+            pytest.skip(why)
 
 
 def _parallel(fn, items):
@@ -342,6 +346,16 @@ def _cross_objects(cc, flags, out):
     return _parallel(one, jobs)
 
 
+def test_a_missing_cross_toolchain_fails_in_ci(monkeypatch):
+    monkeypatch.setitem(APT, "skigen-no-such-cc", "no-such-package")
+    monkeypatch.delenv("CI", raising=False)
+    with pytest.raises(pytest.skip.Exception, match="no-such-package"):
+        _need("skigen-no-such-cc")
+    monkeypatch.setenv("CI", "true")
+    with pytest.raises(pytest.fail.Exception, match="CI=true: skigen-no-such-cc not installed"):
+        _need("skigen-no-such-cc")
+
+
 @pytest.mark.slow
 def test_generated_compiles_for_the_host(tmp_path):
     assert len(_cross_objects("gcc", (), tmp_path)) == len(GENERATED_SOURCES) >= 40
@@ -397,15 +411,24 @@ def _table(text):
 
 
 def test_flight_computer_example_matches_ctypes(example, filters, libs, record):
+    """The example starts at the first roll reading (reset), steps with the default settings and
+    prints the posterior and code of each row; `-g` sets the gate."""
     _, exe, csv = example
     header, table = _table(_run([exe, csv]))
-    assert header == ["t"] + filters["ski"].aug.names
+    assert header == ["t"] + filters["ski"].aug.names + ["code"]
     assert _run([exe], input=csv.read_text()) == _run([exe, csv])          # stdin works too
     n = len(table)
     y = np.array([np.nan if (k % 11 == 5 or k % 13 == 6) else record.phi[k] for k in range(n)])
-    ref = _c(libs, filters, "ski").run(record.delta[:n, None], y[:, None])
+    cf = _c(libs, filters, "ski", gate=5.0)
+    z0 = cf.z
+    z0[0] = y[0]
+    cf.reset(z0)
+    ref = cf.run(record.delta[:n, None], y[:, None])
     _close(table[:, 0], record.t[:n])
-    _close(table[:, 1:], ref["z_post"])
+    _close(table[:, 1:-1], ref["z_post"])
+    np.testing.assert_array_equal(table[:, -1], ref["code"])
+    _, ungated = _table(_run([exe, "-g", "0", csv]))
+    _close(ungated, table)                               # a clean flight: nothing to gate
 
 
 def test_flight_computer_example_with_the_looped_kernel(example, filters, tmp_path):
