@@ -80,8 +80,8 @@ typedef double quadrotor_rk4_ukf_real;
 
 /* Run-time settings: quadrotor_rk4_ukf_init sets the declared values; change them between steps. */
 typedef struct {
-    quadrotor_rk4_ukf_real Q_sqrt[64]; /* process noise factor: Q = Q_sqrt Q_sqrt^T (column-major) */
-    quadrotor_rk4_ukf_real R_sqrt[36]; /* measurement noise factor: R = R_sqrt R_sqrt^T */
+    quadrotor_rk4_ukf_real Q_sqrt[64]; /* lower factor of the process noise, Q = Q_sqrt Q_sqrt^T (upper ignored) */
+    quadrotor_rk4_ukf_real R_sqrt[36]; /* lower factor of the measurement noise, R = R_sqrt R_sqrt^T */
     quadrotor_rk4_ukf_real param[1]; /* declared parameters, see the _P_ index macros */
     quadrotor_rk4_ukf_real gate; /* innovation gate per output, in standard deviations (0: off) */
     quadrotor_rk4_ukf_real reinit_scale; /* variance multiple of the declared initial covariance at a restart */

@@ -85,8 +85,8 @@ typedef double quadrotor_spiral_ukf_real;
 
 /* Run-time settings: quadrotor_spiral_ukf_init sets the declared values; change them between steps. */
 typedef struct {
-    quadrotor_spiral_ukf_real Q_sqrt[196]; /* process noise factor: Q = Q_sqrt Q_sqrt^T (column-major) */
-    quadrotor_spiral_ukf_real R_sqrt[9]; /* measurement noise factor: R = R_sqrt R_sqrt^T */
+    quadrotor_spiral_ukf_real Q_sqrt[196]; /* lower factor of the process noise, Q = Q_sqrt Q_sqrt^T (upper ignored) */
+    quadrotor_spiral_ukf_real R_sqrt[9]; /* lower factor of the measurement noise, R = R_sqrt R_sqrt^T */
     quadrotor_spiral_ukf_real param[1]; /* declared parameters, see the _P_ index macros */
     quadrotor_spiral_ukf_real gate; /* innovation gate per output, in standard deviations (0: off) */
     quadrotor_spiral_ukf_real reinit_scale; /* variance multiple of the declared initial covariance at a restart */

@@ -139,9 +139,9 @@ static int map_points(int (*fn)(const real**, real**, int*, real*, int), int row
 }
 
 /* mean (rows) <- sum_i Wm_i P[:, i]; A (k x rows) <- [sqrtf(WC1) (P[:, i] - mean), i >= 1]^T
- * followed by `extra` (rows x n_extra)^T; S (rows x rows) <- tria(A) updated with the centre
+ * followed by `extra` (rows x n_extra; lower: its lower triangle only)^T; S (rows x rows) <- tria(A) updated with the centre
  * point. P is overwritten with the deviations, its column 0 then used up by the update. */
-static void spread(real* P, int rows, const real* extra, int n_extra, real* mean, real* A, real* S)
+static void spread(real* P, int rows, const real* extra, int n_extra, int lower, real* mean, real* A, real* S)
 {
     int i, r, k = 2 * N + n_extra;
     for (r = 0; r < rows; ++r) {
@@ -154,7 +154,7 @@ static void spread(real* P, int rows, const real* extra, int n_extra, real* mean
     for (i = 1; i < NSIG; ++i)
         for (r = 0; r < rows; ++r) A[(i - 1) + r * k] = SQRT_WC1 * P[r + i * rows];
     for (i = 0; i < n_extra; ++i)
-        for (r = 0; r < rows; ++r) A[2 * N + i + r * k] = extra[r + i * rows];
+        for (r = 0; r < rows; ++r) A[2 * N + i + r * k] = r >= i || !lower ? extra[r + i * rows] : 0;
     tria(A, k, rows, S);
     if (WC0 != 0) {
         for (r = 0; r < rows; ++r) P[r] = SQRT_WC0 * P[r];   /* the centre deviation, scaled */
@@ -350,7 +350,7 @@ int wingrock_delay48_ukf_kernel(const real** arg, real** res, int* iw, real* w, 
     real *z_post = res[0], *S_post = res[1], *z_next = res[ARD + 2], *S_next = res[ARD + 3];
     real *mem_next = res[ARD + 4], *e = res[ARD + 5], *Pyy = res[ARD + 6];
     real *nis = res[ARD + 7], *loglik = res[ARD + 8];
-    /* The settings: a factor of Q (N x N), of R (NY x NY), the declared parameters. */
+    /* The settings: lower factors of Q (N x N) and R (NY x NY), the declared parameters. */
     const real *QF = arg[ARD + 6], *LR = arg[ARD + 7], *param = arg[ARD + 8];
     int i, j, r;
     real* X = w + 0;
@@ -373,10 +373,10 @@ int wingrock_delay48_ukf_kernel(const real** arg, real** res, int* iw, real* w, 
         for (r = 0; r < NY; ++r) Y[r + i * NY] = valid[r] * Y[r + i * NY];
     for (j = 0; j < NY; ++j)
         for (r = 0; r < NY; ++r) {
-            noise[r + j * NY] = valid[r] * LR[r + j * NY];                  /* diag(valid) Lr */
+            noise[r + j * NY] = r >= j ? valid[r] * LR[r + j * NY] : 0;     /* diag(valid) tril(Lr) */
             noise[r + (NY + j) * NY] = r == j ? 1 - valid[r] : 0;           /* diag(1 - valid) */
         }
-    spread(Y, NY, noise, 2 * NY, y_hat, A, Sy);
+    spread(Y, NY, noise, 2 * NY, 0, y_hat, A, Sy);
     for (j = 0; j < NY; ++j)
         for (r = 0; r < N; ++r) {
             real t = 0;
@@ -435,7 +435,7 @@ int wingrock_delay48_ukf_kernel(const real** arg, real** res, int* iw, real* w, 
     /* Predict to the next sample through f. */
     sigma_points(z_post, S_post, X);
     if (map_points(wingrock_delay48_ukf_model_f, N, X, u, mem_in, param, Xf, iw, model_w)) return 1;
-    spread(Xf, N, QF, NQ, z_next, A, S_next);
+    spread(Xf, N, QF, NQ, 1, z_next, A, S_next);
 #if NMEM
     {
         const real* m_arg[2];

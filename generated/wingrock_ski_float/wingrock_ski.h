@@ -73,8 +73,8 @@ typedef float wingrock_ski_real;
 
 /* Run-time settings: wingrock_ski_init sets the declared values; change them between steps. */
 typedef struct {
-    wingrock_ski_real Q_sqrt[64]; /* process noise factor: Q = Q_sqrt Q_sqrt^T (column-major) */
-    wingrock_ski_real R_sqrt[1]; /* measurement noise factor: R = R_sqrt R_sqrt^T */
+    wingrock_ski_real Q_sqrt[64]; /* lower factor of the process noise, Q = Q_sqrt Q_sqrt^T (upper ignored) */
+    wingrock_ski_real R_sqrt[1]; /* lower factor of the measurement noise, R = R_sqrt R_sqrt^T */
     wingrock_ski_real param[1]; /* declared parameters, see the _P_ index macros */
     wingrock_ski_real gate; /* innovation gate per output, in standard deviations (0: off) */
     wingrock_ski_real reinit_scale; /* variance multiple of the declared initial covariance at a restart */

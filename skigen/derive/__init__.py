@@ -51,8 +51,9 @@ class DerivedFilter:
     @cached_property
     def tunable(self) -> ca.Function:
         """The step with the run-time settings as further inputs (the generated C's kernel):
-        ``Q_sqrt`` (n×n, Q = Q_sqrt Q_sqrtᵀ), ``R_sqrt`` (ny×ny, R = R_sqrt R_sqrtᵀ) and
-        ``param``, the declared parameters not estimated (:attr:`Augmented.fixed_names`)."""
+        the lower-triangular factors ``Q_sqrt`` (n×n, Q = Q_sqrt Q_sqrtᵀ) and ``R_sqrt`` (ny×ny,
+        R = R_sqrt R_sqrtᵀ; their upper triangles are ignored) and ``param``, the declared
+        parameters not estimated (:attr:`Augmented.fixed_names`)."""
         return _step(self)
 
     @cached_property
@@ -64,12 +65,11 @@ class DerivedFilter:
                            self.names_in, self.names_out)
 
     def settings(self) -> dict[str, np.ndarray]:
-        """The declared values of the tunable step's settings: Q_sqrt (Q's factor, zero-padded to
-        n columns), R_sqrt (R's lower Cholesky factor) and param."""
-        from .ukf import sqrt_psd
-        G = sqrt_psd(self.aug.Q)
-        return dict(Q_sqrt=np.hstack([G, np.zeros((self.aug.n, self.aug.n - G.shape[1]))]),
-                    R_sqrt=np.linalg.cholesky(self.aug.R), param=self.aug.fixed_values.copy())
+        """The declared values of the tunable step's settings: the lower Cholesky factors Q_sqrt
+        (zero columns where Q is singular) and R_sqrt, and param."""
+        from ..guard import chol_psd
+        return dict(Q_sqrt=chol_psd(self.aug.Q), R_sqrt=np.linalg.cholesky(self.aug.R),
+                    param=self.aug.fixed_values.copy())
 
     @property
     def names_in(self) -> list[str]:
@@ -131,11 +131,12 @@ def _step(filt: DerivedFilter) -> ca.Function:
     u_in, mem = ca.SX.sym("u", d["nu"]), ca.SX.sym("mem", d["nmem"])
     y, valid = ca.SX.sym("y", d["ny"]), ca.SX.sym("valid", d["ny"])
     Q_sqrt, R_sqrt = ca.SX.sym("Q_sqrt", d["n"], d["n"]), ca.SX.sym("R_sqrt", d["ny"], d["ny"])
+    lower = dict(Q_sqrt=ca.tril(Q_sqrt), R_sqrt=ca.tril(R_sqrt))      # upper triangles ignored
     param = ca.SX.sym("param", aug.fixed.shape[0])
     # Bind the model's own symbols for u, mem and the fixed parameters to the step's inputs; the
     # parameters ride along the inputs (u = [u; param]) through every filter's model calls.
     u = ca.vertcat(u_in, param)
-    aug_b = _rebind(aug, u_in, mem, param, Q_sqrt, R_sqrt)
+    aug_b = _rebind(aug, u_in, mem, param, lower["Q_sqrt"], lower["R_sqrt"])
     if kind == "ekf":
         z_post, C_post, e, Pyy, Ly = ekf_update(aug_b, z, C, u, mem, y, valid)
         z_next, C_next = ekf_predict(aug_b, z_post, C_post, u, mem)

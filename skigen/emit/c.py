@@ -12,9 +12,11 @@
 
   CasADi's helpers are made ``static`` and every global symbol is prefixed; in float
   builds every maths call and literal is rewritten to single precision.
-* ``<prefix>.h/.c``: the step API (state struct, init, guarded step, std) from the
+* ``<prefix>.h/.c``: the step API (state and settings structs, index macros, init,
+  reset, the step under the recovery policy of :mod:`skigen.guard`, std) from the
   templates ``filter.h.in`` / ``filter.c.in`` beside this module; it is the same
-  for both styles.
+  for both styles. Both kernels are the derived step's tunable form
+  (``filt.tunable``): Q, R and the declared parameters come from ``st.settings``.
 
 :func:`compile_shared` builds (and caches) a shared library; :class:`CFilter`
 runs it through ctypes; :func:`load_c` does all three (it is the C backend of
@@ -113,8 +115,8 @@ def _fields(filt: DerivedFilter) -> list[tuple[str, tuple, str]]:
 def _settings(filt: DerivedFilter) -> list[tuple[str, str, tuple, str]]:
     """The fields of ``<prefix>_settings``: (name, 'real' or 'long', shape, comment); see skigen.guard."""
     n, ny, npar = filt.aug.n, filt.aug.shapes["ny"], filt.aug.fixed.shape[0]
-    return [("Q_sqrt", "real", (n, n), "process noise factor: Q = Q_sqrt Q_sqrt^T (column-major)"),
-            ("R_sqrt", "real", (ny, ny), "measurement noise factor: R = R_sqrt R_sqrt^T"),
+    return [("Q_sqrt", "real", (n, n), "lower factor of the process noise, Q = Q_sqrt Q_sqrt^T (upper ignored)"),
+            ("R_sqrt", "real", (ny, ny), "lower factor of the measurement noise, R = R_sqrt R_sqrt^T"),
             ("param", "real", (npar,), "declared parameters, see the _P_ index macros"),
             ("gate", "real", (), "innovation gate per output, in standard deviations (0: off)"),
             ("reinit_scale", "real", (), "variance multiple of the declared initial covariance at a restart"),
