@@ -224,7 +224,7 @@ def _gain_model(gain=3.0, noise=NOISE_STD, process_std=(1e-4, 1e-3)):
 @pytest.mark.parametrize("kind,style", [("ski", "unrolled"), ("ukf", "loops")])
 def test_settings_changed_mid_run_equal_a_rebuild(kind, style, sim):
     """Q, R and the parameter L changed between two steps give, from then on, the steps of the
-    filter generated from a model declaring them."""
+    filter generated from a model declaring them, bit for bit."""
     a = load_c(derive(_gain_model(), kind), style=style)
     other = derive(_gain_model(gain=2.5, noise=0.3, process_std=(1e-3, 1e-2)), kind)
     b = load_c(other, style=style)
@@ -233,7 +233,9 @@ def test_settings_changed_mid_run_equal_a_rebuild(kind, style, sim):
         cf.configure(gate=0)              # the policy's counters are not copied below
     for k in range(200):
         a.step([sim.delta[k]], [sim.phi[k]])
-    a.configure(**{k: b.setting(k) for k in ("Q_sqrt", "R_sqrt", "param")})
+    Q = b.setting("Q_sqrt")
+    Q[0, 1] = 7.0                                          # upper triangle: ignored
+    a.configure(Q_sqrt=Q, **{k: b.setting(k) for k in ("R_sqrt", "param")})
     for name in ("z", "C", "mem") + (("s",) if kind == "ski" else ()):
         b.set(name, a.get(name))
     for k in range(200, 400):

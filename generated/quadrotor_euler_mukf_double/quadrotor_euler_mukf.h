@@ -53,7 +53,8 @@ typedef double quadrotor_euler_mukf_real;
 #define QUADROTOR_EULER_MUKF_NMEM 0    /* remembered past inputs */
 #define QUADROTOR_EULER_MUKF_SQUARE_ROOT 1 /* 1: C is a Cholesky factor S; 0: C is P */
 #define QUADROTOR_EULER_MUKF_DT 0.02 /* sample time, s */
-/* Index of every name: z[QUADROTOR_EULER_MUKF_Z_<state or weight>], u[QUADROTOR_EULER_MUKF_U_<input>], y[QUADROTOR_EULER_MUKF_Y_<output>]. */
+/* Index of every name: z[QUADROTOR_EULER_MUKF_Z_<state or weight>], u[QUADROTOR_EULER_MUKF_U_<input>], y[QUADROTOR_EULER_MUKF_Y_<output>],
+ * settings.param[QUADROTOR_EULER_MUKF_P_<declared parameter>]. */
 #define QUADROTOR_EULER_MUKF_Z_V_X 0
 #define QUADROTOR_EULER_MUKF_Z_V_Y 1
 #define QUADROTOR_EULER_MUKF_Z_V_Z 2

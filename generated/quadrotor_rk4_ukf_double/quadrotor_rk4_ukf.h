@@ -53,7 +53,8 @@ typedef double quadrotor_rk4_ukf_real;
 #define QUADROTOR_RK4_UKF_NMEM 0    /* remembered past inputs */
 #define QUADROTOR_RK4_UKF_SQUARE_ROOT 1 /* 1: C is a Cholesky factor S; 0: C is P */
 #define QUADROTOR_RK4_UKF_DT 0.02 /* sample time, s */
-/* Index of every name: z[QUADROTOR_RK4_UKF_Z_<state or weight>], u[QUADROTOR_RK4_UKF_U_<input>], y[QUADROTOR_RK4_UKF_Y_<output>]. */
+/* Index of every name: z[QUADROTOR_RK4_UKF_Z_<state or weight>], u[QUADROTOR_RK4_UKF_U_<input>], y[QUADROTOR_RK4_UKF_Y_<output>],
+ * settings.param[QUADROTOR_RK4_UKF_P_<declared parameter>]. */
 #define QUADROTOR_RK4_UKF_Z_V_X 0
 #define QUADROTOR_RK4_UKF_Z_V_Y 1
 #define QUADROTOR_RK4_UKF_Z_V_Z 2

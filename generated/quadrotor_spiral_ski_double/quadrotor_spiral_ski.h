@@ -53,7 +53,8 @@ typedef double quadrotor_spiral_ski_real;
 #define QUADROTOR_SPIRAL_SKI_NMEM 0    /* remembered past inputs */
 #define QUADROTOR_SPIRAL_SKI_SQUARE_ROOT 1 /* 1: C is a Cholesky factor S; 0: C is P */
 #define QUADROTOR_SPIRAL_SKI_DT 0.02 /* sample time, s */
-/* Index of every name: z[QUADROTOR_SPIRAL_SKI_Z_<state or weight>], u[QUADROTOR_SPIRAL_SKI_U_<input>], y[QUADROTOR_SPIRAL_SKI_Y_<output>]. */
+/* Index of every name: z[QUADROTOR_SPIRAL_SKI_Z_<state or weight>], u[QUADROTOR_SPIRAL_SKI_U_<input>], y[QUADROTOR_SPIRAL_SKI_Y_<output>],
+ * settings.param[QUADROTOR_SPIRAL_SKI_P_<declared parameter>]. */
 #define QUADROTOR_SPIRAL_SKI_Z_PX 0
 #define QUADROTOR_SPIRAL_SKI_Z_PY 1
 #define QUADROTOR_SPIRAL_SKI_Z_PZ 2

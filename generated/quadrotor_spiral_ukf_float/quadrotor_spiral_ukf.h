@@ -52,8 +52,9 @@ typedef float quadrotor_spiral_ukf_real;
 #define QUADROTOR_SPIRAL_UKF_NY 3      /* outputs (measurements) */
 #define QUADROTOR_SPIRAL_UKF_NMEM 0    /* remembered past inputs */
 #define QUADROTOR_SPIRAL_UKF_SQUARE_ROOT 1 /* 1: C is a Cholesky factor S; 0: C is P */
-#define QUADROTOR_SPIRAL_UKF_DT 0.02 /* sample time, s */
-/* Index of every name: z[QUADROTOR_SPIRAL_UKF_Z_<state or weight>], u[QUADROTOR_SPIRAL_UKF_U_<input>], y[QUADROTOR_SPIRAL_UKF_Y_<output>]. */
+#define QUADROTOR_SPIRAL_UKF_DT 0.02f /* sample time, s */
+/* Index of every name: z[QUADROTOR_SPIRAL_UKF_Z_<state or weight>], u[QUADROTOR_SPIRAL_UKF_U_<input>], y[QUADROTOR_SPIRAL_UKF_Y_<output>],
+ * settings.param[QUADROTOR_SPIRAL_UKF_P_<declared parameter>]. */
 #define QUADROTOR_SPIRAL_UKF_Z_PX 0
 #define QUADROTOR_SPIRAL_UKF_Z_PY 1
 #define QUADROTOR_SPIRAL_UKF_Z_PZ 2

@@ -52,8 +52,9 @@ typedef float quadrotor_vertical_ski_real;
 #define QUADROTOR_VERTICAL_SKI_NY 1      /* outputs (measurements) */
 #define QUADROTOR_VERTICAL_SKI_NMEM 0    /* remembered past inputs */
 #define QUADROTOR_VERTICAL_SKI_SQUARE_ROOT 1 /* 1: C is a Cholesky factor S; 0: C is P */
-#define QUADROTOR_VERTICAL_SKI_DT 0.01 /* sample time, s */
-/* Index of every name: z[QUADROTOR_VERTICAL_SKI_Z_<state or weight>], u[QUADROTOR_VERTICAL_SKI_U_<input>], y[QUADROTOR_VERTICAL_SKI_Y_<output>]. */
+#define QUADROTOR_VERTICAL_SKI_DT 0.01f /* sample time, s */
+/* Index of every name: z[QUADROTOR_VERTICAL_SKI_Z_<state or weight>], u[QUADROTOR_VERTICAL_SKI_U_<input>], y[QUADROTOR_VERTICAL_SKI_Y_<output>],
+ * settings.param[QUADROTOR_VERTICAL_SKI_P_<declared parameter>]. */
 #define QUADROTOR_VERTICAL_SKI_Z_PZ 0
 #define QUADROTOR_VERTICAL_SKI_Z_VZ 1
 #define QUADROTOR_VERTICAL_SKI_Z_W_ONE 2

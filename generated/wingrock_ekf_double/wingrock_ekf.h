@@ -53,7 +53,8 @@ typedef double wingrock_ekf_real;
 #define WINGROCK_EKF_NMEM 0    /* remembered past inputs */
 #define WINGROCK_EKF_SQUARE_ROOT 0 /* 1: C is a Cholesky factor S; 0: C is P */
 #define WINGROCK_EKF_DT 0.02 /* sample time, s */
-/* Index of every name: z[WINGROCK_EKF_Z_<state or weight>], u[WINGROCK_EKF_U_<input>], y[WINGROCK_EKF_Y_<output>]. */
+/* Index of every name: z[WINGROCK_EKF_Z_<state or weight>], u[WINGROCK_EKF_U_<input>], y[WINGROCK_EKF_Y_<output>],
+ * settings.param[WINGROCK_EKF_P_<declared parameter>]. */
 #define WINGROCK_EKF_Z_THETA 0
 #define WINGROCK_EKF_Z_P 1
 #define WINGROCK_EKF_Z_W_ONE 2

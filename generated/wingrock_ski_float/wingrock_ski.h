@@ -52,8 +52,9 @@ typedef float wingrock_ski_real;
 #define WINGROCK_SKI_NY 1      /* outputs (measurements) */
 #define WINGROCK_SKI_NMEM 0    /* remembered past inputs */
 #define WINGROCK_SKI_SQUARE_ROOT 1 /* 1: C is a Cholesky factor S; 0: C is P */
-#define WINGROCK_SKI_DT 0.02 /* sample time, s */
-/* Index of every name: z[WINGROCK_SKI_Z_<state or weight>], u[WINGROCK_SKI_U_<input>], y[WINGROCK_SKI_Y_<output>]. */
+#define WINGROCK_SKI_DT 0.02f /* sample time, s */
+/* Index of every name: z[WINGROCK_SKI_Z_<state or weight>], u[WINGROCK_SKI_U_<input>], y[WINGROCK_SKI_Y_<output>],
+ * settings.param[WINGROCK_SKI_P_<declared parameter>]. */
 #define WINGROCK_SKI_Z_THETA 0
 #define WINGROCK_SKI_Z_P 1
 #define WINGROCK_SKI_Z_W_ONE 2

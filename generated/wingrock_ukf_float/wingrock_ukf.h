@@ -52,8 +52,9 @@ typedef float wingrock_ukf_real;
 #define WINGROCK_UKF_NY 1      /* outputs (measurements) */
 #define WINGROCK_UKF_NMEM 0    /* remembered past inputs */
 #define WINGROCK_UKF_SQUARE_ROOT 1 /* 1: C is a Cholesky factor S; 0: C is P */
-#define WINGROCK_UKF_DT 0.02 /* sample time, s */
-/* Index of every name: z[WINGROCK_UKF_Z_<state or weight>], u[WINGROCK_UKF_U_<input>], y[WINGROCK_UKF_Y_<output>]. */
+#define WINGROCK_UKF_DT 0.02f /* sample time, s */
+/* Index of every name: z[WINGROCK_UKF_Z_<state or weight>], u[WINGROCK_UKF_U_<input>], y[WINGROCK_UKF_Y_<output>],
+ * settings.param[WINGROCK_UKF_P_<declared parameter>]. */
 #define WINGROCK_UKF_Z_THETA 0
 #define WINGROCK_UKF_Z_P 1
 #define WINGROCK_UKF_Z_W_ONE 2

@@ -350,7 +350,7 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
                    "ski": "SKI (square-root UKF with ARD)", "mukf": "marginalised square-root UKF (MUKF)",
                    "ski_mukf": "SKI on the marginalised UKF (MUKF with ARD)"}[filt.kind],
         s_note=", s" if "s" in fields else "", s_reset=", s at its declared value" if "s" in fields else "",
-        DT=repr(float(model.dt)), index=_index_macros(filt, prefix.upper()),
+        DT=_literal(float(model.dt), real), index=_index_macros(filt, prefix.upper()),
         N=d["n"], NX=d["nx"], NW=d["nw"], NU=d["nu"], NY=d["ny"], NMEM=d["nmem"],
         NU1=max(d["nu"], 1), NY1=max(d["ny"], 1), SQUARE_ROOT=int(filt.square_root),
         SZ_ARG=max(sz["arg"], 1), SZ_RES=max(sz["res"], 1), SZ_IW=sz["iw"], SZ_W=sz["w"],
