@@ -12,15 +12,16 @@ __all__ = ["run"]
 
 def run(model: Model, data, *, filter: str = "ukf", backend: str = "python", columns=None, time=None,
         time_unit: str = "s", max_gap: float = 1.0, real: str = "double",
-        show_progress: bool = False) -> RunResult:
+        show_progress: bool = False, guard=None) -> RunResult:
     """Run ``model``'s ``filter`` over ``data`` on the model's grid.
 
     data: a CSV, Parquet or PX4 ULog path, or a pandas DataFrame (a time column, or a numeric or
     datetime index). columns: model input/output name -> column. time: the time column (default
     t, time or timestamp). time_unit: s, ms, us, ns or auto. max_gap: seconds without a sample
     reported as a hole (``result.holes``). backend: python or c (``real`` double or float).
+    guard: outlier gate and recovery settings (a :class:`skigen.guard.Guard`; default its defaults).
     Returns a :class:`~skigen.runtime.RunResult`; ``.to_frame()`` gives a DataFrame.
     """
     rec = load_recording(data, model.check(), time=time, time_unit=time_unit, columns=columns,
                          max_gap=max_gap, real=real)
-    return _run(derive(model, filter), rec, backend=backend, real=real, show_progress=show_progress)
+    return _run(derive(model, filter), rec, backend=backend, real=real, show_progress=show_progress, guard=guard)

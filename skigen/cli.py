@@ -16,7 +16,7 @@ from .recording import RecordingError
 __all__ = ["main", "load_model"]
 
 BENCHMARKS = ("wingrock", "delay", "quadrotor", "mukf", "speed", "footprint", "diagnose", "false_alarms", "fit",
-              "logs", "batch")
+              "logs", "batch", "faults")
 
 
 class CliError(Exception):
@@ -121,7 +121,7 @@ def _generate(args) -> int:
 
     model = load_model(args.model)
     try:
-        files = emit_c(derive(model, args.filter), args.out, real=args.real, style=args.style)
+        files = emit_c(derive(model, args.filter), args.out, real=args.real, style=args.style, prefix=args.prefix)
     except ValueError as exc:
         raise CliError(str(exc)) from None
     for f in files:
@@ -258,6 +258,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="kernel: 'unrolled' (flat scalar code, fastest for small models), 'loops' "
                         f"(filter algebra as loops; {', '.join(LOOPS_KINDS)}; small code at any size) or "
                         f"'auto' (loops above {AUTO_LOOPS_ABOVE_N} augmented states)")
+    g.add_argument("--prefix", help="C prefix of every symbol and file (default <model>_<filter>): "
+                                    "builds under different prefixes link into one binary")
     g.add_argument("--out", required=True, help="output directory")
     g.set_defaults(func=_generate)
     d = sub.add_parser("diagnose", help="find, name and correct what the model misses in a recording")

@@ -1,10 +1,12 @@
 """Run a derived filter over a recording, in Python or through the generated C.
 
-Both backends step with the same guards (those of the generated C): a
-non-finite input skips the sample (state unchanged), a non-finite
-measurement skips its update, and a step whose result is not finite is
-rejected, keeping the prior. Many rejections in a row mean the filter
-diverged, which is an error naming the time it began.
+Both backends step with the same guards and recovery policy (those of the
+generated C, :mod:`skigen.guard`): a non-finite input skips the sample (state
+unchanged), a non-finite or stuck measurement skips its update, an outlier
+fails the innovation gate and is not used, a step whose result is not finite
+is rejected (prior kept), and after a run of rejections or a long gap the
+physical states restart from the measurement. A run never stops on bad data:
+its summary reports these events.
 """
 from __future__ import annotations
 
@@ -14,30 +16,30 @@ import numpy as np
 
 from .derive import DerivedFilter, step_inputs
 from .emit.c import Status
+from .guard import Guard, bound_std, reinit
 from .progress import note, progress
 from .recording import Recording, write_table
 
-__all__ = ["RunResult", "RunSummary", "FilterDivergedError", "PythonStepper", "run", "iter_run", "iter_run_stream",
+__all__ = ["RunResult", "RunSummary", "PythonStepper", "Guard", "run", "iter_run", "iter_run_stream",
            "check_columns",
            "Status", "STATUS_WORDS"]
 
-MAX_REJECTED_IN_A_ROW = 20
 SLOW_DERIVATION_N = 80      # above this augmented-state size the symbolic step takes seconds: say so
 
 
-class FilterDivergedError(RuntimeError):
-    """The filter produced non-finite results for many samples in a row."""
-
-
-STATUS_WORDS = ("measured", "partial", "predicted", "bad_input", "rejected")
+STATUS_WORDS = ("measured", "partial", "predicted", "bad_input", "rejected", "gated", "stuck", "recovered")
+_CODE_WORD = {Status.BAD_INPUT: 3, Status.NUMERICAL_FAILURE: 4, Status.OUTLIER_REJECTED: 5,
+              Status.SENSOR_STUCK: 6, Status.REINITIALISED: 7}
 
 
 def status_words(code: np.ndarray, measured: np.ndarray) -> np.ndarray:
     """The step's status per sample: measured (every output), partial (some), predicted (none
-    measured), bad_input (non-finite input: nothing done), rejected (non-finite result: prior kept)."""
+    measured), bad_input (non-finite input: nothing done), rejected (non-finite result: prior kept),
+    gated (an outlier not used), stuck (a stuck reading not used), recovered (states restarted)."""
     any_ = measured.any(axis=1) if measured.size else np.zeros(len(code), bool)
     i = np.where(code == Status.OK, 0, np.where(any_, 1, 2))
-    i = np.where(code == Status.BAD_INPUT, 3, np.where(code == Status.NUMERICAL_FAILURE, 4, i))
+    for c, word in _CODE_WORD.items():
+        i = np.where(code == c, word, i)
     return np.array(STATUS_WORDS, dtype=object)[i]
 
 
@@ -112,6 +114,10 @@ class RunResult:
                    first.holes, first.notes)
 
 
+EVENTS = (Status.OUTLIER_REJECTED, Status.SENSOR_STUCK, Status.BAD_INPUT, Status.NUMERICAL_FAILURE,
+          Status.REINITIALISED)     # the codes a run summary counts
+
+
 class RunSummary:
     """What a run says at its end, gathered part by part: the weights' final values ± 2σ (SKI:
     which terms are kept), the holes, and the mean NIS against its expectation given the
@@ -123,6 +129,8 @@ class RunSummary:
         self.filter, self.samples, self.with_measurement = filt, 0, 0
         self.nis_sum, self.nis_count, self.expected_sum, self.last, self.t = 0.0, 0, 0.0, None, [np.nan, np.nan]
         self.holes, self.notes = (), ()
+        self.events = {c: 0 for c in EVENTS}
+        self.first_restart = None
 
     def add(self, part: RunResult) -> "RunSummary":
         ok = np.isfinite(part.nis)
@@ -132,6 +140,11 @@ class RunSummary:
         self.nis_count += int(ok.sum())
         self.expected_sum += float(part.measured[ok].sum())
         self.holes, self.notes = part.holes, part.notes
+        for c in EVENTS:
+            self.events[c] += int(np.sum(part.code == c))
+        restarted = np.flatnonzero(part.code == Status.REINITIALISED)
+        if self.first_restart is None and restarted.size:
+            self.first_restart = float(part.t[restarted[0]])
         if len(part.t):
             self.t = [self.t[0] if self.samples > len(part.t) else float(part.t[0]), float(part.t[-1])]
             good = np.flatnonzero(np.isfinite(part.mean[:, 0]))
@@ -160,6 +173,14 @@ class RunSummary:
             for j, i in enumerate(aug.w_index):
                 mark = "" if kept is None else ("   kept" if kept[j] else "   pruned")
                 out.append(f"  {aug.names[i]:16s} {self.last[0][i]:+.4g} ± {2 * self.last[1][i]:.2g}{mark}")
+        if any(self.events.values()):
+            words = {Status.OUTLIER_REJECTED: "gated (outlier not used)", Status.SENSOR_STUCK: "stuck reading",
+                     Status.BAD_INPUT: "bad input", Status.NUMERICAL_FAILURE: "rejected (non-finite)",
+                     Status.REINITIALISED: "recovered (states restarted)"}
+            out.append("events: " + ", ".join(f"{n} {words[c]}" for c, n in self.events.items() if n)
+                       + (f"; first restart at t = {self.first_restart:g} s" if self.first_restart is not None else ""))
+        else:
+            out.append("events: none (no outlier, stuck reading, bad input, rejection or restart)")
         if self.nis_count:
             expected = self.expected_sum / self.nis_count
             out.append(f"mean NIS {self.nis_sum / self.nis_count:.3f} (expected {expected:.3f}: the "
@@ -171,47 +192,104 @@ class RunSummary:
 
 
 class PythonStepper:
-    """The derived step Function behind the generated C's interface and guards.
+    """The derived step Function behind the generated C's interface, guards and recovery
+    policy (:mod:`skigen.guard`, rule for rule as ``<prefix>_step``).
 
-    Holds the filter state (z, C, s, mem) and, after each step, the posterior
-    (z_post, C_post) and innovation statistics (e, Pyy, nis, loglik).
+    Holds the filter state (z, C, s, mem), the counters of the policy and, after each step,
+    the posterior (z_post, C_post), innovation statistics (e, Pyy, nis, loglik) and the
+    outputs ``used``.
     """
 
-    def __init__(self, filt: DerivedFilter):
+    def __init__(self, filt: DerivedFilter, guard: Guard | None = None):
         self.filt = filt
+        self.configure(guard or Guard())
         self.init()
 
+    def configure(self, guard: Guard) -> None:
+        """The recovery policy's settings (kept by :meth:`init` and :meth:`reset`)."""
+        self.guard, self.std_max = guard, guard.std_max(self.filt.aug.P0)
+
     def init(self) -> None:
+        self.reset()
+
+    def reset(self, z0=None, C0=None) -> None:
+        """Restart from (z0, C0) (None: the declared value); history and counters at 0."""
         st = self.filt.initial()
-        self.z, self.C, self.mem, self.s = st["z"], st["C"], st["mem"], st.get("s")
+        self.z = st["z"] if z0 is None else np.array(z0, float)
+        self.C = st["C"] if C0 is None else np.array(C0, float)
+        self.mem, self.s = st["mem"], st.get("s")
+        ny = self.filt.aug.shapes["ny"]
+        self.y_last, self.repeats = np.zeros(ny), np.zeros(ny, int)
+        self.rejected, self.stuck = np.zeros(ny, int), np.zeros(ny, int)
+        self.reinits = self.reject_run = self.since_update = 0
         self._reset_posterior()
 
     def _reset_posterior(self):
         ny = self.filt.aug.shapes["ny"]
         self.z_post, self.C_post = self.z, self.C
         self.e, self.Pyy, self.nis, self.loglik = np.zeros(ny), np.zeros((ny, ny)), 0.0, 0.0
+        self.used = np.zeros(ny)
 
-    def step(self, u, y) -> int:
-        """One sample; returns a :class:`Status` code."""
-        u, y = np.asarray(u, float), np.asarray(y, float)
-        if not np.all(np.isfinite(u)):
-            return Status.BAD_INPUT
-        valid = np.isfinite(y)
+    def _run(self, u, y, valid):
+        """The derived step on the prior: its results, or None when one is not finite."""
         ski = self.filt.has_ard
         args = [self.z, self.C] + ([self.s] if ski else []) + [u, self.mem, np.where(valid, y, 0.0),
                                                               valid.astype(float)]
-        z_post, C_post, *rest = (np.asarray(r) for r in self.filt.step(*args))
-        s_next = rest.pop(0).ravel() if ski else None
-        z_next, C_next, mem_next, e, Pyy, nis, loglik = rest
-        self.mem = mem_next.ravel()
-        if not all(np.all(np.isfinite(a)) for a in [z_post, C_post, z_next, C_next] + ([s_next] if ski else [])):
+        out = dict(zip(self.filt.names_out, (np.asarray(r) for r in self.filt.step(*args))))
+        return out, all(np.all(np.isfinite(v)) for v in out.values())
+
+    def _present(self, y):
+        """Which outputs are measured and not stuck; updates the stuck-sensor counters."""
+        valid, code = np.isfinite(y), Status.OK if np.all(np.isfinite(y)) else Status.MEASUREMENT_SKIPPED
+        for i in np.flatnonzero(valid):
+            self.repeats[i] = self.repeats[i] + 1 if y[i] == self.y_last[i] else 0
+            self.y_last[i] = y[i]
+            if 0 < self.guard.stuck_limit <= self.repeats[i]:
+                self.stuck[i] += 1
+                valid[i], code = False, Status.SENSOR_STUCK
+        return valid, code
+
+    def step(self, u, y) -> int:
+        """One sample; returns a :class:`Status` code."""
+        g, aug = self.guard, self.filt.aug
+        u, y = np.asarray(u, float), np.asarray(y, float).ravel()
+        if not np.all(np.isfinite(u)):
+            self.since_update += 1
+            return Status.BAD_INPUT
+        valid, code = self._present(y)
+        present = valid.any()
+        recover = present and (self.since_update >= g.gap_limit or self.reject_run >= g.reject_limit)
+        if recover:
+            st = self.filt.initial()
+            self.z, self.C = reinit(self.z, self.C, aug.shapes["nx"], st["z"], st["C"], g.reinit_scale,
+                                    self.filt.square_root)
+        out, ok = self._run(u, y, valid)
+        if not recover and g.gate > 0:
+            v = np.diag(np.reshape(out["Pyy"], (len(y), len(y))))
+            with np.errstate(invalid="ignore", over="ignore"):
+                gated = valid & ~(np.abs(out["e"].ravel()) <= g.gate * np.sqrt(np.where(v > 0, v, 0)))
+            if gated.any():
+                self.rejected += gated
+                valid = valid & ~gated
+                out, ok = self._run(u, y, valid)
+                code = Status.OUTLIER_REJECTED
+        if ok and valid.any():
+            self.since_update = self.reject_run = 0
+        else:
+            self.since_update += 1
+            self.reject_run += int(bool(present))
+        self.reinits += int(recover)
+        self.mem = out["mem_next"].ravel()
+        if not ok:
             self._reset_posterior()
             return Status.NUMERICAL_FAILURE
-        self.z_post, self.C_post, self.z, self.C = z_post.ravel(), C_post, z_next.ravel(), C_next
-        self.e, self.Pyy, self.nis, self.loglik = e.ravel(), Pyy, nis.item(), loglik.item()
-        if ski:
-            self.s = s_next
-        return Status.OK if valid.all() else Status.MEASUREMENT_SKIPPED
+        self.z_post, self.C_post = out["z_post"].ravel(), out["C_post"]
+        self.z, self.C = out["z_next"].ravel(), bound_std(out["C_next"], self.std_max, self.filt.square_root)
+        self.e, self.Pyy, self.nis, self.loglik = out["e"].ravel(), out["Pyy"], out["nis"].item(), out["loglik"].item()
+        self.used = valid.astype(float)
+        if self.filt.has_ard:
+            self.s = out["s_next"].ravel()
+        return Status.REINITIALISED if recover else code
 
     def std(self) -> np.ndarray:
         """Posterior standard deviations."""
@@ -241,11 +319,12 @@ def _step_python(stepper: PythonStepper, inputs, outputs) -> dict[str, np.ndarra
     N, n, ny = len(inputs), stepper.filt.aug.n, outputs.shape[1]
     nw = len(stepper.filt.aug.w_index) if stepper.filt.has_ard else 0
     raw = dict(z_post=np.empty((N, n)), std=np.empty((N, n)), e=np.empty((N, ny)), pyy=np.empty((N, ny)),
-               nis=np.empty(N), loglik=np.empty(N), s=np.empty((N, nw)), code=np.empty(N, int))
+               nis=np.empty(N), loglik=np.empty(N), s=np.empty((N, nw)), used=np.empty((N, ny)),
+               code=np.empty(N, int))
     for k in range(N):
         raw["code"][k] = stepper.step(inputs[k], outputs[k])
         raw["z_post"][k], raw["std"][k] = stepper.z_post, stepper.std()
-        raw["e"][k], raw["pyy"][k] = stepper.e, np.diag(stepper.Pyy)
+        raw["e"][k], raw["pyy"][k], raw["used"][k] = stepper.e, np.diag(stepper.Pyy), stepper.used
         raw["nis"][k], raw["loglik"][k] = stepper.nis, stepper.loglik
         if nw:
             raw["s"][k] = stepper.s
@@ -253,14 +332,15 @@ def _step_python(stepper: PythonStepper, inputs, outputs) -> dict[str, np.ndarra
 
 
 def _part(filt, t, outputs, raw, holes=(), notes=()) -> RunResult:
-    """A RunResult from the raw records of a part: NaN where nothing was done or measured."""
+    """A RunResult from the raw records of a part: NaN where nothing was done or used."""
     code = np.asarray(raw["code"], int)
     valid = np.isfinite(outputs)
     stepped = code != Status.BAD_INPUT
-    update = (code != Status.NUMERICAL_FAILURE) & stepped & valid.any(axis=1)
+    used = (np.asarray(raw["used"]) != 0) & stepped[:, None]
+    update = used.any(axis=1)
     f = lambda a, mask: np.where(mask, np.asarray(a, float), np.nan)
     mean, std = f(raw["z_post"], stepped[:, None]), f(raw["std"], stepped[:, None])
-    e, ev = f(raw["e"], update[:, None] & valid), f(raw["pyy"], update[:, None] & valid)
+    e, ev = f(raw["e"], used), f(raw["pyy"], used)
     nis = f(raw["nis"], update)
     ll = np.where(update, raw["loglik"], np.where(stepped, 0.0, np.nan))
     s = f(raw["s"], stepped[:, None]) if filt.has_ard else np.zeros((len(t), 0))
@@ -268,33 +348,14 @@ def _part(filt, t, outputs, raw, holes=(), notes=()) -> RunResult:
                      valid, holes, notes)
 
 
-def _check_diverged(filt, path, time_at, part: RunResult, start: int, rejected: int) -> int:
-    """The count of rejected steps in a row at the part's end; an error at MAX_REJECTED_IN_A_ROW."""
-    if not np.any(part.code == Status.NUMERICAL_FAILURE):
-        return 0 if np.any(part.code != Status.BAD_INPUT) else rejected
-    for k, c in enumerate(part.code):
-        if c == Status.BAD_INPUT:
-            continue
-        rejected = rejected + 1 if c == Status.NUMERICAL_FAILURE else 0
-        if rejected >= MAX_REJECTED_IN_A_ROW:
-            k0 = start + k - rejected + 1
-            model = filt.aug.model
-            raise FilterDivergedError(
-                f"{path}: the {filt.kind} filter of '{model.name}' diverged: {rejected} non-finite "
-                f"steps in a row from t = {time_at(k0):g} s (grid sample {k0})")
-    return rejected
-
-
 def _steps(filt, stepper, backend, pieces, again, path, time_at, holes=(), notes=()):
     """Step over ``pieces`` (grid index of the first sample, t, step inputs, outputs), restarting the
     states before a piece whose first index is in ``again``; a RunResult per piece."""
-    rejected = 0
     for a, t, u, y in pieces:
         if a in again and a > 0:
             forget_states(stepper, filt)
         raw = stepper.run_many(u, y) if backend == "c" else _step_python(stepper, u, y)
         part = _part(filt, t, y, raw, holes, notes)
-        rejected = _check_diverged(filt, path, time_at, part, a, rejected)
         C = np.asarray(stepper.C_post, float)
         part.final_cov = C @ C.T if filt.square_root else C
         yield part
@@ -326,27 +387,31 @@ def forget_states(stepper, filt: DerivedFilter) -> None:
         stepper.C = new
 
 
-def _stepper(filt, backend, real, show_progress, cache_dir):
+def _stepper(filt, backend, real, show_progress, cache_dir, guard=None):
     aug, model = filt.aug, filt.aug.model
     if backend == "c":
         from .emit.c import load_c
-        return load_c(filt, real, cache_dir=cache_dir)
+        cf = load_c(filt, real, cache_dir=cache_dir)
+        if guard is not None:
+            cf.configure(guard)
+        return cf
     if backend == "python":
         if show_progress and "step" not in filt.__dict__ and aug.n > SLOW_DERIVATION_N:
             note(f"deriving the {filt.kind} step of '{model.name}' symbolically (n = {aug.n}: this "
                  f"takes a while; the C backend does not need it)")
-        return PythonStepper(filt)
+        return PythonStepper(filt, guard)
     raise ValueError(f"unknown backend '{backend}'; choose python or c")
 
 
 def iter_run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", real: str = "double",
-             show_progress: bool = True, label: str | None = None, cache_dir=None, chunk: int | None = None):
+             show_progress: bool = True, label: str | None = None, cache_dir=None, chunk: int | None = None,
+             guard: Guard | None = None):
     """:func:`run` part by part: yields a RunResult per ``chunk`` samples, so that a long
     recording can be written as it is filtered. Each part's ``final_cov`` is the posterior
     covariance at its end (the last part's is the run's)."""
     model = filt.aug.model
     check_columns(model, rec)
-    stepper = _stepper(filt, backend, real, show_progress, cache_dir)
+    stepper = _stepper(filt, backend, real, show_progress, cache_dir, guard)
     inputs, N = step_inputs(model, rec.inputs), len(rec.t)
     chunk = chunk or CHUNK[backend]
     again = set(restarts(rec, model.dt))
@@ -388,7 +453,7 @@ def _cut(grid, k0, t, u, y, chunk):
 
 def iter_run_stream(filt: DerivedFilter, grid, *, backend: str = "python", real: str = "double",
                     show_progress: bool = True, label: str | None = None, cache_dir=None,
-                    chunk: int | None = None):
+                    chunk: int | None = None, guard: Guard | None = None):
     """:func:`iter_run` over a :class:`~skigen.grid.GridStream` (a CSV file read block by block):
     the same parts, sample for sample, while memory holds a block and not the recording. The
     parts carry no holes or notes: ``grid.holes`` and ``grid.notes`` are complete at the end."""
@@ -397,7 +462,7 @@ def iter_run_stream(filt: DerivedFilter, grid, *, backend: str = "python", real:
     if (grid.input_names, grid.output_names) != want:
         raise ValueError(f"{grid.stream.source}: the stream reads {grid.input_names + grid.output_names}, "
                          f"model '{model.name}' has {want[0] + want[1]}")
-    stepper = _stepper(filt, backend, real, show_progress, cache_dir)
+    stepper = _stepper(filt, backend, real, show_progress, cache_dir, guard)
     chunk = chunk or CHUNK[backend]
     label = label or f"{model.name} {filt.kind} ({backend})"
     pieces = _stream_pieces(grid, model.input_hold == "foh", chunk)
@@ -407,11 +472,13 @@ def iter_run_stream(filt: DerivedFilter, grid, *, backend: str = "python", real:
 
 
 def run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", real: str = "double",
-        show_progress: bool = True, label: str | None = None, cache_dir=None) -> RunResult:
+        show_progress: bool = True, label: str | None = None, cache_dir=None,
+        guard: Guard | None = None) -> RunResult:
     """Filter the whole recording; returns the posterior at every sample.
 
     backend: ``"python"`` (the CasADi Function) or ``"c"`` (the generated C,
-    compiled and cached on first use, in ``real`` precision).
+    compiled and cached on first use, in ``real`` precision). guard: the
+    recovery policy's settings (default :class:`~skigen.guard.Guard`).
     """
     return RunResult.concat(list(iter_run(filt, rec, backend=backend, real=real, show_progress=show_progress,
-                                          label=label, cache_dir=cache_dir)))
+                                          label=label, cache_dir=cache_dir, guard=guard)))

@@ -19,17 +19,27 @@ extern "C" {
 
 #ifndef SKIGEN_STATUS_CODES
 #define SKIGEN_STATUS_CODES
-/* Return codes of every skigen <prefix>_step. */
+/* Return codes of every skigen <prefix>_step (the recovery policy: skigen/guard.py). */
 enum skigen_status {
     SKIGEN_OK = 0,                  /* updated with every measurement and predicted */
     SKIGEN_MEASUREMENT_SKIPPED = 1, /* a non-finite y[i] (NaN = not measured): that output was
                                        skipped, the rest updated, the state predicted */
-    SKIGEN_BAD_INPUT = 2,           /* a non-finite u[i]: nothing done, the state is unchanged */
-    SKIGEN_NUMERICAL_FAILURE = 3    /* the step gave a non-finite result (failed Cholesky,
+    SKIGEN_BAD_INPUT = 2,           /* a non-finite u[i]: nothing done, the state is unchanged
+                                       (only since_update counts the sample) */
+    SKIGEN_NUMERICAL_FAILURE = 3,   /* the step gave a non-finite result (failed Cholesky,
                                        non-positive innovation variance, divergence): it was
                                        rejected; z, C keep their prior values, z_post/C_post
-                                       equal them, e, Pyy, nis, loglik are 0; the input history
-                                       still advances */
+                                       equal them, e, Pyy, nis, loglik, used are 0; the input
+                                       history still advances */
+    SKIGEN_OUTLIER_REJECTED = 4,    /* a y[i] failed the innovation gate, |e_i| > gate sqrt(Pyy_ii):
+                                       it was not used (counted in rejected[i]); the rest updated,
+                                       the state predicted */
+    SKIGEN_SENSOR_STUCK = 5,        /* a y[i] repeated bit for bit stuck_limit times or more: it was
+                                       not used (counted in stuck[i]) */
+    SKIGEN_REINITIALISED = 6        /* recovery after reject_limit rejected samples in a row or a
+                                       gap of gap_limit samples: the physical states restarted
+                                       at their declared mean and reinit_scale times their
+                                       declared covariance, weights kept, then updated with y */
 };
 #endif
 
@@ -42,11 +52,45 @@ typedef double quadrotor_rk4_ukf_real;
 #define QUADROTOR_RK4_UKF_NY 6      /* outputs (measurements) */
 #define QUADROTOR_RK4_UKF_NMEM 0    /* remembered past inputs */
 #define QUADROTOR_RK4_UKF_SQUARE_ROOT 1 /* 1: C is a Cholesky factor S; 0: C is P */
+#define QUADROTOR_RK4_UKF_DT 0.02 /* sample time, s */
+/* Index of every name: z[QUADROTOR_RK4_UKF_Z_<state or weight>], u[QUADROTOR_RK4_UKF_U_<input>], y[QUADROTOR_RK4_UKF_Y_<output>],
+ * settings.param[QUADROTOR_RK4_UKF_P_<declared parameter>]. */
+#define QUADROTOR_RK4_UKF_Z_V_X 0
+#define QUADROTOR_RK4_UKF_Z_V_Y 1
+#define QUADROTOR_RK4_UKF_Z_V_Z 2
+#define QUADROTOR_RK4_UKF_Z_X 3
+#define QUADROTOR_RK4_UKF_Z_Y 4
+#define QUADROTOR_RK4_UKF_Z_Z 5
+#define QUADROTOR_RK4_UKF_Z_THETA 6
+#define QUADROTOR_RK4_UKF_Z_PHI 7
+#define QUADROTOR_RK4_UKF_U_F_X 0
+#define QUADROTOR_RK4_UKF_U_F_Y 1
+#define QUADROTOR_RK4_UKF_U_F_Z 2
+#define QUADROTOR_RK4_UKF_Y_X_M 0
+#define QUADROTOR_RK4_UKF_Y_Y_M 1
+#define QUADROTOR_RK4_UKF_Y_Z_M 2
+#define QUADROTOR_RK4_UKF_Y_V_X_M 3
+#define QUADROTOR_RK4_UKF_Y_V_Y_M 4
+#define QUADROTOR_RK4_UKF_Y_V_Z_M 5
+
 /* Work sizes of the generated kernel (arrays below are at least 1 long to stay C99). */
-#define QUADROTOR_RK4_UKF_SZ_ARG 6
+#define QUADROTOR_RK4_UKF_SZ_ARG 9
 #define QUADROTOR_RK4_UKF_SZ_RES 9
 #define QUADROTOR_RK4_UKF_SZ_IW 0
 #define QUADROTOR_RK4_UKF_SZ_W 0
+
+/* Run-time settings: quadrotor_rk4_ukf_init sets the declared values; change them between steps. */
+typedef struct {
+    quadrotor_rk4_ukf_real Q_sqrt[64]; /* lower factor of the process noise, Q = Q_sqrt Q_sqrt^T (upper ignored) */
+    quadrotor_rk4_ukf_real R_sqrt[36]; /* lower factor of the measurement noise, R = R_sqrt R_sqrt^T */
+    quadrotor_rk4_ukf_real param[1]; /* declared parameters, see the _P_ index macros */
+    quadrotor_rk4_ukf_real gate; /* innovation gate per output, in standard deviations (0: off) */
+    quadrotor_rk4_ukf_real reinit_scale; /* variance multiple of the declared initial covariance at a restart */
+    quadrotor_rk4_ukf_real std_max[8]; /* bound on each prior standard deviation (INFINITY: none) */
+    long reject_limit; /* samples in a row with their measurement rejected before a restart */
+    long gap_limit; /* samples without a used measurement before the next one restarts */
+    long stuck_limit; /* identical readings in a row from which an output is stuck (0: off) */
+} quadrotor_rk4_ukf_settings;
 
 typedef struct {
     quadrotor_rk4_ukf_real z[8]; /* prior mean for the next sample */
@@ -58,9 +102,18 @@ typedef struct {
     quadrotor_rk4_ukf_real Pyy[36]; /* innovation covariance */
     quadrotor_rk4_ukf_real nis; /* normalised innovation squared */
     quadrotor_rk4_ukf_real loglik; /* log-likelihood of the measurement */
+    quadrotor_rk4_ukf_real used[6]; /* 1 where y[i] updated the state at the last sample, else 0 */
+    quadrotor_rk4_ukf_real y_last[6]; /* last finite reading of each output (stuck-sensor check) */
     quadrotor_rk4_ukf_real z_next[8]; /* scratch: kernel results awaiting acceptance */
     quadrotor_rk4_ukf_real C_next[64]; /* scratch */
     quadrotor_rk4_ukf_real mem_next[1]; /* scratch */
+    quadrotor_rk4_ukf_settings settings; /* run-time settings, changeable between steps */
+    long rejected[6]; /* measurements rejected by the gate, per output, in total */
+    long stuck[6]; /* readings not used as stuck, per output, in total */
+    long repeats[6]; /* identical readings in a row so far, per output */
+    long reinits; /* restarts of the physical states (recovery), in total */
+    long reject_run; /* samples in a row whose measurement was rejected */
+    long since_update; /* samples since a measurement was last used */
     int iw[1]; /* kernel work */
     quadrotor_rk4_ukf_real w[1]; /* kernel work */
 } quadrotor_rk4_ukf_state;
@@ -70,8 +123,17 @@ extern const char* const quadrotor_rk4_ukf_state_names[QUADROTOR_RK4_UKF_N];
 extern const char* const quadrotor_rk4_ukf_input_names[3];
 extern const char* const quadrotor_rk4_ukf_output_names[6];
 
-/* Set the declared initial values (prior mean, covariance, zero input history). */
+/* Set the declared settings and initial values (prior mean, covariance, zero input
+ * history and counters). */
 void quadrotor_rk4_ukf_init(quadrotor_rk4_ukf_state* st);
+
+/* The declared settings. */
+void quadrotor_rk4_ukf_settings_init(quadrotor_rk4_ukf_settings* set);
+
+/* Restart from the prior mean z0[QUADROTOR_RK4_UKF_N] and C0[QUADROTOR_RK4_UKF_N * QUADROTOR_RK4_UKF_N] (the covariance P
+ * (EKF) or its lower Cholesky factor S, as C); NULL takes the declared value. The input history
+ * and counters restart at 0; st->settings is kept. */
+void quadrotor_rk4_ukf_reset(quadrotor_rk4_ukf_state* st, const double* z0, const double* C0);
 
 /* One sample: u[QUADROTOR_RK4_UKF_NU] inputs, y[QUADROTOR_RK4_UKF_NY] measurements (NaN = missing; y may be
  * NULL when nothing is measured). Returns a skigen_status code, see above. */

@@ -32,7 +32,7 @@ const casadi_int* quadrotor_spiral_ski_kernel_sparsity_in(casadi_int i);
 const casadi_int* quadrotor_spiral_ski_kernel_sparsity_out(casadi_int i);
 int quadrotor_spiral_ski_kernel_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int quadrotor_spiral_ski_kernel_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define quadrotor_spiral_ski_kernel_SZ_ARG 7
+#define quadrotor_spiral_ski_kernel_SZ_ARG 10
 #define quadrotor_spiral_ski_kernel_SZ_RES 10
 #define quadrotor_spiral_ski_kernel_SZ_IW 0
 #define quadrotor_spiral_ski_kernel_SZ_W 0

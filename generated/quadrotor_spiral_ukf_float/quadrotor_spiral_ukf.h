@@ -19,17 +19,27 @@ extern "C" {
 
 #ifndef SKIGEN_STATUS_CODES
 #define SKIGEN_STATUS_CODES
-/* Return codes of every skigen <prefix>_step. */
+/* Return codes of every skigen <prefix>_step (the recovery policy: skigen/guard.py). */
 enum skigen_status {
     SKIGEN_OK = 0,                  /* updated with every measurement and predicted */
     SKIGEN_MEASUREMENT_SKIPPED = 1, /* a non-finite y[i] (NaN = not measured): that output was
                                        skipped, the rest updated, the state predicted */
-    SKIGEN_BAD_INPUT = 2,           /* a non-finite u[i]: nothing done, the state is unchanged */
-    SKIGEN_NUMERICAL_FAILURE = 3    /* the step gave a non-finite result (failed Cholesky,
+    SKIGEN_BAD_INPUT = 2,           /* a non-finite u[i]: nothing done, the state is unchanged
+                                       (only since_update counts the sample) */
+    SKIGEN_NUMERICAL_FAILURE = 3,   /* the step gave a non-finite result (failed Cholesky,
                                        non-positive innovation variance, divergence): it was
                                        rejected; z, C keep their prior values, z_post/C_post
-                                       equal them, e, Pyy, nis, loglik are 0; the input history
-                                       still advances */
+                                       equal them, e, Pyy, nis, loglik, used are 0; the input
+                                       history still advances */
+    SKIGEN_OUTLIER_REJECTED = 4,    /* a y[i] failed the innovation gate, |e_i| > gate sqrt(Pyy_ii):
+                                       it was not used (counted in rejected[i]); the rest updated,
+                                       the state predicted */
+    SKIGEN_SENSOR_STUCK = 5,        /* a y[i] repeated bit for bit stuck_limit times or more: it was
+                                       not used (counted in stuck[i]) */
+    SKIGEN_REINITIALISED = 6        /* recovery after reject_limit rejected samples in a row or a
+                                       gap of gap_limit samples: the physical states restarted
+                                       at their declared mean and reinit_scale times their
+                                       declared covariance, weights kept, then updated with y */
 };
 #endif
 
@@ -42,11 +52,50 @@ typedef float quadrotor_spiral_ukf_real;
 #define QUADROTOR_SPIRAL_UKF_NY 3      /* outputs (measurements) */
 #define QUADROTOR_SPIRAL_UKF_NMEM 0    /* remembered past inputs */
 #define QUADROTOR_SPIRAL_UKF_SQUARE_ROOT 1 /* 1: C is a Cholesky factor S; 0: C is P */
+#define QUADROTOR_SPIRAL_UKF_DT 0.02f /* sample time, s */
+/* Index of every name: z[QUADROTOR_SPIRAL_UKF_Z_<state or weight>], u[QUADROTOR_SPIRAL_UKF_U_<input>], y[QUADROTOR_SPIRAL_UKF_Y_<output>],
+ * settings.param[QUADROTOR_SPIRAL_UKF_P_<declared parameter>]. */
+#define QUADROTOR_SPIRAL_UKF_Z_PX 0
+#define QUADROTOR_SPIRAL_UKF_Z_PY 1
+#define QUADROTOR_SPIRAL_UKF_Z_PZ 2
+#define QUADROTOR_SPIRAL_UKF_Z_VX 3
+#define QUADROTOR_SPIRAL_UKF_Z_VY 4
+#define QUADROTOR_SPIRAL_UKF_Z_VZ 5
+#define QUADROTOR_SPIRAL_UKF_Z_W_ONE 6
+#define QUADROTOR_SPIRAL_UKF_Z_W_PWM 7
+#define QUADROTOR_SPIRAL_UKF_Z_W_PWM2 8
+#define QUADROTOR_SPIRAL_UKF_Z_W_PWM3 9
+#define QUADROTOR_SPIRAL_UKF_Z_W_PWM4 10
+#define QUADROTOR_SPIRAL_UKF_Z_W_PWM5 11
+#define QUADROTOR_SPIRAL_UKF_Z_W_DRAG_LIN 12
+#define QUADROTOR_SPIRAL_UKF_Z_W_DRAG_QUAD 13
+#define QUADROTOR_SPIRAL_UKF_U_QW 0
+#define QUADROTOR_SPIRAL_UKF_U_QX 1
+#define QUADROTOR_SPIRAL_UKF_U_QY 2
+#define QUADROTOR_SPIRAL_UKF_U_QZ 3
+#define QUADROTOR_SPIRAL_UKF_U_PWM 4
+#define QUADROTOR_SPIRAL_UKF_Y_X 0
+#define QUADROTOR_SPIRAL_UKF_Y_Y 1
+#define QUADROTOR_SPIRAL_UKF_Y_Z 2
+
 /* Work sizes of the generated kernel (arrays below are at least 1 long to stay C99). */
-#define QUADROTOR_SPIRAL_UKF_SZ_ARG 6
+#define QUADROTOR_SPIRAL_UKF_SZ_ARG 9
 #define QUADROTOR_SPIRAL_UKF_SZ_RES 9
 #define QUADROTOR_SPIRAL_UKF_SZ_IW 0
 #define QUADROTOR_SPIRAL_UKF_SZ_W 0
+
+/* Run-time settings: quadrotor_spiral_ukf_init sets the declared values; change them between steps. */
+typedef struct {
+    quadrotor_spiral_ukf_real Q_sqrt[196]; /* lower factor of the process noise, Q = Q_sqrt Q_sqrt^T (upper ignored) */
+    quadrotor_spiral_ukf_real R_sqrt[9]; /* lower factor of the measurement noise, R = R_sqrt R_sqrt^T */
+    quadrotor_spiral_ukf_real param[1]; /* declared parameters, see the _P_ index macros */
+    quadrotor_spiral_ukf_real gate; /* innovation gate per output, in standard deviations (0: off) */
+    quadrotor_spiral_ukf_real reinit_scale; /* variance multiple of the declared initial covariance at a restart */
+    quadrotor_spiral_ukf_real std_max[14]; /* bound on each prior standard deviation (INFINITY: none) */
+    long reject_limit; /* samples in a row with their measurement rejected before a restart */
+    long gap_limit; /* samples without a used measurement before the next one restarts */
+    long stuck_limit; /* identical readings in a row from which an output is stuck (0: off) */
+} quadrotor_spiral_ukf_settings;
 
 typedef struct {
     quadrotor_spiral_ukf_real z[14]; /* prior mean for the next sample */
@@ -58,9 +107,18 @@ typedef struct {
     quadrotor_spiral_ukf_real Pyy[9]; /* innovation covariance */
     quadrotor_spiral_ukf_real nis; /* normalised innovation squared */
     quadrotor_spiral_ukf_real loglik; /* log-likelihood of the measurement */
+    quadrotor_spiral_ukf_real used[3]; /* 1 where y[i] updated the state at the last sample, else 0 */
+    quadrotor_spiral_ukf_real y_last[3]; /* last finite reading of each output (stuck-sensor check) */
     quadrotor_spiral_ukf_real z_next[14]; /* scratch: kernel results awaiting acceptance */
     quadrotor_spiral_ukf_real C_next[196]; /* scratch */
     quadrotor_spiral_ukf_real mem_next[1]; /* scratch */
+    quadrotor_spiral_ukf_settings settings; /* run-time settings, changeable between steps */
+    long rejected[3]; /* measurements rejected by the gate, per output, in total */
+    long stuck[3]; /* readings not used as stuck, per output, in total */
+    long repeats[3]; /* identical readings in a row so far, per output */
+    long reinits; /* restarts of the physical states (recovery), in total */
+    long reject_run; /* samples in a row whose measurement was rejected */
+    long since_update; /* samples since a measurement was last used */
     int iw[1]; /* kernel work */
     quadrotor_spiral_ukf_real w[1]; /* kernel work */
 } quadrotor_spiral_ukf_state;
@@ -70,8 +128,17 @@ extern const char* const quadrotor_spiral_ukf_state_names[QUADROTOR_SPIRAL_UKF_N
 extern const char* const quadrotor_spiral_ukf_input_names[5];
 extern const char* const quadrotor_spiral_ukf_output_names[3];
 
-/* Set the declared initial values (prior mean, covariance, zero input history). */
+/* Set the declared settings and initial values (prior mean, covariance, zero input
+ * history and counters). */
 void quadrotor_spiral_ukf_init(quadrotor_spiral_ukf_state* st);
+
+/* The declared settings. */
+void quadrotor_spiral_ukf_settings_init(quadrotor_spiral_ukf_settings* set);
+
+/* Restart from the prior mean z0[QUADROTOR_SPIRAL_UKF_N] and C0[QUADROTOR_SPIRAL_UKF_N * QUADROTOR_SPIRAL_UKF_N] (the covariance P
+ * (EKF) or its lower Cholesky factor S, as C); NULL takes the declared value. The input history
+ * and counters restart at 0; st->settings is kept. */
+void quadrotor_spiral_ukf_reset(quadrotor_spiral_ukf_state* st, const float* z0, const float* C0);
 
 /* One sample: u[QUADROTOR_SPIRAL_UKF_NU] inputs, y[QUADROTOR_SPIRAL_UKF_NY] measurements (NaN = missing; y may be
  * NULL when nothing is measured). Returns a skigen_status code, see above. */

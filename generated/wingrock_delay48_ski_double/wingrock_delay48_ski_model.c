@@ -38,6 +38,7 @@ extern "C" {
 #define casadi_s0 CASADI_PREFIX(s0)
 #define casadi_s1 CASADI_PREFIX(s1)
 #define casadi_s2 CASADI_PREFIX(s2)
+#define casadi_s3 CASADI_PREFIX(s3)
 #define casadi_sq CASADI_PREFIX(sq)
 
 static casadi_real casadi_fabs(casadi_real x) {
@@ -63,8 +64,9 @@ int wingrock_delay48_ski_model_casadi_real_size(void) { return (int) sizeof(casa
 static const casadi_int casadi_s0[3] = {50, 1, 1};
 static const casadi_int casadi_s1[3] = {1, 1, 1};
 static const casadi_int casadi_s2[3] = {47, 1, 1};
+static const casadi_int casadi_s3[3] = {0, 1, 1};
 
-/* wingrock_delay48_ski_model_f:(i0[50],i1,i2[47])->(o0[50]) */
+/* wingrock_delay48_ski_model_f:(i0[50],i1,i2[47],i3[0])->(o0[50]) */
 static int casadi_f0(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   (void)iw;
   (void)w;
@@ -590,7 +592,7 @@ void wingrock_delay48_ski_model_f_incref(void) {
 void wingrock_delay48_ski_model_f_decref(void) {
 }
 
-casadi_int wingrock_delay48_ski_model_f_n_in(void) { return 3;}
+casadi_int wingrock_delay48_ski_model_f_n_in(void) { return 4;}
 
 casadi_int wingrock_delay48_ski_model_f_n_out(void) { return 1;}
 
@@ -605,6 +607,7 @@ const char* wingrock_delay48_ski_model_f_name_in(casadi_int i) {
     case 0: return "i0";
     case 1: return "i1";
     case 2: return "i2";
+    case 3: return "i3";
     default: return 0;
   }
 }
@@ -621,6 +624,7 @@ const casadi_int* wingrock_delay48_ski_model_f_sparsity_in(casadi_int i) {
     case 0: return casadi_s0;
     case 1: return casadi_s1;
     case 2: return casadi_s2;
+    case 3: return casadi_s3;
     default: return 0;
   }
 }
@@ -633,7 +637,7 @@ const casadi_int* wingrock_delay48_ski_model_f_sparsity_out(casadi_int i) {
 }
 
 int wingrock_delay48_ski_model_f_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 3;
+  if (sz_arg) *sz_arg = 4;
   if (sz_res) *sz_res = 1;
   if (sz_iw) *sz_iw = 0;
   if (sz_w) *sz_w = 0;
@@ -641,14 +645,14 @@ int wingrock_delay48_ski_model_f_work(casadi_int *sz_arg, casadi_int* sz_res, ca
 }
 
 int wingrock_delay48_ski_model_f_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 3*sizeof(const casadi_real*);
+  if (sz_arg) *sz_arg = 4*sizeof(const casadi_real*);
   if (sz_res) *sz_res = 1*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
   if (sz_w) *sz_w = 0*sizeof(casadi_real);
   return 0;
 }
 
-/* wingrock_delay48_ski_model_h:(i0[50],i1,i2[47])->(o0) */
+/* wingrock_delay48_ski_model_h:(i0[50],i1,i2[47],i3[0])->(o0) */
 static int casadi_f1(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   (void)iw;
   (void)w;
@@ -680,7 +684,7 @@ void wingrock_delay48_ski_model_h_incref(void) {
 void wingrock_delay48_ski_model_h_decref(void) {
 }
 
-casadi_int wingrock_delay48_ski_model_h_n_in(void) { return 3;}
+casadi_int wingrock_delay48_ski_model_h_n_in(void) { return 4;}
 
 casadi_int wingrock_delay48_ski_model_h_n_out(void) { return 1;}
 
@@ -695,6 +699,7 @@ const char* wingrock_delay48_ski_model_h_name_in(casadi_int i) {
     case 0: return "i0";
     case 1: return "i1";
     case 2: return "i2";
+    case 3: return "i3";
     default: return 0;
   }
 }
@@ -711,6 +716,7 @@ const casadi_int* wingrock_delay48_ski_model_h_sparsity_in(casadi_int i) {
     case 0: return casadi_s0;
     case 1: return casadi_s1;
     case 2: return casadi_s2;
+    case 3: return casadi_s3;
     default: return 0;
   }
 }
@@ -723,7 +729,7 @@ const casadi_int* wingrock_delay48_ski_model_h_sparsity_out(casadi_int i) {
 }
 
 int wingrock_delay48_ski_model_h_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 3;
+  if (sz_arg) *sz_arg = 4;
   if (sz_res) *sz_res = 1;
   if (sz_iw) *sz_iw = 0;
   if (sz_w) *sz_w = 0;
@@ -731,7 +737,7 @@ int wingrock_delay48_ski_model_h_work(casadi_int *sz_arg, casadi_int* sz_res, ca
 }
 
 int wingrock_delay48_ski_model_h_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w) {
-  if (sz_arg) *sz_arg = 3*sizeof(const casadi_real*);
+  if (sz_arg) *sz_arg = 4*sizeof(const casadi_real*);
   if (sz_res) *sz_res = 1*sizeof(casadi_real*);
   if (sz_iw) *sz_iw = 0*sizeof(casadi_int);
   if (sz_w) *sz_w = 0*sizeof(casadi_real);

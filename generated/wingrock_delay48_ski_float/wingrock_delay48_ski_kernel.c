@@ -17,7 +17,7 @@ typedef float real;
 #define NX 2           /* physical states: the weights are z[NX .. N-1] */
 #define NW 48           /* weights */
 #define NY 1           /* outputs */
-#define NQ 2           /* columns of the process-noise factor */
+#define NQ N            /* columns of the process-noise factor Q_sqrt */
 #define NMEM 47         /* remembered past inputs */
 #define NSIG (2 * N + 1)  /* sigma points */
 #define ARD 1          /* 1: SKI (ARD between update and predict) */
@@ -30,9 +30,6 @@ static const real WM0 = 0.0f, WM1 = 0.01f, WC0 = 2.0f, WC1 = 0.01f;
 static const real SQRT_WC1 = 0.1f, SQRT_WC0 = 1.4142135623730951f, WC0_SIGN = 1.0f;
 static const real GAMMA = 7.0710678118654755f;
 static const real LOG_2PI = 1.8378770664093453f;
-/* Lower Cholesky factor of R (NY x NY) and a factor of Q (N x NQ, zero-padded to 1 column). */
-static const real LR[NY * NY] = {0.1f};
-static const real QF[100] = {0.0001f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.001f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f, 0.0f};
 
 /* ---- dense algebra ---------------------------------------------------------------- */
 
@@ -123,17 +120,18 @@ static void sigma_points(const real* z, const real* S, real* X)
         }
 }
 
-/* out (rows x NSIG) <- fn(X[:, i], u, mem) for every sigma point. */
-static int map_points(int (*fn)(const real**, real**, int*, real*, int), int rows,
-                      const real* X, const real* u, const real* mem, real* out, int* iw, real* mw)
+/* out (rows x NSIG) <- fn(X[:, i], u, mem, param) for every sigma point. */
+static int map_points(int (*fn)(const real**, real**, int*, real*, int), int rows, const real* X,
+                      const real* u, const real* mem, const real* param, real* out, int* iw, real* mw)
 {
     int i;
     for (i = 0; i < NSIG; ++i) {
-        const real* arg[3];
+        const real* arg[4];
         real* res[1];
         arg[0] = X + i * N;
         arg[1] = u;
         arg[2] = mem;
+        arg[3] = param;
         res[0] = out + i * rows;
         if (fn(arg, res, iw, mw, 0)) return 1;
     }
@@ -141,9 +139,9 @@ static int map_points(int (*fn)(const real**, real**, int*, real*, int), int row
 }
 
 /* mean (rows) <- sum_i Wm_i P[:, i]; A (k x rows) <- [sqrtf(WC1) (P[:, i] - mean), i >= 1]^T
- * followed by `extra` (rows x n_extra)^T; S (rows x rows) <- tria(A) updated with the centre
+ * followed by `extra` (rows x n_extra; lower: its lower triangle only)^T; S (rows x rows) <- tria(A) updated with the centre
  * point. P is overwritten with the deviations, its column 0 then used up by the update. */
-static void spread(real* P, int rows, const real* extra, int n_extra, real* mean, real* A, real* S)
+static void spread(real* P, int rows, const real* extra, int n_extra, int lower, real* mean, real* A, real* S)
 {
     int i, r, k = 2 * N + n_extra;
     for (r = 0; r < rows; ++r) {
@@ -156,7 +154,7 @@ static void spread(real* P, int rows, const real* extra, int n_extra, real* mean
     for (i = 1; i < NSIG; ++i)
         for (r = 0; r < rows; ++r) A[(i - 1) + r * k] = SQRT_WC1 * P[r + i * rows];
     for (i = 0; i < n_extra; ++i)
-        for (r = 0; r < rows; ++r) A[2 * N + i + r * k] = extra[r + i * rows];
+        for (r = 0; r < rows; ++r) A[2 * N + i + r * k] = r >= i || !lower ? extra[r + i * rows] : 0;
     tria(A, k, rows, S);
     if (WC0 != 0) {
         for (r = 0; r < rows; ++r) P[r] = SQRT_WC0 * P[r];   /* the centre deviation, scaled */
@@ -352,6 +350,8 @@ int wingrock_delay48_ski_kernel(const real** arg, real** res, int* iw, real* w, 
     real *z_post = res[0], *S_post = res[1], *z_next = res[ARD + 2], *S_next = res[ARD + 3];
     real *mem_next = res[ARD + 4], *e = res[ARD + 5], *Pyy = res[ARD + 6];
     real *nis = res[ARD + 7], *loglik = res[ARD + 8];
+    /* The settings: lower factors of Q (N x N) and R (NY x NY), the declared parameters. */
+    const real *QF = arg[ARD + 6], *LR = arg[ARD + 7], *param = arg[ARD + 8];
     int i, j, r;
     real* X = w + 0;
     real* Y = w + 5050;
@@ -370,15 +370,15 @@ int wingrock_delay48_ski_kernel(const real** arg, real** res, int* iw, real* w, 
 
     /* Update with y: sigma points through h, innovation factor Sy, gain by two solves. */
     sigma_points(z, S, X);
-    if (map_points(wingrock_delay48_ski_model_h, NY, X, u, mem_in, Y, iw, model_w)) return 1;
+    if (map_points(wingrock_delay48_ski_model_h, NY, X, u, mem_in, param, Y, iw, model_w)) return 1;
     for (i = 0; i < NSIG; ++i)
         for (r = 0; r < NY; ++r) Y[r + i * NY] = valid[r] * Y[r + i * NY];
     for (j = 0; j < NY; ++j)
         for (r = 0; r < NY; ++r) {
-            noise[r + j * NY] = valid[r] * LR[r + j * NY];                  /* diag(valid) Lr */
+            noise[r + j * NY] = r >= j ? valid[r] * LR[r + j * NY] : 0;     /* diag(valid) tril(Lr) */
             noise[r + (NY + j) * NY] = r == j ? 1 - valid[r] : 0;           /* diag(1 - valid) */
         }
-    spread(Y, NY, noise, 2 * NY, y_hat, A, Sy);
+    spread(Y, NY, noise, 2 * NY, 0, y_hat, A, Sy);
     for (j = 0; j < NY; ++j)
         for (r = 0; r < N; ++r) {
             real t = 0;
@@ -436,8 +436,8 @@ int wingrock_delay48_ski_kernel(const real** arg, real** res, int* iw, real* w, 
 
     /* Predict to the next sample through f. */
     sigma_points(z_post, S_post, X);
-    if (map_points(wingrock_delay48_ski_model_f, N, X, u, mem_in, Xf, iw, model_w)) return 1;
-    spread(Xf, N, QF, NQ, z_next, A, S_next);
+    if (map_points(wingrock_delay48_ski_model_f, N, X, u, mem_in, param, Xf, iw, model_w)) return 1;
+    spread(Xf, N, QF, NQ, 1, z_next, A, S_next);
 #if NMEM
     {
         const real* m_arg[2];

@@ -2,10 +2,10 @@
 #ifndef WINGROCK_DELAY48_SKI_KERNEL_H
 #define WINGROCK_DELAY48_SKI_KERNEL_H
 
-#define wingrock_delay48_ski_kernel_SZ_ARG 7
+#define wingrock_delay48_ski_kernel_SZ_ARG 10
 #define wingrock_delay48_ski_kernel_SZ_RES 10
 #define wingrock_delay48_ski_kernel_SZ_IW 0
-#define wingrock_delay48_ski_kernel_SZ_W 15407
+#define wingrock_delay48_ski_kernel_SZ_W 17807
 
 int wingrock_delay48_ski_kernel(const float** arg, float** res, int* iw, float* w, int mem);
 

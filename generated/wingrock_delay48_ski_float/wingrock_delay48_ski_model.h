@@ -32,7 +32,7 @@ const casadi_int* wingrock_delay48_ski_model_f_sparsity_in(casadi_int i);
 const casadi_int* wingrock_delay48_ski_model_f_sparsity_out(casadi_int i);
 int wingrock_delay48_ski_model_f_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int wingrock_delay48_ski_model_f_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define wingrock_delay48_ski_model_f_SZ_ARG 3
+#define wingrock_delay48_ski_model_f_SZ_ARG 4
 #define wingrock_delay48_ski_model_f_SZ_RES 1
 #define wingrock_delay48_ski_model_f_SZ_IW 0
 #define wingrock_delay48_ski_model_f_SZ_W 0
@@ -50,7 +50,7 @@ const casadi_int* wingrock_delay48_ski_model_h_sparsity_in(casadi_int i);
 const casadi_int* wingrock_delay48_ski_model_h_sparsity_out(casadi_int i);
 int wingrock_delay48_ski_model_h_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int wingrock_delay48_ski_model_h_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define wingrock_delay48_ski_model_h_SZ_ARG 3
+#define wingrock_delay48_ski_model_h_SZ_ARG 4
 #define wingrock_delay48_ski_model_h_SZ_RES 1
 #define wingrock_delay48_ski_model_h_SZ_IW 0
 #define wingrock_delay48_ski_model_h_SZ_W 0

@@ -2,10 +2,10 @@
 #ifndef WINGROCK_DELAY48_UKF_KERNEL_H
 #define WINGROCK_DELAY48_UKF_KERNEL_H
 
-#define wingrock_delay48_ukf_kernel_SZ_ARG 6
+#define wingrock_delay48_ukf_kernel_SZ_ARG 9
 #define wingrock_delay48_ukf_kernel_SZ_RES 9
 #define wingrock_delay48_ukf_kernel_SZ_IW 0
-#define wingrock_delay48_ukf_kernel_SZ_W 15407
+#define wingrock_delay48_ukf_kernel_SZ_W 17807
 
 int wingrock_delay48_ukf_kernel(const double** arg, double** res, int* iw, double* w, int mem);
 

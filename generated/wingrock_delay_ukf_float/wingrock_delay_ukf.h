@@ -19,17 +19,27 @@ extern "C" {
 
 #ifndef SKIGEN_STATUS_CODES
 #define SKIGEN_STATUS_CODES
-/* Return codes of every skigen <prefix>_step. */
+/* Return codes of every skigen <prefix>_step (the recovery policy: skigen/guard.py). */
 enum skigen_status {
     SKIGEN_OK = 0,                  /* updated with every measurement and predicted */
     SKIGEN_MEASUREMENT_SKIPPED = 1, /* a non-finite y[i] (NaN = not measured): that output was
                                        skipped, the rest updated, the state predicted */
-    SKIGEN_BAD_INPUT = 2,           /* a non-finite u[i]: nothing done, the state is unchanged */
-    SKIGEN_NUMERICAL_FAILURE = 3    /* the step gave a non-finite result (failed Cholesky,
+    SKIGEN_BAD_INPUT = 2,           /* a non-finite u[i]: nothing done, the state is unchanged
+                                       (only since_update counts the sample) */
+    SKIGEN_NUMERICAL_FAILURE = 3,   /* the step gave a non-finite result (failed Cholesky,
                                        non-positive innovation variance, divergence): it was
                                        rejected; z, C keep their prior values, z_post/C_post
-                                       equal them, e, Pyy, nis, loglik are 0; the input history
-                                       still advances */
+                                       equal them, e, Pyy, nis, loglik, used are 0; the input
+                                       history still advances */
+    SKIGEN_OUTLIER_REJECTED = 4,    /* a y[i] failed the innovation gate, |e_i| > gate sqrt(Pyy_ii):
+                                       it was not used (counted in rejected[i]); the rest updated,
+                                       the state predicted */
+    SKIGEN_SENSOR_STUCK = 5,        /* a y[i] repeated bit for bit stuck_limit times or more: it was
+                                       not used (counted in stuck[i]) */
+    SKIGEN_REINITIALISED = 6        /* recovery after reject_limit rejected samples in a row or a
+                                       gap of gap_limit samples: the physical states restarted
+                                       at their declared mean and reinit_scale times their
+                                       declared covariance, weights kept, then updated with y */
 };
 #endif
 
@@ -42,11 +52,40 @@ typedef float wingrock_delay_ukf_real;
 #define WINGROCK_DELAY_UKF_NY 1      /* outputs (measurements) */
 #define WINGROCK_DELAY_UKF_NMEM 7    /* remembered past inputs */
 #define WINGROCK_DELAY_UKF_SQUARE_ROOT 1 /* 1: C is a Cholesky factor S; 0: C is P */
+#define WINGROCK_DELAY_UKF_DT 0.02f /* sample time, s */
+/* Index of every name: z[WINGROCK_DELAY_UKF_Z_<state or weight>], u[WINGROCK_DELAY_UKF_U_<input>], y[WINGROCK_DELAY_UKF_Y_<output>],
+ * settings.param[WINGROCK_DELAY_UKF_P_<declared parameter>]. */
+#define WINGROCK_DELAY_UKF_Z_THETA 0
+#define WINGROCK_DELAY_UKF_Z_P 1
+#define WINGROCK_DELAY_UKF_Z_W_DELTA_D0 2
+#define WINGROCK_DELAY_UKF_Z_W_DELTA_D1 3
+#define WINGROCK_DELAY_UKF_Z_W_DELTA_D2 4
+#define WINGROCK_DELAY_UKF_Z_W_DELTA_D3 5
+#define WINGROCK_DELAY_UKF_Z_W_DELTA_D4 6
+#define WINGROCK_DELAY_UKF_Z_W_DELTA_D5 7
+#define WINGROCK_DELAY_UKF_Z_W_DELTA_D6 8
+#define WINGROCK_DELAY_UKF_Z_W_DELTA_D7 9
+#define WINGROCK_DELAY_UKF_U_DELTA 0
+#define WINGROCK_DELAY_UKF_Y_PHI 0
+
 /* Work sizes of the generated kernel (arrays below are at least 1 long to stay C99). */
-#define WINGROCK_DELAY_UKF_SZ_ARG 6
+#define WINGROCK_DELAY_UKF_SZ_ARG 9
 #define WINGROCK_DELAY_UKF_SZ_RES 9
 #define WINGROCK_DELAY_UKF_SZ_IW 0
 #define WINGROCK_DELAY_UKF_SZ_W 0
+
+/* Run-time settings: wingrock_delay_ukf_init sets the declared values; change them between steps. */
+typedef struct {
+    wingrock_delay_ukf_real Q_sqrt[100]; /* lower factor of the process noise, Q = Q_sqrt Q_sqrt^T (upper ignored) */
+    wingrock_delay_ukf_real R_sqrt[1]; /* lower factor of the measurement noise, R = R_sqrt R_sqrt^T */
+    wingrock_delay_ukf_real param[1]; /* declared parameters, see the _P_ index macros */
+    wingrock_delay_ukf_real gate; /* innovation gate per output, in standard deviations (0: off) */
+    wingrock_delay_ukf_real reinit_scale; /* variance multiple of the declared initial covariance at a restart */
+    wingrock_delay_ukf_real std_max[10]; /* bound on each prior standard deviation (INFINITY: none) */
+    long reject_limit; /* samples in a row with their measurement rejected before a restart */
+    long gap_limit; /* samples without a used measurement before the next one restarts */
+    long stuck_limit; /* identical readings in a row from which an output is stuck (0: off) */
+} wingrock_delay_ukf_settings;
 
 typedef struct {
     wingrock_delay_ukf_real z[10]; /* prior mean for the next sample */
@@ -58,9 +97,18 @@ typedef struct {
     wingrock_delay_ukf_real Pyy[1]; /* innovation covariance */
     wingrock_delay_ukf_real nis; /* normalised innovation squared */
     wingrock_delay_ukf_real loglik; /* log-likelihood of the measurement */
+    wingrock_delay_ukf_real used[1]; /* 1 where y[i] updated the state at the last sample, else 0 */
+    wingrock_delay_ukf_real y_last[1]; /* last finite reading of each output (stuck-sensor check) */
     wingrock_delay_ukf_real z_next[10]; /* scratch: kernel results awaiting acceptance */
     wingrock_delay_ukf_real C_next[100]; /* scratch */
     wingrock_delay_ukf_real mem_next[7]; /* scratch */
+    wingrock_delay_ukf_settings settings; /* run-time settings, changeable between steps */
+    long rejected[1]; /* measurements rejected by the gate, per output, in total */
+    long stuck[1]; /* readings not used as stuck, per output, in total */
+    long repeats[1]; /* identical readings in a row so far, per output */
+    long reinits; /* restarts of the physical states (recovery), in total */
+    long reject_run; /* samples in a row whose measurement was rejected */
+    long since_update; /* samples since a measurement was last used */
     int iw[1]; /* kernel work */
     wingrock_delay_ukf_real w[1]; /* kernel work */
 } wingrock_delay_ukf_state;
@@ -70,8 +118,17 @@ extern const char* const wingrock_delay_ukf_state_names[WINGROCK_DELAY_UKF_N];
 extern const char* const wingrock_delay_ukf_input_names[1];
 extern const char* const wingrock_delay_ukf_output_names[1];
 
-/* Set the declared initial values (prior mean, covariance, zero input history). */
+/* Set the declared settings and initial values (prior mean, covariance, zero input
+ * history and counters). */
 void wingrock_delay_ukf_init(wingrock_delay_ukf_state* st);
+
+/* The declared settings. */
+void wingrock_delay_ukf_settings_init(wingrock_delay_ukf_settings* set);
+
+/* Restart from the prior mean z0[WINGROCK_DELAY_UKF_N] and C0[WINGROCK_DELAY_UKF_N * WINGROCK_DELAY_UKF_N] (the covariance P
+ * (EKF) or its lower Cholesky factor S, as C); NULL takes the declared value. The input history
+ * and counters restart at 0; st->settings is kept. */
+void wingrock_delay_ukf_reset(wingrock_delay_ukf_state* st, const float* z0, const float* C0);
 
 /* One sample: u[WINGROCK_DELAY_UKF_NU] inputs, y[WINGROCK_DELAY_UKF_NY] measurements (NaN = missing; y may be
  * NULL when nothing is measured). Returns a skigen_status code, see above. */

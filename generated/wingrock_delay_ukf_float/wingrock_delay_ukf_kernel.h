@@ -32,7 +32,7 @@ const casadi_int* wingrock_delay_ukf_kernel_sparsity_in(casadi_int i);
 const casadi_int* wingrock_delay_ukf_kernel_sparsity_out(casadi_int i);
 int wingrock_delay_ukf_kernel_work(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
 int wingrock_delay_ukf_kernel_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casadi_int *sz_iw, casadi_int *sz_w);
-#define wingrock_delay_ukf_kernel_SZ_ARG 6
+#define wingrock_delay_ukf_kernel_SZ_ARG 9
 #define wingrock_delay_ukf_kernel_SZ_RES 9
 #define wingrock_delay_ukf_kernel_SZ_IW 0
 #define wingrock_delay_ukf_kernel_SZ_W 0

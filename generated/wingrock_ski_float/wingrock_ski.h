@@ -19,17 +19,27 @@ extern "C" {
 
 #ifndef SKIGEN_STATUS_CODES
 #define SKIGEN_STATUS_CODES
-/* Return codes of every skigen <prefix>_step. */
+/* Return codes of every skigen <prefix>_step (the recovery policy: skigen/guard.py). */
 enum skigen_status {
     SKIGEN_OK = 0,                  /* updated with every measurement and predicted */
     SKIGEN_MEASUREMENT_SKIPPED = 1, /* a non-finite y[i] (NaN = not measured): that output was
                                        skipped, the rest updated, the state predicted */
-    SKIGEN_BAD_INPUT = 2,           /* a non-finite u[i]: nothing done, the state is unchanged */
-    SKIGEN_NUMERICAL_FAILURE = 3    /* the step gave a non-finite result (failed Cholesky,
+    SKIGEN_BAD_INPUT = 2,           /* a non-finite u[i]: nothing done, the state is unchanged
+                                       (only since_update counts the sample) */
+    SKIGEN_NUMERICAL_FAILURE = 3,   /* the step gave a non-finite result (failed Cholesky,
                                        non-positive innovation variance, divergence): it was
                                        rejected; z, C, s keep their prior values, z_post/C_post
-                                       equal them, e, Pyy, nis, loglik are 0; the input history
-                                       still advances */
+                                       equal them, e, Pyy, nis, loglik, used are 0; the input
+                                       history still advances */
+    SKIGEN_OUTLIER_REJECTED = 4,    /* a y[i] failed the innovation gate, |e_i| > gate sqrt(Pyy_ii):
+                                       it was not used (counted in rejected[i]); the rest updated,
+                                       the state predicted */
+    SKIGEN_SENSOR_STUCK = 5,        /* a y[i] repeated bit for bit stuck_limit times or more: it was
+                                       not used (counted in stuck[i]) */
+    SKIGEN_REINITIALISED = 6        /* recovery after reject_limit rejected samples in a row or a
+                                       gap of gap_limit samples: the physical states restarted
+                                       at their declared mean and reinit_scale times their
+                                       declared covariance, weights kept, then updated with y */
 };
 #endif
 
@@ -42,11 +52,38 @@ typedef float wingrock_ski_real;
 #define WINGROCK_SKI_NY 1      /* outputs (measurements) */
 #define WINGROCK_SKI_NMEM 0    /* remembered past inputs */
 #define WINGROCK_SKI_SQUARE_ROOT 1 /* 1: C is a Cholesky factor S; 0: C is P */
+#define WINGROCK_SKI_DT 0.02f /* sample time, s */
+/* Index of every name: z[WINGROCK_SKI_Z_<state or weight>], u[WINGROCK_SKI_U_<input>], y[WINGROCK_SKI_Y_<output>],
+ * settings.param[WINGROCK_SKI_P_<declared parameter>]. */
+#define WINGROCK_SKI_Z_THETA 0
+#define WINGROCK_SKI_Z_P 1
+#define WINGROCK_SKI_Z_W_ONE 2
+#define WINGROCK_SKI_Z_W_THETA 3
+#define WINGROCK_SKI_Z_W_P 4
+#define WINGROCK_SKI_Z_W_ABS_THETA_P 5
+#define WINGROCK_SKI_Z_W_ABS_P_P 6
+#define WINGROCK_SKI_Z_W_THETA3 7
+#define WINGROCK_SKI_U_DELTA 0
+#define WINGROCK_SKI_Y_PHI 0
+
 /* Work sizes of the generated kernel (arrays below are at least 1 long to stay C99). */
-#define WINGROCK_SKI_SZ_ARG 7
+#define WINGROCK_SKI_SZ_ARG 10
 #define WINGROCK_SKI_SZ_RES 10
 #define WINGROCK_SKI_SZ_IW 0
 #define WINGROCK_SKI_SZ_W 0
+
+/* Run-time settings: wingrock_ski_init sets the declared values; change them between steps. */
+typedef struct {
+    wingrock_ski_real Q_sqrt[64]; /* lower factor of the process noise, Q = Q_sqrt Q_sqrt^T (upper ignored) */
+    wingrock_ski_real R_sqrt[1]; /* lower factor of the measurement noise, R = R_sqrt R_sqrt^T */
+    wingrock_ski_real param[1]; /* declared parameters, see the _P_ index macros */
+    wingrock_ski_real gate; /* innovation gate per output, in standard deviations (0: off) */
+    wingrock_ski_real reinit_scale; /* variance multiple of the declared initial covariance at a restart */
+    wingrock_ski_real std_max[8]; /* bound on each prior standard deviation (INFINITY: none) */
+    long reject_limit; /* samples in a row with their measurement rejected before a restart */
+    long gap_limit; /* samples without a used measurement before the next one restarts */
+    long stuck_limit; /* identical readings in a row from which an output is stuck (0: off) */
+} wingrock_ski_settings;
 
 typedef struct {
     wingrock_ski_real z[8]; /* prior mean for the next sample */
@@ -59,10 +96,19 @@ typedef struct {
     wingrock_ski_real Pyy[1]; /* innovation covariance */
     wingrock_ski_real nis; /* normalised innovation squared */
     wingrock_ski_real loglik; /* log-likelihood of the measurement */
+    wingrock_ski_real used[1]; /* 1 where y[i] updated the state at the last sample, else 0 */
+    wingrock_ski_real y_last[1]; /* last finite reading of each output (stuck-sensor check) */
     wingrock_ski_real z_next[8]; /* scratch: kernel results awaiting acceptance */
     wingrock_ski_real C_next[64]; /* scratch */
     wingrock_ski_real s_next[6]; /* scratch */
     wingrock_ski_real mem_next[1]; /* scratch */
+    wingrock_ski_settings settings; /* run-time settings, changeable between steps */
+    long rejected[1]; /* measurements rejected by the gate, per output, in total */
+    long stuck[1]; /* readings not used as stuck, per output, in total */
+    long repeats[1]; /* identical readings in a row so far, per output */
+    long reinits; /* restarts of the physical states (recovery), in total */
+    long reject_run; /* samples in a row whose measurement was rejected */
+    long since_update; /* samples since a measurement was last used */
     int iw[1]; /* kernel work */
     wingrock_ski_real w[1]; /* kernel work */
 } wingrock_ski_state;
@@ -72,8 +118,17 @@ extern const char* const wingrock_ski_state_names[WINGROCK_SKI_N];
 extern const char* const wingrock_ski_input_names[1];
 extern const char* const wingrock_ski_output_names[1];
 
-/* Set the declared initial values (prior mean, covariance, s, zero input history). */
+/* Set the declared settings and initial values (prior mean, covariance, s, zero input
+ * history and counters). */
 void wingrock_ski_init(wingrock_ski_state* st);
+
+/* The declared settings. */
+void wingrock_ski_settings_init(wingrock_ski_settings* set);
+
+/* Restart from the prior mean z0[WINGROCK_SKI_N] and C0[WINGROCK_SKI_N * WINGROCK_SKI_N] (the covariance P
+ * (EKF) or its lower Cholesky factor S, as C); NULL takes the declared value. The input history
+ * and counters restart at 0, s at its declared value; st->settings is kept. */
+void wingrock_ski_reset(wingrock_ski_state* st, const float* z0, const float* C0);
 
 /* One sample: u[WINGROCK_SKI_NU] inputs, y[WINGROCK_SKI_NY] measurements (NaN = missing; y may be
  * NULL when nothing is measured). Returns a skigen_status code, see above. */

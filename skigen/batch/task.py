@@ -80,20 +80,17 @@ def _num(x):
 
 def _run(spec, digest, path, tmp: Path, opt: dict, row: dict) -> None:
     from ..recording import TableWriter, load_recording
-    from ..runtime import FilterDivergedError, RunSummary, iter_run
+    from ..runtime import RunSummary, iter_run
     model = _model(spec, digest)
     filt = _filter(spec, digest, opt["filter"], tuple(opt["estimate"]))
     rec = load_recording(path, model, real=opt["real"], **opt["read"])
     row.update(samples=len(rec.t), duration_s=_num(rec.t[-1] - rec.t[0]), start=_num(rec.t[0]))
     summary = RunSummary(filt)
-    try:
-        with TableWriter(tmp / "result.csv") as out:
-            for part in iter_run(filt, rec, backend=opt["backend"], real=opt["real"], show_progress=False,
-                                 cache_dir=opt["build"]):
-                out.write(part.columns())
-                summary.add(part)
-    except FilterDivergedError as exc:
-        row.update(status="diverged", message=str(exc))
+    with TableWriter(tmp / "result.csv") as out:
+        for part in iter_run(filt, rec, backend=opt["backend"], real=opt["real"], show_progress=False,
+                             cache_dir=opt["build"]):
+            out.write(part.columns())
+            summary.add(part)
     lines = list(rec.notes) + summary.lines()
     (tmp / "summary.txt").write_text("\n".join(lines) + "\n")
     names = filt.aug.names

@@ -49,9 +49,27 @@ class DerivedFilter:
     partition: Partition | None = None     # MUKF kinds: the z_n / z_l split
 
     @cached_property
-    def step(self) -> ca.Function:
-        """The step Function (see the module docstring), derived on first use."""
+    def tunable(self) -> ca.Function:
+        """The step with the run-time settings as further inputs (the generated C's kernel):
+        the lower-triangular factors ``Q_sqrt`` (n×n, Q = Q_sqrt Q_sqrtᵀ) and ``R_sqrt`` (ny×ny,
+        R = R_sqrt R_sqrtᵀ; their upper triangles are ignored) and ``param``, the declared
+        parameters not estimated (:attr:`Augmented.fixed_names`)."""
         return _step(self)
+
+    @cached_property
+    def step(self) -> ca.Function:
+        """The step Function (see the module docstring) at the declared Q, R and parameters."""
+        t = self.tunable
+        ins = [ca.SX.sym(name, t.size_in(i)) for i, name in enumerate(self.names_in)]
+        return ca.Function(t.name(), ins, t.call(ins + [ca.DM(v) for v in self.settings().values()]),
+                           self.names_in, self.names_out)
+
+    def settings(self) -> dict[str, np.ndarray]:
+        """The declared values of the tunable step's settings: the lower Cholesky factors Q_sqrt
+        (zero columns where Q is singular) and R_sqrt, and param."""
+        from ..guard import chol_psd
+        return dict(Q_sqrt=chol_psd(self.aug.Q), R_sqrt=np.linalg.cholesky(self.aug.R),
+                    param=self.aug.fixed_values.copy())
 
     @property
     def names_in(self) -> list[str]:
@@ -105,15 +123,20 @@ def derive(model: Model | Augmented, kind: str, options: FilterOptions | None = 
 
 
 def _step(filt: DerivedFilter) -> ca.Function:
-    """Build the step Function of ``filt`` symbolically."""
+    """Build the tunable step Function of ``filt`` symbolically."""
     kind, aug, opts, part = filt.kind, filt.aug, filt.options, filt.partition
     d = aug.shapes
     z, C = ca.SX.sym("z", d["n"]), ca.SX.sym("C", d["n"], d["n"])
     s = ca.SX.sym("s", d["nw"])
-    u, mem = ca.SX.sym("u", d["nu"]), ca.SX.sym("mem", d["nmem"])
+    u_in, mem = ca.SX.sym("u", d["nu"]), ca.SX.sym("mem", d["nmem"])
     y, valid = ca.SX.sym("y", d["ny"]), ca.SX.sym("valid", d["ny"])
-    # Bind the model's own symbols for u and mem to the step's inputs.
-    aug_b = _rebind(aug, u, mem)
+    Q_sqrt, R_sqrt = ca.SX.sym("Q_sqrt", d["n"], d["n"]), ca.SX.sym("R_sqrt", d["ny"], d["ny"])
+    lower = dict(Q_sqrt=ca.tril(Q_sqrt), R_sqrt=ca.tril(R_sqrt))      # upper triangles ignored
+    param = ca.SX.sym("param", aug.fixed.shape[0])
+    # Bind the model's own symbols for u, mem and the fixed parameters to the step's inputs; the
+    # parameters ride along the inputs (u = [u; param]) through every filter's model calls.
+    u = ca.vertcat(u_in, param)
+    aug_b = _rebind(aug, u_in, mem, param, lower["Q_sqrt"], lower["R_sqrt"])
     if kind == "ekf":
         z_post, C_post, e, Pyy, Ly = ekf_update(aug_b, z, C, u, mem, y, valid)
         z_next, C_next = ekf_predict(aug_b, z_post, C_post, u, mem)
@@ -128,18 +151,27 @@ def _step(filt: DerivedFilter) -> ca.Function:
             z_post, C_post, s_next = ard_step(aug_b, opts, z_post, C_post, s)
         z_next, C_next = ukf_predict(aug_b, opts, z_post, C_post, u, mem)
     nis, loglik = innovation_stats(Ly, e, valid)
-    mem_next = ca.substitute(aug.mem_next, ca.vertcat(aug.u, aug.mem), ca.vertcat(u, mem))
-    values = dict(z=z, C=C, s=s, u=u, mem=mem, y=y, valid=valid, z_post=z_post, C_post=C_post,
-                  z_next=z_next, C_next=C_next, mem_next=mem_next, e=e, Pyy=Pyy, nis=nis, loglik=loglik)
+    mem_next = ca.substitute(aug.mem_next, ca.vertcat(aug.u, aug.mem), ca.vertcat(u_in, mem))
+    values = dict(z=z, C=C, s=s, u=u_in, mem=mem, y=y, valid=valid, z_post=z_post, C_post=C_post,
+                  z_next=z_next, C_next=C_next, mem_next=mem_next, e=e, Pyy=Pyy, nis=nis, loglik=loglik,
+                  Q_sqrt=Q_sqrt, R_sqrt=R_sqrt, param=param)
     if filt.has_ard:
         values["s_next"] = s_next
-    return ca.Function(f"{aug.model.name}_{kind}_step", [values[k] for k in filt.names_in],
-                       [ca.densify(values[k]) for k in filt.names_out], filt.names_in, filt.names_out)
+    names_in = filt.names_in + list(TUNABLE)
+    return ca.Function(f"{aug.model.name}_{kind}_step", [values[k] for k in names_in],
+                       [ca.densify(values[k]) for k in filt.names_out], names_in, filt.names_out)
 
 
-def _rebind(aug: Augmented, u: ca.SX, mem: ca.SX) -> Augmented:
-    """The augmented model with its input and memory symbols replaced."""
-    old, new = ca.vertcat(aug.u, aug.mem), ca.vertcat(u, mem)
+TUNABLE = ("Q_sqrt", "R_sqrt", "param")     # the tunable step's inputs after the step's own
+
+
+def _rebind(aug: Augmented, u, mem, param, Q_sqrt, R_sqrt) -> Augmented:
+    """The augmented model on the step's symbols: inputs [u; param], memory, noise factors."""
+    old, new = ca.vertcat(aug.u, aug.mem, aug.fixed), ca.vertcat(u, mem, param)
     sub = lambda e: ca.substitute(e, old, new)
-    return Augmented(**{**aug.__dict__, "u": u, "mem": mem, "f": sub(aug.f), "h": sub(aug.h),
-                        "mem_next": sub(aug.mem_next)})
+    return Augmented(**{**aug.__dict__, "u": ca.vertcat(u, param), "mem": mem, "f": sub(_or(aug.f_free, aug.f)),
+                        "h": sub(_or(aug.h_free, aug.h)), "mem_next": sub(aug.mem_next), "Q_sqrt": Q_sqrt, "R_sqrt": R_sqrt})
+
+
+def _or(a, b):
+    return b if a is None else a

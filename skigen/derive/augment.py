@@ -39,6 +39,16 @@ class Augmented:
     w_index: np.ndarray
     names: list[str]
     p_index: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    fixed: ca.SX = field(default_factory=lambda: ca.SX(0, 1))   # declared parameters not estimated
+    fixed_values: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    f_free: ca.SX | None = None         # f and h before the fixed parameters took their values
+    h_free: ca.SX | None = None
+    Q_sqrt: ca.SX | None = None         # set in a tunable step: Q = Q_sqrt Q_sqrtᵀ, R = R_sqrt R_sqrtᵀ
+    R_sqrt: ca.SX | None = None
+
+    @property
+    def fixed_names(self) -> list[str]:
+        return [self.fixed[i].name() for i in range(self.fixed.shape[0])]
 
     @property
     def u_names(self) -> list[str]:
@@ -98,9 +108,11 @@ def augment(model: Model, estimate=(), *, online: bool = True) -> Augmented:
     f = ca.vertcat(x_next, w, p_est)
     h = ca.vertcat(*[v.sym for v in model.outputs])
     fixed = [p for p in model.parameters if p not in estimated]
+    f_free, h_free = f, h
+    syms, values = ca.SX(0, 1), np.zeros(0)
     if fixed:
-        syms, values = ca.vertcat(*[p.sym for p in fixed]), ca.DM([p.value for p in fixed])
-        f, h = (ca.substitute(e, syms, values) for e in (f, h))
+        syms, values = ca.vertcat(*[p.sym for p in fixed]), np.array([p.value for p in fixed], float)
+        f, h = (ca.substitute(e, syms, ca.DM(values)) for e in (f, h))
     s0 = model.prior_variances()
     nx, nw = len(model.states), len(weights)
     return Augmented(
@@ -113,7 +125,8 @@ def augment(model: Model, estimate=(), *, online: bool = True) -> Augmented:
                       np.diag([(p.std or 0.0) ** 2 for p in estimated])),
         s0=s0, w_index=np.arange(nx, nx + nw),
         names=model.state_names + [name for name, *_ in weights] + [p.name for p in estimated],
-        p_index=np.arange(nx + nw, nx + nw + len(estimated)))
+        p_index=np.arange(nx + nw, nx + nw + len(estimated)), fixed=syms, fixed_values=values,
+        f_free=f_free, h_free=h_free)
 
 
 def memory_values(model: Model, inputs) -> np.ndarray:

@@ -8,7 +8,8 @@ import numpy as np
 
 from .linalg import chol, forward
 
-__all__ = ["FilterOptions", "masked_noise_factor", "innovation_stats", "model_functions"]
+__all__ = ["FilterOptions", "masked_noise_factor", "innovation_stats", "model_functions", "process_factor",
+           "process_noise", "measurement_factor"]
 
 
 @dataclass(frozen=True)
@@ -38,16 +39,38 @@ class FilterOptions:
         return asdict(self)
 
 
-def masked_noise_factor(R: np.ndarray, valid: ca.SX) -> ca.SX:
+def masked_noise_factor(R: np.ndarray, valid: ca.SX, factor: ca.SX | None = None) -> ca.SX:
     """A square root of R' = V R V + (I − V), V = diag(valid).
 
     Invalid (missing) outputs become decoupled unit-variance rows whose
     innovation is forced to zero, so one branch-free update serves every
     pattern of missing outputs and equals the update on the valid subset.
-    R may be numeric or an SX expression (a fitted noise scale).
+    R may be numeric or an SX expression (a fitted noise scale); ``factor``,
+    any L with R = L Lᵀ, replaces it.
     """
-    Lr = chol(R) if isinstance(R, ca.SX) else ca.SX(np.linalg.cholesky(R))
+    if factor is not None:
+        Lr = factor
+    else:
+        Lr = chol(R) if isinstance(R, ca.SX) else ca.SX(np.linalg.cholesky(R))
     return ca.horzcat(ca.diag(valid) @ Lr, ca.diag(1 - valid))
+
+
+def measurement_factor(aug, valid: ca.SX) -> ca.SX:
+    """The masked factor of R: from the step's setting R_sqrt when tunable, else from aug.R."""
+    return masked_noise_factor(aug.R, valid, getattr(aug, "R_sqrt", None))
+
+
+def process_factor(aug) -> ca.SX:
+    """G with Q = G Gᵀ: the step's setting Q_sqrt when tunable, else from aug.Q."""
+    from .ukf import sqrt_psd
+    G = getattr(aug, "Q_sqrt", None)
+    return G if G is not None else ca.SX(sqrt_psd(aug.Q))
+
+
+def process_noise(aug):
+    """Q itself (the EKF's form)."""
+    G = getattr(aug, "Q_sqrt", None)
+    return G @ G.T if G is not None else aug.Q
 
 
 def innovation_stats(Ly: ca.SX, e: ca.SX, valid: ca.SX) -> tuple[ca.SX, ca.SX]:

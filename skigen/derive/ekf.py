@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import casadi as ca
 
-from .common import masked_noise_factor, model_functions
+from .common import measurement_factor, model_functions, process_noise
 from .linalg import chol, spd_solve, symmetrize
 
 __all__ = ["ekf_update", "ekf_predict"]
@@ -14,7 +14,7 @@ def ekf_update(aug, z, P, u, mem, y, valid):
     _, H = model_functions(aug)
     Hz = ca.Function("Hz", [aug.z, aug.u, aug.mem], [ca.jacobian(aug.h, aug.z)])
     C = ca.diag(valid) @ Hz(z, u, mem)
-    Rf = masked_noise_factor(aug.R, valid)
+    Rf = measurement_factor(aug, valid)
     Rm = Rf @ Rf.T
     Pyy = symmetrize(C @ P @ C.T + Rm)
     Ly = chol(Pyy)
@@ -30,4 +30,4 @@ def ekf_predict(aug, z, P, u, mem):
     F, _ = model_functions(aug)
     Fz = ca.Function("Fz", [aug.z, aug.u, aug.mem], [ca.jacobian(aug.f, aug.z)])
     A = Fz(z, u, mem)
-    return F(z, u, mem), symmetrize(A @ P @ A.T + aug.Q)
+    return F(z, u, mem), symmetrize(A @ P @ A.T + process_noise(aug))

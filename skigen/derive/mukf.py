@@ -48,9 +48,9 @@ import casadi as ca
 import numpy as np
 
 from ..model import ModelError
-from .common import masked_noise_factor
+from .common import measurement_factor, process_factor
 from .linalg import cholupdate, tria
-from .ukf import sqrt_psd, gain_update, merwe_weights
+from .ukf import gain_update, merwe_weights
 
 __all__ = ["Partition", "partition", "mukf_weights", "mukf_update", "mukf_predict"]
 
@@ -318,7 +318,7 @@ def mukf_update(aug, part, opts, z, S, u, mem, y, valid):
     y_hat = sum((w * yi for w, yi in zip(Wm, Y)), ca.SX.zeros(aug.h.shape[0]))
     dY = [yi - y_hat for yi in Y]
     CT, dpos, dneg = _conditional_terms(Cs, _varying(aug, part, aug.h), Wm, Tll)
-    Sy = _factor(dY, CT, dpos, dneg, masked_noise_factor(aug.R, valid), Wc)
+    Sy = _factor(dY, CT, dpos, dneg, measurement_factor(aug, valid), Wc)
     Pzy = L @ CT.T
     for w, x, d in zip(Wc[1:], X[1:], dY[1:]):
         Pzy += w * (x - z) @ d.T
@@ -338,5 +338,5 @@ def mukf_predict(aug, part, opts, z, S, u, mem):
         As.append(Ax)
     z_next = sum((w * m for w, m in zip(Wm, M)), ca.SX.zeros(aug.n))
     AT, dpos, dneg = _conditional_terms(As, _varying(aug, part, aug.f), Wm, Tll)
-    S_next = _factor([m - z_next for m in M], AT, dpos, dneg, ca.SX(sqrt_psd(aug.Q)), Wc)
+    S_next = _factor([m - z_next for m in M], AT, dpos, dneg, process_factor(aug), Wc)
     return z_next, S_next

@@ -10,7 +10,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from .common import masked_noise_factor, model_functions
+from .common import measurement_factor, model_functions, process_factor
 from .linalg import cholupdate, spd_solve, tria
 
 __all__ = ["merwe_weights", "sqrt_psd", "ukf_update", "ukf_predict", "gain_update"]
@@ -47,7 +47,7 @@ def ukf_update(aug, opts, z, S, u, mem, y, valid):
     X = sigma_points(z, S, gamma)
     Y = [valid * H(x, u, mem) for x in X]
     y_hat = sum((w * yi for w, yi in zip(Wm, Y)), ca.SX.zeros(aug.h.shape[0]))
-    Sy, dY = _spread_factor(Y, y_hat, Wc, masked_noise_factor(aug.R, valid))
+    Sy, dY = _spread_factor(Y, y_hat, Wc, measurement_factor(aug, valid))
     Pzy = sum((w * (x - z) @ d.T for w, x, d in zip(Wc, X, dY)), ca.SX.zeros(aug.n, Sy.shape[0]))
     return gain_update(z, S, Sy, Pzy, valid * y - y_hat)
 
@@ -70,7 +70,7 @@ def ukf_predict(aug, opts, z, S, u, mem):
     Wm, Wc, gamma = merwe_weights(aug.n, opts.alpha, opts.beta, opts.kappa)
     Xf = [F(x, u, mem) for x in sigma_points(z, S, gamma)]
     z_next = sum((w * x for w, x in zip(Wm, Xf)), ca.SX.zeros(aug.n))
-    S_next, _ = _spread_factor(Xf, z_next, Wc, ca.SX(sqrt_psd(aug.Q)))
+    S_next, _ = _spread_factor(Xf, z_next, Wc, process_factor(aug))
     return z_next, S_next
 
 

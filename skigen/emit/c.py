@@ -12,9 +12,11 @@
 
   CasADi's helpers are made ``static`` and every global symbol is prefixed; in float
   builds every maths call and literal is rewritten to single precision.
-* ``<prefix>.h/.c``: the step API (state struct, init, guarded step, std) from the
+* ``<prefix>.h/.c``: the step API (state and settings structs, index macros, init,
+  reset, the step under the recovery policy of :mod:`skigen.guard`, std) from the
   templates ``filter.h.in`` / ``filter.c.in`` beside this module; it is the same
-  for both styles.
+  for both styles. Both kernels are the derived step's tunable form
+  (``filt.tunable``): Q, R and the declared parameters come from ``st.settings``.
 
 :func:`compile_shared` builds (and caches) a shared library; :class:`CFilter`
 runs it through ctypes; :func:`load_c` does all three (it is the C backend of
@@ -38,6 +40,8 @@ import casadi as ca
 import numpy as np
 
 from ..derive import DerivedFilter
+from ..derive import TUNABLE
+from ..guard import Guard
 
 __all__ = ["DEFAULT_FLAGS", "LOOPS_KINDS", "STYLES", "CFilter", "CompileError", "Status",
            "choose_style", "compile_shared", "default_prefix", "emit_c", "load_c"]
@@ -57,7 +61,8 @@ _UPDATES = {"z": "z_next", "C": "C_next", "s": "s_next", "mem": "mem_next"}   # 
 _FOH_NOTE = (" * First-order input hold: u holds u_k then u_{k+1} (NU values), and the prediction\n"
              " * interpolates the input linearly between them. On a vehicle, where u_{k+1} is known\n"
              " * one sample later, call the step one sample late: step(u_k, u_{k+1}, y_k) at time k+1.\n")
-_LOCALS = {"u": "u", "y": "yv", "valid": "valid"}                          # step inputs not in the state
+_LOCALS = {"u": "u", "y": "yv", "valid": "valid",                          # step inputs not in the state
+           **{k: f"st->settings.{k}" for k in ("Q_sqrt", "R_sqrt", "param")}}
 
 
 class Status(enum.IntEnum):
@@ -67,6 +72,9 @@ class Status(enum.IntEnum):
     MEASUREMENT_SKIPPED = 1
     BAD_INPUT = 2
     NUMERICAL_FAILURE = 3
+    OUTLIER_REJECTED = 4
+    SENSOR_STUCK = 5
+    REINITIALISED = 6
 
 
 class CompileError(RuntimeError):
@@ -95,6 +103,8 @@ def _fields(filt: DerivedFilter) -> list[tuple[str, tuple, str]]:
             ("Pyy", (ny, ny), "innovation covariance"),
             ("nis", (), "normalised innovation squared"),
             ("loglik", (), "log-likelihood of the measurement"),
+            ("used", (ny,), "1 where y[i] updated the state at the last sample, else 0"),
+            ("y_last", (ny,), "last finite reading of each output (stuck-sensor check)"),
             ("z_next", (n,), "scratch: kernel results awaiting acceptance"),
             ("C_next", (n, n), "scratch"),
             ("s_next", (nw,), "scratch"),
@@ -102,11 +112,38 @@ def _fields(filt: DerivedFilter) -> list[tuple[str, tuple, str]]:
     return [r for r in rows if ski or r[0] not in ("s", "s_next")]
 
 
+def _settings(filt: DerivedFilter) -> list[tuple[str, str, tuple, str]]:
+    """The fields of ``<prefix>_settings``: (name, 'real' or 'long', shape, comment); see skigen.guard."""
+    n, ny, npar = filt.aug.n, filt.aug.shapes["ny"], filt.aug.fixed.shape[0]
+    return [("Q_sqrt", "real", (n, n), "lower factor of the process noise, Q = Q_sqrt Q_sqrt^T (upper ignored)"),
+            ("R_sqrt", "real", (ny, ny), "lower factor of the measurement noise, R = R_sqrt R_sqrt^T"),
+            ("param", "real", (npar,), "declared parameters, see the _P_ index macros"),
+            ("gate", "real", (), "innovation gate per output, in standard deviations (0: off)"),
+            ("reinit_scale", "real", (), "variance multiple of the declared initial covariance at a restart"),
+            ("std_max", "real", (n,), "bound on each prior standard deviation (INFINITY: none)"),
+            ("reject_limit", "long", (), "samples in a row with their measurement rejected before a restart"),
+            ("gap_limit", "long", (), "samples without a used measurement before the next one restarts"),
+            ("stuck_limit", "long", (), "identical readings in a row from which an output is stuck (0: off)")]
+
+
+def _health(filt: DerivedFilter) -> list[tuple[str, tuple, str]]:
+    """The counters (``long``) of ``<prefix>_state`` after its settings: (name, shape, comment)."""
+    ny = filt.aug.shapes["ny"]
+    return [("rejected", (ny,), "measurements rejected by the gate, per output, in total"),
+            ("stuck", (ny,), "readings not used as stuck, per output, in total"),
+            ("repeats", (ny,), "identical readings in a row so far, per output"),
+            ("reinits", (), "restarts of the physical states (recovery), in total"),
+            ("reject_run", (), "samples in a row whose measurement was rejected"),
+            ("since_update", (), "samples since a measurement was last used")]
+
+
 def _size(shape: tuple) -> int:
     return int(np.prod(shape, dtype=int))
 
 
 def _literal(x: float, real: str) -> str:
+    if x == np.inf:
+        return "INFINITY"
     if not np.isfinite(x):
         raise ValueError(f"non-finite initial value {x}")
     return repr(float(x)) + ("f" if real == "float" else "")   # shortest round-trip form
@@ -114,6 +151,23 @@ def _literal(x: float, real: str) -> str:
 
 def _c_strings(names) -> str:
     return ", ".join(f'"{s}"' for s in names) or "0"
+
+
+def _index_macros(filt: DerivedFilter, PREFIX: str) -> str:
+    """``#define <PREFIX>_Z_<NAME> i`` for every state and weight, likewise U_ inputs, Y_ outputs
+    and P_ declared parameters (of ``settings.param``)."""
+    groups = {"Z": filt.aug.names, "U": filt.aug.u_names, "Y": filt.aug.model.output_names,
+              "P": filt.aug.fixed_names}
+    lines, seen = [], {}
+    for tag, names in groups.items():
+        for i, name in enumerate(names):
+            macro = f"{PREFIX}_{tag}_{name.upper()}"
+            if macro in seen:
+                raise ValueError(f"names '{seen[macro]}' and '{name}' both give the C macro {macro}: "
+                                 f"rename one (index macros are upper case)")
+            seen[macro] = name
+            lines.append(f"#define {macro} {i}")
+    return "\n".join(lines) + "\n"
 
 
 def choose_style(filt: DerivedFilter, style: str = "auto") -> str:
@@ -145,8 +199,8 @@ def _casadi_code(functions, name: str, real: str, stamp: str) -> tuple[str, str,
 
 
 def _kernel(filt: DerivedFilter, prefix: str, real: str) -> tuple[dict[str, str], dict[str, int]]:
-    """The unrolled step: CasADi's code of ``filt.step`` as ``<prefix>_kernel``."""
-    step, name = filt.step, f"{prefix}_kernel"
+    """The unrolled step: CasADi's code of ``filt.tunable`` as ``<prefix>_kernel``."""
+    step, name = filt.tunable, f"{prefix}_kernel"
     f = ca.Function(name, step.sx_in(), step.call(step.sx_in()), step.name_in(), step.name_out())
     stamp = f"/* {name}: {filt.kind} step of model '{filt.aug.model.name}' ({real}), generated by skigen. */\n"
     c, h, sizes = _casadi_code([f], name, real, stamp)
@@ -177,37 +231,34 @@ def _work_layout(n: int, ny: int, nw: int, nq: int, model_w: int) -> tuple[str, 
 def _kernel_loops(filt: DerivedFilter, prefix: str, real: str) -> tuple[dict[str, str], dict[str, int]]:
     """The looped step: ``kernel_loops.c.in`` around CasADi's code of f, h and the
     input-history shift (``<prefix>_model.c/.h``)."""
-    from ..derive.ukf import merwe_weights, sqrt_psd
+    from ..derive.ukf import merwe_weights
 
     aug, opts, d = filt.aug, filt.options, filt.aug.shapes
     n, ny, nw, ard = d["n"], d["ny"], d["nw"], int(filt.has_ard)
     model = f"{prefix}_model"
-    zum = [aug.z, aug.u, aug.mem]
-    functions = [ca.Function(f"{model}_f", zum, [ca.densify(aug.f)]),
-                 ca.Function(f"{model}_h", zum, [ca.densify(aug.h)])]
+    zum = [aug.z, aug.u, aug.mem, aug.fixed]
+    f, h = (aug.f if aug.f_free is None else aug.f_free), (aug.h if aug.h_free is None else aug.h_free)
+    functions = [ca.Function(f"{model}_f", zum, [ca.densify(f)]),
+                 ca.Function(f"{model}_h", zum, [ca.densify(h)])]
     if d["nmem"]:
         functions.append(ca.Function(f"{model}_mem_next", [aug.u, aug.mem], [ca.densify(aug.mem_next)]))
     stamp = f"/* {model}: model functions of '{aug.model.name}' ({real}), generated by skigen. */\n"
     mc, mh, msz = _casadi_code(functions, model, real, stamp)
     Wm, Wc, gamma = merwe_weights(n, opts.alpha, opts.beta, opts.kappa)
-    Qf = sqrt_psd(aug.Q)
-    nq = Qf.shape[1]
     lit = lambda x: _literal(x, real)
-    array = lambda a: ", ".join(lit(x) for x in np.ravel(a, order="F")) or lit(0.0)
-    work, work_size = _work_layout(n, ny, nw if ard else 0, nq, msz["w"])
+    work, work_size = _work_layout(n, ny, nw if ard else 0, n, msz["w"])
     values = dict(
         prefix=prefix, kind=filt.kind, model=aug.model.name, real=real, N=n, NX=d["nx"], NW=nw, NY=ny,
-        NQ=nq, NMEM=d["nmem"], QF_SIZE=max(n * nq, 1), ARD=ard, ARD_STEPS=opts.ard_steps, BACKTRACKS=opts.backtracks,
+        NMEM=d["nmem"], ARD=ard, ARD_STEPS=opts.ard_steps, BACKTRACKS=opts.backtracks,
         WM0=lit(Wm[0]), WM1=lit(Wm[1]), WC0=lit(Wc[0]), WC1=lit(Wc[1]), SQRT_WC1=lit(np.sqrt(Wc[1])),
         SQRT_WC0=lit(np.sqrt(abs(Wc[0]))), WC0_SIGN=lit(np.sign(Wc[0])), GAMMA=lit(gamma),
         LOG_2PI=lit(np.log(2 * np.pi)), ETA=lit(opts.eta), MAX_STEP=lit(opts.max_step),
-        MARGIN=lit(opts.margin), S_MIN=lit(opts.s_min), S_MAX=lit(opts.s_max),
-        LR=array(np.linalg.cholesky(aug.R)), QF=array(Qf), work=work)
+        MARGIN=lit(opts.margin), S_MIN=lit(opts.s_min), S_MAX=lit(opts.s_max), work=work)
     kc = string.Template((_HERE / "kernel_loops.c.in").read_text()).substitute(values)
     if real == "float":
         kc = _single_precision(kc)
     name, guard = f"{prefix}_kernel", f"{prefix.upper()}_KERNEL_H"
-    sizes = dict(arg=len(filt.names_in), res=len(filt.names_out), iw=msz["iw"], w=work_size)
+    sizes = dict(arg=len(filt.names_in) + len(TUNABLE), res=len(filt.names_out), iw=msz["iw"], w=work_size)
     kh = (f"/* {name}.h: {filt.kind} step of model '{aug.model.name}' ({real}), the filter algebra as "
           f"loops, generated by skigen. */\n#ifndef {guard}\n#define {guard}\n\n"
           + "".join(f"#define {name}_SZ_{k.upper()} {v}\n" for k, v in sizes.items())
@@ -254,40 +305,59 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
     dim = lambda shape: "" if shape == () else f"[{max(_size(shape), 1)}]"
     ref = lambda name: f"&st->{name}" if fields[name] == () else f"st->{name}"
     struct = [f"    {prefix}_real {name}{dim(shape)}; /* {doc} */" for name, shape, doc in _fields(filt)]
+    struct += [f"    {prefix}_settings settings; /* run-time settings, changeable between steps */"]
+    struct += [f"    long {name}{dim(shape)}; /* {doc} */" for name, shape, doc in _health(filt)]
     struct += [f"    int iw[{max(sz['iw'], 1)}]; /* kernel work */",
                f"    {prefix}_real w[{max(sz['w'], 1)}]; /* kernel work */"]
-    wiring = [f"    arg[{i}] = {ref(k) if k in fields else _LOCALS[k]};" for i, k in enumerate(filt.names_in)]
+    settings = [f"    {prefix + '_real' if t == 'real' else 'long'} {name}{dim(shape)}; /* {doc} */"
+                for name, t, shape, doc in _settings(filt)]
+    wiring = [f"    arg[{i}] = {ref(k) if k in fields else _LOCALS[k]};"
+              for i, k in enumerate(filt.names_in + list(TUNABLE))]
     wiring += [f"    res[{i}] = {ref(k)};" for i, k in enumerate(filt.names_out)]
     finite = [f"    failed = failed || !all_finite({ref(k)}, {_size(fields[k])});" for k in filt.names_out]
     commit = [f"    copy_n(st->{a}, st->{b}, {_size(fields[a])});" for a, b in _UPDATES.items() if a in fields]
-    # Initial values: nonzero z, C (column-major), s as constants; posterior = prior; the rest 0.
+    # Declared values: z, C (column-major), s and the settings' arrays as constants; the rest 0.
+    guard = Guard()
     start = {k: np.ravel(v, order="F") for k, v in filt.initial().items()}
+    start["std_max"] = guard.std_max(filt.aug.P0)
+    start.update({k: np.ravel(v, order="F") for k, v in filt.settings().items()})
+    start = {k: v if v.size else np.zeros(1) for k, v in start.items()}
     consts = [f"static const real {k}0[{v.size}] = {{\n    " + ",\n    ".join(
               ", ".join(_literal(x, real) for x in v[i:i + 8]) for i in range(0, v.size, 8)) + "};"
-              for k, v in start.items() if np.any(v)]
+              for k, v in start.items() if np.any(v) or k in ("z", "C") or k in TUNABLE]
     init = []
     for name, shape, _ in _fields(filt):
-        base = name.removesuffix("_post")                        # z_post starts at z, C_post at C
-        if name.endswith("_next"):
+        if name.endswith("_next") or name.endswith("_post"):
             continue
         if shape == ():
             init.append(f"    st->{name} = 0;")
-        elif base in start and np.any(start[base]):
-            init.append(f"    copy_n(st->{name}, {base}0, {_size(shape)});")
+        elif name in start and (np.any(start[name]) or name in ("z", "C")):
+            init.append(f"    copy_n(st->{name}, {name}0, {_size(shape)});")
         else:
             init.append(f"    zero_n(st->{name}, {_size(shape)});")
+    init += [f"    zero_l({'&' if shape == () else ''}st->{name}, {max(_size(shape), 1) if shape else 1});"
+             for name, shape, _ in _health(filt)]
+    settings_init = []
+    for name, _, shape, _ in _settings(filt):
+        if shape:
+            settings_init.append(f"    copy_n(set->{name}, {name}0, {_size(shape)});")
+        else:
+            settings_init.append(f"    set->{name} = {_literal(getattr(guard, name), real) if isinstance(getattr(guard, name), float) else getattr(guard, name)};")
     model = filt.aug.model
     values = dict(
         prefix=prefix, PREFIX=prefix.upper(), real=real, model=model.name,
         kind_long={"ekf": "augmented EKF", "ukf": "augmented square-root UKF",
                    "ski": "SKI (square-root UKF with ARD)", "mukf": "marginalised square-root UKF (MUKF)",
                    "ski_mukf": "SKI on the marginalised UKF (MUKF with ARD)"}[filt.kind],
-        s_note=", s" if "s" in fields else "",
+        s_note=", s" if "s" in fields else "", s_reset=", s at its declared value" if "s" in fields else "",
+        DT=_literal(float(model.dt), real), index=_index_macros(filt, prefix.upper()),
         N=d["n"], NX=d["nx"], NW=d["nw"], NU=d["nu"], NY=d["ny"], NMEM=d["nmem"],
         NU1=max(d["nu"], 1), NY1=max(d["ny"], 1), SQUARE_ROOT=int(filt.square_root),
         SZ_ARG=max(sz["arg"], 1), SZ_RES=max(sz["res"], 1), SZ_IW=sz["iw"], SZ_W=sz["w"],
         fields="\n".join(struct), wiring="\n".join(wiring), finite="\n".join(finite), commit="\n".join(commit),
         initial="\n".join(consts), init="\n".join(init), sqrt="sqrtf" if real == "float" else "sqrt",
+        fabs="fabsf" if real == "float" else "fabs", settings="\n".join(settings),
+        settings_init="\n".join(settings_init),
         state_names=_c_strings(filt.aug.names), input_names=_c_strings(filt.aug.u_names),
         hold_note=_FOH_NOTE if model.input_hold == "foh" else "",
         nu_note=" per step: u_k, then u_{k+1} (first-order hold)" if model.input_hold == "foh" else "",
@@ -350,10 +420,18 @@ class CFilter:
         ct, self.dtype = REALS[real]
         self.prefix, self.kind, self.n = prefix or default_prefix(filt), filt.kind, filt.aug.n
         self.shapes = {name: shape for name, shape, _ in _fields(filt)}
+        self.counters = {name: shape for name, shape, _ in _health(filt)}
+        self.settings = {name: (t, shape) for name, t, shape, _ in _settings(filt)}
         self.lib = ctypes.CDLL(str(Path(lib_path).resolve()))
+        array = lambda t, shape: t * max(_size(shape), 1) if shape else t
+        types = {"real": ct, "long": ctypes.c_long}
 
-        class State(ctypes.Structure):   # the leading real fields; iw and w follow, opaque
-            _fields_ = [(k, ct * max(_size(s), 1) if s else ct) for k, s in self.shapes.items()]
+        class Settings(ctypes.Structure):
+            _fields_ = [(k, array(types[t], s)) for k, (t, s) in self.settings.items()]
+
+        class State(ctypes.Structure):   # the leading fields; iw and w follow, opaque
+            _fields_ = ([(k, array(ct, s)) for k, s in self.shapes.items()] + [("settings", Settings)]
+                        + [(k, array(ctypes.c_long, s)) for k, s in self.counters.items()])
 
         fn = lambda name: getattr(self.lib, f"{self.prefix}_{name}")
         size = fn("state_size")
@@ -362,14 +440,41 @@ class CFilter:
             raise ValueError(f"{lib_path}: state layout does not match the filter")
         self._buf = ctypes.create_string_buffer(size())
         self._st = State.from_buffer(self._buf)
-        self._init, self._step, self._std = fn("init"), fn("step"), fn("std")
+        self._init, self._step, self._std, self._reset = fn("init"), fn("step"), fn("std"), fn("reset")
         self._step.restype = ctypes.c_int
         d = filt.aug.shapes
         self._u, self._y, self._out = (ct * d["nu"])(), (ct * d["ny"])(), (ct * self.n)()
+        self._ct, self.P0 = ct, filt.aug.P0
         self.init()
 
     def init(self) -> None:
         self._init(ctypes.byref(self._st))
+
+    def reset(self, z0=None, C0=None) -> None:
+        """``<prefix>_reset``: restart from (z0, C0) (None: the declared value), settings kept."""
+        arr = lambda a: None if a is None else (self._ct * (self.n * self.n if np.ndim(a) == 2 else self.n))(
+            *np.ravel(a, order="F").tolist())
+        self._reset(ctypes.byref(self._st), arr(z0), arr(C0))
+
+    def configure(self, guard=None, **values) -> None:
+        """Set fields of ``st.settings``: those of a :class:`~skigen.guard.Guard` and/or by name."""
+        if guard is not None:
+            values = {**{k: v for k, v in guard.asdict().items() if k in self.settings}, **values}
+            values.setdefault("std_max", guard.std_max(self.P0))
+        for name, value in values.items():
+            if name not in self.settings:
+                raise ValueError(f"no setting '{name}' (settings: {', '.join(self.settings)})")
+            t, shape = self.settings[name]
+            if shape:
+                getattr(self._st.settings, name)[:_size(shape)] = np.broadcast_to(value, shape).ravel(order="F").tolist()
+            else:
+                setattr(self._st.settings, name, float(value) if t == "real" else int(value))
+
+    def setting(self, name: str):
+        t, shape = self.settings[name]
+        v = getattr(self._st.settings, name)
+        return np.array(v[:_size(shape)], self.dtype if t == "real" else int).reshape(shape, order="F") if shape \
+            else (float(v) if t == "real" else int(v))
 
     def step(self, u, y) -> int:
         """One sample; returns the :class:`Status` code as an int."""
@@ -383,6 +488,10 @@ class CFilter:
         return np.array(self._out, dtype=self.dtype)
 
     def get(self, name: str):
+        """A field of the state: real (an array of its shape, or a float) or a counter (int)."""
+        if name in self.counters:
+            shape, v = self.counters[name], getattr(self._st, name)
+            return np.array(v[:_size(shape)], int) if shape else int(v)
         shape, v = self.shapes[name], getattr(self._st, name)
         if shape == ():
             return float(v)
@@ -396,26 +505,26 @@ class CFilter:
             getattr(self._st, name)[:_size(shape)] = np.broadcast_to(value, shape).ravel(order="F").tolist()
 
     def __getattr__(self, name):
-        if name != "shapes" and name in self.shapes:
+        if name not in ("shapes", "counters") and (name in self.shapes or name in self.counters):
             return self.get(name)
         raise AttributeError(name)
 
     def run_many(self, inputs, outputs) -> dict[str, np.ndarray]:
         """Step over rows of ``inputs`` and ``outputs`` in one C call (libraries from :func:`load_c`):
         per sample the posterior mean ``z_post`` and ``std``, innovation ``e``, diagonal of ``Pyy``,
-        ``nis``, ``loglik``, ARD variances ``s`` (SKI) and the status ``code``."""
+        ``nis``, ``loglik``, ARD variances ``s`` (SKI), the outputs ``used`` and the status ``code``."""
         count, d = len(inputs), {k: self.shapes[k] for k in ("e", "z_post")}
         u = np.ascontiguousarray(inputs, self.dtype).reshape(count, -1)
         y = np.ascontiguousarray(outputs, self.dtype).reshape(count, -1)
         nw = _size(self.shapes["s"]) if "s" in self.shapes else 0
-        out = dict(z_post=(self.n,), std=(self.n,), e=d["e"], pyy=d["e"], nis=(), loglik=(), s=(nw,))
+        out = dict(z_post=(self.n,), std=(self.n,), e=d["e"], pyy=d["e"], nis=(), loglik=(), s=(nw,), used=d["e"])
         out = {k: np.empty((count, *shape), self.dtype) for k, shape in out.items()}
         out["code"] = np.empty(count, np.intc)
         ptr = lambda a: a.ctypes.data_as(ctypes.c_void_p)
         fn = getattr(self.lib, f"{self.prefix}_run_many")
         fn.restype = None
         fn(ctypes.byref(self._st), ctypes.c_size_t(count), ptr(u), ptr(y),
-           *(ptr(out[k]) for k in ("z_post", "std", "e", "pyy", "nis", "loglik", "s", "code")))
+           *(ptr(out[k]) for k in ("z_post", "std", "e", "pyy", "nis", "loglik", "s", "used", "code")))
         return out
 
     def run(self, inputs, outputs) -> dict[str, np.ndarray]:

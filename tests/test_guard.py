@@ -1,0 +1,313 @@
+"""Outlier gate, recovery and run-time settings of the generated C and the Python runner.
+
+The policy (skigen/guard.py) against its covariance-form reference (skigen/reference/guard.py
+around the reference filters), per step; fault injection through the flight-computer example
+in double and float and through the Python runner; the C API's settings, reset, index macros
+and prefixes from C.
+"""
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from benchmarks import faults as F
+from models.wingrock import NOISE_STD, build
+from skigen import Model, derive
+from skigen.library import polynomial
+from skigen.cli import main as cli
+from skigen.emit import Status, emit_c
+from skigen.emit.c import DEFAULT_FLAGS, load_c
+from skigen.guard import Guard
+from skigen.recording import Recording
+from skigen.reference import guard as ref
+from skigen.runtime import PythonStepper, run
+from tests.test_derive_vs_reference import _ref_step
+
+EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "flight_computer"
+RTOL = 1e-9
+
+
+def _run(cmd, **kw):
+    r = subprocess.run([str(c) for c in cmd], capture_output=True, text=True, **kw)
+    assert r.returncode == 0, f"{' '.join(map(str, cmd))}\n{r.stdout}{r.stderr}"
+    return r.stdout
+
+
+def _close(a, b, rtol=RTOL):
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    np.testing.assert_allclose(a, b, rtol=0, atol=rtol * max(np.abs(b).max(initial=0.0), 1.0))
+
+
+@pytest.fixture(scope="module")
+def sim():
+    return F.flight(30_000, seed=2)
+
+
+# ------------------------------------------------------------------- the policy against the reference
+
+def _reference_run(d, u, y, guard, std_max):
+    """The reference filters under the policy as stated (skigen/guard.py), in covariance form."""
+    nx, sr = d.aug.shapes["nx"], d.square_root
+    st = d.initial()
+    z0, P0 = st["z"].copy(), d.aug.P0
+    run_, gap, zs, codes = 0, 0, [], []
+    for k in range(len(u)):
+        valid = np.isfinite(y[k])
+        code = Status.OK if valid.all() else Status.MEASUREMENT_SKIPPED
+        recover = valid.any() and (gap >= guard.gap_limit or run_ >= guard.reject_limit)
+        if recover:
+            P = st["C"] @ st["C"].T if sr else st["C"]
+            st["z"], P = ref.restart(st["z"], P, nx, z0, P0, guard.reinit_scale)
+            st["C"] = np.linalg.cholesky(P) if sr else P
+        q = _ref_step(d.kind, d, st, u[k], y[k], valid)
+        if not recover:
+            out = ref.gate_mask(q["e"], q["Pyy"], valid, guard.gate)
+            if out.any():
+                valid = valid & ~out
+                q, code = _ref_step(d.kind, d, st, u[k], y[k], valid), Status.OUTLIER_REJECTED
+        if valid.any():
+            gap, run_ = 0, 0
+        else:
+            gap, run_ = gap + 1, run_ + int(np.isfinite(y[k]).any())
+        C = q["S"] if sr else q["P"]
+        P = ref.bound(C @ C.T if sr else C, std_max)
+        st = dict(z=q["z"], C=np.linalg.cholesky(P) if sr else P, mem=st["mem"],
+                  **({"s": q["s"]} if "s" in q else {}))
+        zs.append(q["z_post"])
+        codes.append(Status.REINITIALISED if recover else code)
+    return np.array(zs), np.array(codes)
+
+
+@pytest.mark.parametrize("kind", ["ekf", "ukf", "ski"])
+def test_gate_restart_and_bound_match_the_reference(kind, sim):
+    """Single absurd readings, a 3-degree offset for longer than reject_limit (a restart onto it,
+    gated readings after it, a restart back), a gap longer than gap_limit and an active std bound
+    on p."""
+    d = derive(build(), kind)
+    guard = Guard(gap_limit=80)
+    std_max = guard.std_max(d.aug.P0)
+    std_max[1] = 2.0                                       # caps p's prior std after a restart (10)
+    n = 700
+    u, y = sim.delta[:n], sim.phi[:n].copy()
+    y[[60, 61, 140]] = [1e4 * NOISE_STD, -1e6 * NOISE_STD, 1e3 * NOISE_STD]
+    y[250:290] += 3.0                                      # 40 readings off by 30 noise stds
+    y[400:500] = np.nan                                    # 100 samples without a reading
+    cf = load_c(d)
+    cf.configure(guard, std_max=std_max)
+    out = cf.run_many(u[:, None], y[:, None])
+    z_ref, codes_ref = _reference_run(d, u, y[:, None], guard, std_max)
+    np.testing.assert_array_equal(out["code"], codes_ref)
+    _close(out["z_post"], z_ref)
+    code = out["code"]
+    gated = [60, 61, 140, *range(250, 275), *range(290, 315)]
+    np.testing.assert_array_equal(np.flatnonzero(code == Status.OUTLIER_REJECTED), gated)
+    np.testing.assert_array_equal(np.flatnonzero(code == Status.REINITIALISED), [275, 315, 500])
+    assert cf.reinits == 3 and cf.rejected[0] == len(gated)
+    assert out["std"][275, 1] == pytest.approx(10.0, rel=1e-6)       # restarted: 10 x its declared std
+    assert out["std"][276, 1] <= 2.0                                  # the bound acted on the prior
+    # After the last restart the roll angle is back on the truth within 5 noise stds.
+    assert np.abs(out["z_post"][560:, 0] - sim.theta[560:n]).max() < 5 * NOISE_STD
+
+
+@pytest.mark.parametrize("kind,style", [("ekf", "unrolled"), ("ski", "unrolled"), ("ski", "loops")])
+def test_a_rejected_reading_never_changes_the_state(kind, style, sim):
+    d = derive(build(), kind)
+    a, b = load_c(d, style=style), load_c(d, style=style)
+    for k in range(300):
+        a.step([sim.delta[k]], [sim.phi[k]])
+        b.step([sim.delta[k]], [sim.phi[k]])
+    assert a.step([1.0], [1e6 * NOISE_STD]) == Status.OUTLIER_REJECTED
+    assert b.step([1.0], [np.nan]) == Status.MEASUREMENT_SKIPPED
+    for name in a.shapes:
+        if name != "y_last":
+            np.testing.assert_array_equal(a.get(name), b.get(name), err_msg=name)
+    assert list(a.rejected) == [1] and list(b.rejected) == [0] and a.used[0] == 0
+
+
+def test_python_stepper_equals_c_under_faults(sim):
+    """The Python runner follows the C's policy step for step, codes and estimates."""
+    d = derive(build(), "ukf")
+    faults = [F.Fault("absurd", 1e6, 300, 303), F.Fault("stuck", 200, 500, 700),
+              F.Fault("nonfinite", 50, 900, 950), F.Fault("dropout", 600, 1100, 1700)]
+    u, y = F.inject(sim.delta[:2000, None], sim.phi[:2000, None], faults, NOISE_STD)
+    c = load_c(d).run_many(u, y)
+    py = F.run_filter(d, u, y, backend="python")
+    np.testing.assert_array_equal(py["code"], c["code"])
+    _close(py["z"][np.isfinite(c["z_post"][:, 0])], c["z_post"][np.isfinite(c["z_post"][:, 0])])
+    assert set(c["code"]) == {Status.OK, Status.OUTLIER_REJECTED, Status.SENSOR_STUCK, Status.BAD_INPUT,
+                              Status.MEASUREMENT_SKIPPED, Status.REINITIALISED, Status.NUMERICAL_FAILURE}
+
+
+# ----------------------------------------------------------------------------- fault injection
+
+def _example(gen: Path, out: Path) -> Path:
+    out.mkdir()
+    _run(["make", "-s", "-C", EXAMPLE, f"GEN={gen}", f"BUILD={out}"])
+    return out / "flight_computer"
+
+
+def _csv(path, t, u, y):
+    cell = lambda v: "" if np.isnan(v) else repr(float(v))          # an empty reading: not measured
+    rows = ["t,delta,phi"] + [f"{float(ti)!r},{float(ui)!r},{cell(yi)}" for ti, ui, yi in zip(t, u, y)]
+    path.write_text("\n".join(rows) + "\n")
+    return path
+
+
+@pytest.mark.parametrize("real", ["double", "float"])
+def test_fault_injection_through_the_flight_computer(real, sim, tmp_path):
+    """Absurd readings of 1e3-1e6 sd, dropouts of 1e2-1e4 samples, a sensor stuck for up to
+    3000 samples, NaN/inf inputs and inf readings: the C example's estimate is back within its
+    normal error 500 samples after every fault, never NaN, and its codes say what happened.
+    (The float build uses the looped kernel: both styles are covered, and it compiles in a second.)"""
+    emit_c(derive(build(), "ski"), tmp_path / "gen", real, style="unrolled" if real == "double" else "loops")
+    exe = _example(tmp_path / "gen", tmp_path / "build")
+    t, u, y = sim.t, sim.delta, sim.phi
+    table = lambda csv: np.loadtxt(_run([exe, csv]).splitlines()[1:], delimiter=",")
+    clean = table(_csv(tmp_path / "clean.csv", t, u, y))
+    truth = np.column_stack([sim.theta, sim.p])
+    bound = F.normal_error(clean[:, 1:3] - truth)
+    S = Status
+    during = {"absurd": {S.OUTLIER_REJECTED},                      # codes while the fault lasts
+              "dropout": {S.MEASUREMENT_SKIPPED, S.NUMERICAL_FAILURE},   # long predictions blow up
+              "stuck": {S.OK, S.OUTLIER_REJECTED, S.SENSOR_STUCK, S.NUMERICAL_FAILURE},
+              "nonfinite": {S.BAD_INPUT}}
+    signature = {"absurd": S.OUTLIER_REJECTED, "dropout": S.MEASUREMENT_SKIPPED, "stuck": S.SENSOR_STUCK,
+                 "nonfinite": S.BAD_INPUT}
+    for kind in F.FAULTS:
+        faults = F.schedule(kind, len(t))
+        fu, fy = F.inject(u[:, None], y[:, None], faults, NOISE_STD)
+        out = table(_csv(tmp_path / f"{kind}.csv", t, fu[:, 0], fy[:, 0]))
+        assert np.all(np.isfinite(out)), kind
+        rec = F.recovery(out[:, 1:3] - truth, faults, bound)
+        assert all(r is not None and r <= F.RECOVERY for r in rec), (kind, rec)
+        codes = out[:, -1].astype(int)
+        for f in faults:
+            assert set(codes[f.start:f.end]) <= during[kind] and signature[kind] in codes[f.start:f.end], kind
+            assert S.NUMERICAL_FAILURE not in codes[f.end + F.RECOVERY:f.end + F.FAULT_SPACING], kind
+        assert len(faults) >= (3 if kind != "absurd" else 6)
+
+
+def test_the_python_runner_recovers_from_each_fault(sim):
+    """The same scenarios through skigen.runtime.run (one fault of each type, UKF)."""
+    d, n = derive(build(), "ukf"), 3200
+    truth = np.column_stack([sim.theta, sim.p])[:n]
+    clean = load_c(d).run_many(sim.delta[:n, None], sim.phi[:n, None])     # equal to Python's (above)
+    bound = F.normal_error(clean["z_post"][:, :2] - truth)
+    for fault in [F.Fault("absurd", 1e6, 1500, 1503), F.Fault("dropout", 1000, 1500, 2500),
+                  F.Fault("stuck", 1000, 1500, 2500), F.Fault("nonfinite", 1000, 1500, 2500)]:
+        u, y = F.inject(sim.delta[:n, None], sim.phi[:n, None], [fault], NOISE_STD)
+        res = run(d, Recording("sim", sim.t[:n], u, y, ("delta",), ("phi",)), show_progress=False)
+        stepped = res.code != Status.BAD_INPUT
+        assert np.all(np.isfinite(res.mean[stepped])), fault.kind
+        assert F.recovery(res.mean[:, :2] - truth, [fault], bound)[0] <= F.RECOVERY, fault.kind
+        lines = res.summary().lines()
+        assert any(line.startswith("events: ") and "restart" in line or fault.kind == "absurd"
+                   for line in lines), lines
+
+
+# ------------------------------------------------------------------------------- the C API
+
+def _gain_model(gain=3.0, noise=NOISE_STD, process_std=(1e-4, 1e-3)):
+    """WingRock with its control gain a declared parameter."""
+    model = Model("wr", dt=0.02, discretization="rk4")
+    theta = model.state("theta", std=1.0, process_std=process_std[0])
+    p = model.state("p", std=1.0, process_std=process_std[1])
+    delta = model.input("delta")
+    L = model.parameter("L", gain)
+    model.dynamics({theta: p, p: L * delta})
+    model.output("phi", theta, noise_std=noise)
+    model.unknown(p, polynomial([theta, p], 1), prior_variance=1.0)
+    return model
+
+
+@pytest.mark.parametrize("kind,style", [("ski", "unrolled"), ("ukf", "loops")])
+def test_settings_changed_mid_run_equal_a_rebuild(kind, style, sim):
+    """Q, R and the parameter L changed between two steps give, from then on, the steps of the
+    filter generated from a model declaring them, bit for bit."""
+    a = load_c(derive(_gain_model(), kind), style=style)
+    other = derive(_gain_model(gain=2.5, noise=0.3, process_std=(1e-3, 1e-2)), kind)
+    b = load_c(other, style=style)
+    assert a.setting("param")[0] == 3.0 and b.setting("param")[0] == 2.5
+    for cf in (a, b):
+        cf.configure(gate=0)              # the policy's counters are not copied below
+    for k in range(200):
+        a.step([sim.delta[k]], [sim.phi[k]])
+    Q = b.setting("Q_sqrt")
+    Q[0, 1] = 7.0                                          # upper triangle: ignored
+    a.configure(Q_sqrt=Q, **{k: b.setting(k) for k in ("R_sqrt", "param")})
+    for name in ("z", "C", "mem") + (("s",) if kind == "ski" else ()):
+        b.set(name, a.get(name))
+    for k in range(200, 400):
+        assert a.step([sim.delta[k]], [sim.phi[k]]) == b.step([sim.delta[k]], [sim.phi[k]])
+        for name in ("z_post", "C_post", "z", "C", "nis"):
+            np.testing.assert_array_equal(a.get(name), b.get(name), err_msg=name)
+    _close(b.setting("R_sqrt"), [[0.3]])
+
+
+def test_reset_starts_from_the_given_state(sim):
+    d = derive(build(), "ski")
+    cf, py = load_c(d), PythonStepper(d)
+    z0 = d.initial()["z"] + np.r_[2.0, -1.0, 0.1, 0, 0, 0, 0, 0]
+    C0 = 0.5 * d.initial()["C"]
+    for k in range(50):                                   # some history that the reset must clear
+        cf.step([sim.delta[k]], [sim.phi[k]])
+    cf.reset(z0, C0)
+    py.reset(z0, C0)
+    _close(cf.z, z0)
+    _close(cf.C_post, C0)
+    assert cf.since_update == 0 and not np.any(cf.mem)
+    for k in range(100):
+        assert cf.step([sim.delta[k]], [sim.phi[k]]) == py.step([sim.delta[k]], [sim.phi[k]])
+        _close(cf.z_post, py.z_post)
+    cf.reset()                                            # NULL: the declared values
+    _close(cf.z, d.initial()["z"])
+    _close(cf.C, d.initial()["C"])
+
+
+MAIN = r"""#include <math.h>
+#include <stdio.h>
+#include "roll_d.h"
+#include "roll_f.h"
+int main(void)
+{
+    static roll_d_state d;
+    static roll_f_state f;
+    double z0[ROLL_D_N] = {0}, u[ROLL_D_NU], y[ROLL_D_NY];
+    float uf[ROLL_F_NU], yf[ROLL_F_NY];
+    int k, codes = 0;
+    roll_d_init(&d);
+    roll_f_init(&f);
+    z0[ROLL_D_Z_THETA] = 1.5;
+    roll_d_reset(&d, z0, NULL);
+    d.settings.R_sqrt[0] = 0.2;                  /* retuned on the vehicle */
+    f.settings.gate = 0;
+    for (k = 0; k < 200; ++k) {
+        u[ROLL_D_U_DELTA] = sin(0.05 * k);
+        y[ROLL_D_Y_PHI] = 1.5 + 0.1 * k * ROLL_D_DT;
+        uf[ROLL_F_U_DELTA] = (float)u[ROLL_D_U_DELTA];
+        yf[ROLL_F_Y_PHI] = (float)y[ROLL_D_Y_PHI];
+        codes += roll_d_step(&d, u, y) + roll_f_step(&f, uf, yf);
+    }
+    printf("%g %d %.6f %.6f %ld %d\n", ROLL_D_DT, codes, d.z_post[ROLL_D_Z_THETA],
+           (double)f.z_post[ROLL_F_Z_THETA], d.reinits, ROLL_F_Z_W_THETA3);
+    return 0;
+}
+"""
+
+
+def test_two_prefixes_link_into_one_binary(tmp_path):
+    """`skigen generate --prefix` twice (double, float) and a C main using the index macros,
+    DT, reset and the settings of both."""
+    for real, prefix in (("double", "roll_d"), ("float", "roll_f")):
+        assert cli(["generate", "models.wingrock:model", "--filter", "ukf", "--real", real,
+                    "--prefix", prefix, "--out", str(tmp_path / prefix)]) == 0
+    (tmp_path / "main.c").write_text(MAIN)
+    sources = sorted(tmp_path.glob("roll_*/*.c"))
+    exe = tmp_path / "together"
+    _run(["gcc", *(f for f in DEFAULT_FLAGS if not f.startswith("-O")), "-O1",
+          f"-I{tmp_path / 'roll_d'}", f"-I{tmp_path / 'roll_f'}", tmp_path / "main.c", *sources, "-o", exe, "-lm"])
+    dt, codes, theta_d, theta_f, reinits, w_theta3 = _run([exe]).split()
+    assert float(dt) == 0.02 and int(codes) == 0 and int(reinits) == 0 and int(w_theta3) == 7
+    ramp = 1.5 + 0.1 * 199 * 0.02                         # both follow the measured ramp (1.908, 1.870)
+    assert abs(float(theta_d) - ramp) < 0.05 and abs(float(theta_f) - ramp) < 0.05
