@@ -34,6 +34,7 @@ bench: $(STAMP)  ## accuracy and speed tables (figures land in benchmarks/figure
 	$(PY) -m skigen bench fit
 	$(PY) -m skigen bench logs
 	$(PY) -m skigen bench batch
+	$(PY) -m skigen bench faults
 
 generate: $(STAMP)  ## regenerate the checked-in C sources in generated/
 	$(PY) -m skigen.emit.shipped generated

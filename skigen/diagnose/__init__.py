@@ -218,11 +218,12 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         stage("fit of the corrected model")
         after = evaluate_fit(corrected, rec)
         data["fit"]["after"] = after.metrics
-        if not loc.windows:          # too fast for a random walk: where the found terms help
-            w, regime = windows_from_gain(calibrated, rec, after.run.loglik - nominal_run.loglik, loc.states, alpha)
-            data["located"].update(windows=[[float(a), float(b)] for a, b in w], regime=regime,
-                                   windows_from="where the corrected model predicts significantly better")
-            loc.windows, loc.regime = w, regime
+        w, regime = windows_from_gain(calibrated, rec, after.run.loglik - nominal_run.loglik, loc.states, alpha,
+                                      loc.active)
+        data["located"].update(windows=[[float(a), float(b)] for a, b in w], regime=regime or loc.regime,
+                               windows_from="where the random-walk disturbance is significant or the corrected "
+                                            "model predicts significantly better")
+        loc.windows, loc.regime = w, regime or loc.regime
         stage("testing what remains")
         data["remaining"] = remaining(T.constants(corrected), rec, after.run, eqs, alpha, out if figures else None)
         if data["remaining"].get("figure"):

@@ -130,10 +130,11 @@ def _local_gain(gain: np.ndarray, dt: float, alpha: float, seconds: float = 0.5)
 
 
 def windows_from_gain(nominal: Model, rec: Recording, gain: np.ndarray, states: np.ndarray,
-                      alpha: float) -> tuple[list, str | None]:
+                      alpha: float, active: np.ndarray | None = None) -> tuple[list, str | None]:
     """Windows and regime where a corrected model predicts significantly better than the nominal
-    (``gain``: per-sample log-likelihood difference): for effects too fast for a random walk."""
-    active = _local_gain(gain, nominal.dt, alpha)
+    (``gain``: per-sample log-likelihood difference; effects too fast for a random walk), joined
+    with the samples already ``active``."""
+    active = _local_gain(gain, nominal.dt, alpha) | (False if active is None else active)
     duration = rec.t[-1] - rec.t[0]
     windows = windows_of(rec.t, active, merge=max(0.5, 0.01 * duration), shortest=max(0.2, 10 * nominal.dt))
     return windows, regime_stump(features(nominal, rec, states), active)

@@ -12,9 +12,13 @@ each part of the recording is scored on.
 2. each structural candidate's parameter is chosen, per fold, on the grid
    point with the best log-likelihood over the other folds; the final value is
    refined on the whole recording;
-3. the best proposal is accepted if 2·(cross-validated gain) exceeds the χ²
-   quantile 1 − α/(number of candidates) for its number of parameters and,
-   after the first round, adds at least 1 % of the gain so far; repeat (three
+3. a proposal passes if 2·(cross-validated gain) exceeds the χ² quantile
+   1 − α/(number of candidates) for its number of parameters and, after the
+   first round, adds at least 1 % of the gain so far. The best two that pass
+   are each adopted under the noise recalibrated with them (the nominal's
+   calibration absorbed the missing physics as process noise, which blurs the
+   difference between close candidates such as a delay and a lag) and the one
+   with the higher cross-validated log-likelihood is kept; repeat (three
    rounds at most).
 
 Additive coefficients are then refitted jointly on the whole recording
@@ -46,6 +50,7 @@ __all__ = ["Correction", "Proposal", "name_terms", "refit", "basis_rms", "distin
            "focus_window", "recalibrated"]
 
 MAX_ROUNDS = 3
+FINALISTS = 2      # proposals scored again, each under the noise calibrated with it
 MIN_SHARE = 0.01   # a further change must add ≥ 1 % of the gain so far: below that it only
                    # absorbs the first one's approximation (grid resolution, smoothing)
 
@@ -370,26 +375,41 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
             break
         for p in proposals:
             p.gain = float(np.sum(p.folds) - np.sum(current))
-        best = max(proposals, key=lambda p: p.gain)
-        history.append(best)
-        if not 2 * best.gain > stats.chi2.ppf(1 - alpha / n_cands, best.params):
+        ranked = sorted(proposals, key=lambda p: -p.gain)
+        passing = [p for p in ranked[:FINALISTS] if 2 * p.gain > stats.chi2.ppf(1 - alpha / n_cands, p.params)
+                   and not (history and p.gain < MIN_SHARE * sum(h.gain for h in history))]
+        history.append(ranked[0])
+        adopted = []
+        for p in passing:                  # each finalist under the noise it leaves, then the best
+            tick(f"recalibrating the noise under {p.label}")
+            got = _adopt(nominal, corr, p, rec, rms, size, alpha)
+            if got is not None:
+                adopted.append(got + (cv_loglik(got[1], got[0], rec, folds, rms, size), p))
+        if not adopted:
             break
-        if history[:-1] and best.gain < MIN_SHARE * sum(p.gain for p in history[:-1]):
-            break
-        accepted = refit(nominal, best.correction, rec, rms, size)
-        z = stats.norm.isf(alpha / 2)
-        significant = [a for a in accepted.additive[len(corr.additive):] if abs(a[1]) > z * a[2]]
-        if best.kind == "additive" and not significant:
-            break                  # the SKI selection does not survive an honest refit: nothing to add
-        corr = Correction(accepted.additive[:len(corr.additive)] + significant, accepted.structural)
-        corr = refit(nominal, corr, rec, rms, size)
-        tick("recalibrating the noise")
-        nominal = recalibrated(nominal, corr, rec)
-        if best.kind == "structural":         # its parameter again, under the noise it leaves
-            corr = reprofiled(nominal, corr, rec)
-        corr = refit(nominal, corr, rec, rms, size)
-        current = cv_loglik(nominal, corr, rec, folds, rms, size)
+        corr, nominal, current, chosen = max(adopted, key=lambda a: np.sum(a[2]))
+        history[-1] = chosen
     return corr, history, rms, size, nominal
+
+
+def _adopt(nominal: Model, corr: Correction, p: Proposal, rec: Recording, rms: dict, size: dict,
+           alpha: float) -> tuple[Correction, Model] | None:
+    """(the correction with proposal ``p`` adopted, the nominal with the noise recalibrated under it),
+    or None when none of an additive proposal's terms survives an honest (UKF) refit."""
+    accepted = refit(nominal, p.correction, rec, rms, size)
+    z = stats.norm.isf(alpha / 2)
+    significant = [a for a in accepted.additive[len(corr.additive):] if abs(a[1]) > z * a[2]]
+    if p.kind == "additive" and not significant:
+        return None
+    new = refit(nominal, Correction(accepted.additive[:len(corr.additive)] + significant, accepted.structural),
+                rec, rms, size)
+    nominal = recalibrated(nominal, new, rec)
+    if p.kind == "structural":             # its parameter again, under the noise it leaves
+        before = new.structural[-1][1]
+        new = reprofiled(nominal, new, rec)
+        if not np.isclose(new.structural[-1][1], before, rtol=1e-3):
+            nominal = recalibrated(nominal, new, rec)
+    return refit(nominal, new, rec, rms, size), nominal
 
 
 def reprofiled(nominal: Model, corr: Correction, rec: Recording) -> Correction:
