@@ -92,7 +92,7 @@ def _restart(filt, start: Trace, rec: Recording, k: int, w: np.ndarray, Pw: np.n
 
 def fit_without(model: Model, kind: str, rec: Recording, folds: Folds, f: int | None,
                 start: Trace) -> tuple[np.ndarray, np.ndarray]:
-    """(weights, their std) of ``model``'s unknown term estimated by filter ``kind`` ("ukf" or "ski")
+    """(weights, their std) of ``model``'s unknown term estimated by filter ``kind`` ("ekf", "ukf" or "ski")
     from every fold but f (f = None: the whole recording). ``start``: the current model's EKF trace,
     where each piece after a gap restarts. Raises FloatingPointError if the filter diverges."""
     filt = derive(model, kind)

@@ -22,7 +22,8 @@ each part of the recording is scored on.
    rounds at most).
 
 Additive coefficients are then refitted jointly on the whole recording
-(augmented UKF without ARD); an effect with variants (a Coulomb smoothing
+(augmented EKF: linearised about the mean, it never evaluates the model at
+sigma points far out in a broad prior); an effect with variants (a Coulomb smoothing
 width, a ground-effect decay height, a limit) has its shape chosen by
 likelihood, and the spread of the coefficient over the shapes the data do not
 rule out is added to its std (:func:`shape_search`). The evidence of each
@@ -141,7 +142,7 @@ def _innermost(group: list[Additive]) -> Additive:
     return (min if dict(group[0].shape)["side"] == "upper" else max)(group, key=bound)
 
 
-SKI_MAX_SAMPLES = 20_000
+SKI_MAX_SAMPLES = 10_000
 
 
 def focus_window(strength: np.ndarray, n: int = SKI_MAX_SAMPLES) -> tuple[int, int] | None:
@@ -161,7 +162,7 @@ def start_trace(model: Model, rec: Recording) -> Trace:
 
 
 def _prior(cands, rms, size) -> np.ndarray:
-    """ARD/UKF prior variance per candidate: alone, it could explain the disturbance twice over."""
+    """ARD/EKF prior variance per candidate: alone, it could explain the disturbance twice over."""
     return np.array([(2.0 * size[c.equation] / rms[c]) ** 2 for c in cands])
 
 
@@ -187,7 +188,7 @@ def cv_loglik(nominal: Model, corr: Correction, rec: Recording, folds: Folds, rm
     out = np.empty(len(folds))
     for f in range(len(folds)):
         try:
-            w, sd = fit_without(m, "ukf", rec, folds, f, start)
+            w, sd = fit_without(m, "ekf", rec, folds, f, start)
         except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):
             out[f] = -np.inf
             continue
@@ -272,7 +273,7 @@ def _profile(total, s: Structural, evaluated) -> tuple[float, float, float]:
 
 def refit(nominal: Model, corr: Correction, rec: Recording, rms: dict, size: dict) -> Correction:
     """Additive coefficients re-estimated jointly on the whole recording under the accepted
-    structure (augmented UKF, no ARD). Coefficients already estimated stay in the model as known
+    structure (augmented EKF). Coefficients already estimated stay in the model as known
     terms and the filter estimates their corrections (prior std 3σ, at least 10 %): the sigma
     points then stay where the model has been seen to hold."""
     if not corr.additive:
@@ -286,7 +287,7 @@ def refit(nominal: Model, corr: Correction, rec: Recording, rms: dict, size: dic
         known = []
     m = Correction(known, corr.structural).build(nominal, unknown=cands, prior_variance=prior)
     try:
-        w, sd = fit_without(m, "ukf", rec, Folds.of(len(rec.t), 1), None, None)
+        w, sd = fit_without(m, "ekf", rec, Folds.of(len(rec.t), 1), None, None)
     except (FloatingPointError, RuntimeError, ValueError, np.linalg.LinAlgError):
         if known:
             return corr                  # the filter diverged: keep the coefficients it started from
@@ -395,7 +396,7 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
 def _adopt(nominal: Model, corr: Correction, p: Proposal, rec: Recording, rms: dict, size: dict,
            alpha: float) -> tuple[Correction, Model] | None:
     """(the correction with proposal ``p`` adopted, the nominal with the noise recalibrated under it),
-    or None when none of an additive proposal's terms survives an honest (UKF) refit."""
+    or None when none of an additive proposal's terms survives an honest (EKF) refit."""
     accepted = refit(nominal, p.correction, rec, rms, size)
     z = stats.norm.isf(alpha / 2)
     significant = [a for a in accepted.additive[len(corr.additive):] if abs(a[1]) > z * a[2]]
