@@ -40,7 +40,7 @@ from .figures import diagnosis_figures, plot_residuals
 from .fit import evaluate_fit
 from .inputs import MIN_SAMPLES, check, load
 from .locate import Location, locate, windows_from_gain
-from .name import Correction, basis_rms, focus_window, name_terms, shape_search
+from .name import Correction, basis_rms, beyond_parameters, focus_window, name_terms, shape_search
 from .name import refit as refit_terms
 from .plausible import screen
 from .report import write_json, write_markdown
@@ -169,11 +169,15 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     stage("naming: instantiating the catalog")
     scale = {n: float(np.sqrt(np.mean(loc.states[:, i] ** 2))) for i, n in enumerate(nominal.state_names)}
     rate_eqs = [e for e in loc.equations if e in C.rate_equations(nominal)] or C.rate_equations(nominal)
-    additive = C.additive_candidates(calibrated, rate_eqs, scale, loc.states) + user_cands
+    additive = beyond_parameters(declared, rec, loc.states,
+                                 C.additive_candidates(calibrated, rate_eqs, scale, loc.states)) + user_cands
     structural = C.structural_candidates(calibrated, rate_eqs, np.asarray(rec.inputs))
-    size = {e: float(np.sqrt(np.mean(d ** 2))) for e, (d, _) in loc.disturbance.items()}
-    for c in additive:
-        size.setdefault(c.equation, loc.scales.get(c.equation, 1.0))
+    # the size of what is missing per equation: the slow disturbance located, or what the calibrated
+    # process noise had to absorb (a fast effect a random walk cannot follow), whichever is larger
+    q = np.sqrt(np.diag(calibrated.process_noise())) / (nominal.dt if nominal.discretization != "discrete" else 1)
+    size = {e: max(float(np.sqrt(np.mean(loc.disturbance[e][0] ** 2))) if e in loc.disturbance else 0.0,
+                   float(q[nominal.state_names.index(e)])) or loc.scales.get(e, 1.0)
+            for e in {c.equation for c in additive}}
     corr, history, rms, size, calibrated = name_terms(calibrated, rec, cv, loc.equations, loc.states, size, additive,
                                           structural, alpha, progress=lambda s: stage(f"naming: {s}"),
                                                       focus=focus_window(sum((d / np.maximum(sd, 1e-300)) ** 2

@@ -5,8 +5,10 @@ A wrong noise guess (process noise declared 10× too large, measurement noise
 small: it must not read as missing physics. So the nominal model's noise is
 re-estimated first, by maximum likelihood with :func:`skigen.fit`'s filter
 error (one scale on Q per equation that has process noise, one on R per
-output; the model's constants and parameters stay as declared), and every
-later test runs on the calibrated model. Missing physics then shows as what
+output), together with the parameters the model declares (constants the user
+is unsure of: getting them right is the model's job, not a finding; numbers
+written into the model stay as they are), and every later test runs on the
+calibrated model. Missing physics then shows as what
 white noise cannot explain: innovations that are not white, a disturbance
 that drifts slowly or depends on the state, the input or the regime.
 """
@@ -33,12 +35,16 @@ class Noise:
     calibrated: dict
     scales: dict
     seconds: float
+    parameters: dict = None        # declared parameters fitted with the noise: {name: {declared, calibrated, std}}
+    note: str = ""
 
     def asdict(self) -> dict:
         """The ``noise`` object of report.json."""
         return {"declared": self.declared, "calibrated": self.calibrated, "scales": self.scales,
+                "parameters": self.parameters or {}, "note": self.note,
                 "method": "maximum likelihood of the nominal EKF's innovations (skigen fit, filter error): "
-                          "one scale on Q per equation with process noise, one on R per output"}
+                          "one scale on Q per equation with process noise, one on R per output, and the "
+                          "model's declared parameters with them"}
 
 
 MAX_SAMPLES = 10_000        # noise scales from more samples than this gain nothing worth the time
@@ -60,12 +66,19 @@ def calibrate(model: Model, recs: list[Recording], show_progress: bool = False,
     """(``model`` with its calibrated Q and R, the :class:`Noise` record). A recording longer than
     ``max_samples`` is calibrated on evenly spread blocks of it (:func:`blocks`)."""
     recs = [b for r in recs for b in blocks(r, max_samples)]
+    res, note = None, ""
+    if model.parameters:               # the user's uncertain constants are the model's to fit, not findings
+        try:
+            res = fit(model, recs, method="filter-error", show_progress=show_progress)
+        except FitError as exc:
+            note = f"declared parameters held at their values ({exc})"
     try:
-        res = fit(model, recs, method="filter-error", estimate=[], show_progress=show_progress)
+        res = res or fit(model, recs, method="filter-error", estimate=[], show_progress=show_progress)
     except FitError as exc:
         raise DiagnosisError(f"could not calibrate the noise of '{model.name}' on this recording: {exc}") from None
     noise = res.noise
-    return res.model, Noise(noise["declared"], noise["calibrated"], noise["scales"], res.seconds)
+    params = {n: {"declared": p["initial"], "calibrated": p["value"], "std": p["std"]} for n, p in res.parameters.items()}
+    return res.model, Noise(noise["declared"], noise["calibrated"], noise["scales"], res.seconds, params, note)
 
 
 def scaled(model: Model, q: float = 1.0, r: float = 1.0) -> Model:

@@ -161,6 +161,28 @@ def start_trace(model: Model, rec: Recording) -> Trace:
     return run_fast(derive(model, "ekf"), rec, trace=True)
 
 
+def beyond_parameters(model: Model, rec: Recording, states: np.ndarray, cands: list[Additive]) -> list[Additive]:
+    """Candidates a declared parameter cannot already produce: one whose term, along the trajectory,
+    is proportional to ∂(rate of its equation)/∂p for a declared parameter p (a linear stiffness
+    where the model declares its stiffness k) is that parameter's job, not missing physics."""
+    if not model.parameters or not cands:
+        return cands
+    x = ca.vertcat(*[v.sym for v in model.states])
+    u = ca.vertcat(*[v.sym for v in model.inputs]) if model.inputs else ca.SX(0, 1)
+    p = ca.vertcat(*[q.sym for q in model.parameters])
+    values = np.array([q.value for q in model.parameters])
+    vals = basis_values(T.constants(model), rec, states, cands)
+    keep = []
+    for c, phi in zip(cands, vals):
+        J = ca.Function("J", [x, u, p], [ca.jacobian(model.rhs[c.equation], p)]).map(len(rec.t))
+        d = np.asarray(J(states[:, :len(model.states)].T, rec.inputs.T, np.tile(values, (len(rec.t), 1)).T))
+        d = d.reshape(len(rec.t), len(model.parameters)).T          # (parameters, N)
+        cos = np.abs(d @ phi) / (np.linalg.norm(d, axis=1) * np.linalg.norm(phi) + 1e-300)
+        if not np.any(cos > 0.999):
+            keep.append(c)
+    return keep
+
+
 def _prior(cands, rms, size) -> np.ndarray:
     """ARD/EKF prior variance per candidate: alone, it could explain the disturbance twice over."""
     return np.array([(2.0 * size[c.equation] / rms[c]) ** 2 for c in cands])
