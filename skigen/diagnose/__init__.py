@@ -222,7 +222,8 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         stage("fit of the corrected model")
         after = evaluate_fit(corrected, rec)
         data["fit"]["after"] = after.metrics
-        w, regime = windows_from_gain(calibrated, rec, after.run.loglik - nominal_run.loglik, loc.states, alpha,
+        same_noise = run_fast(derive(calibrated, "ekf"), rec)      # the nominal under the corrected model's noise
+        w, regime = windows_from_gain(calibrated, rec, after.run.loglik - same_noise.loglik, loc.states, alpha,
                                       loc.active)
         data["located"].update(windows=[[float(a), float(b)] for a, b in w], regime=regime or loc.regime,
                                windows_from="where the random-walk disturbance is significant or the corrected "

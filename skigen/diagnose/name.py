@@ -220,7 +220,7 @@ def cv_loglik(nominal: Model, corr: Correction, rec: Recording, folds: Folds, rm
 
 
 def _additive(nominal, current: Correction, cands, rec, folds: Folds, rms, size, alpha,
-              focus: tuple[int, int] | None = None) -> Proposal | None:
+              focus: tuple[int, int] | None = None, states: np.ndarray | None = None) -> Proposal | None:
     """The SKI proposal: the terms SKI keeps on the recording (or on its samples ``focus``),
     cross-validated with the current and kept terms' coefficients refitted without each fold."""
     m = current.build(nominal, unknown=cands, prior_variance=_prior(cands, rms, size))
@@ -230,8 +230,38 @@ def _additive(nominal, current: Correction, cands, rec, folds: Folds, rms, size,
     if not kept:
         return None
     new = Correction(current.additive + kept, current.structural)
-    label = ", ".join(f"{c.effect} on {c.equation}" for c, *_ in kept)
-    return Proposal("additive", 0.0, len(kept), new, label, cv_loglik(nominal, new, rec, folds, rms, size))
+    score = cv_loglik(nominal, new, rec, folds, rms, size)
+    new, score = _swaps(nominal, current, new, score, cands, rec, folds, rms, size, states)
+    label = ", ".join(f"{c.effect} on {c.equation}" for c, *_ in new.additive[len(current.additive):])
+    return Proposal("additive", 0.0, len(new.additive) - len(current.additive), new, label, score)
+
+
+SWAP_CORRELATION = 0.5
+
+
+def _swaps(nominal, current: Correction, new: Correction, score, cands, rec, folds, rms, size, states):
+    """ARD keeps one of several terms that explain the same thing (a one-sided limit or a cubic
+    spring for a hardening): each kept term is swapped for every other candidate on its equation
+    whose values along the trajectory correlate with it (|r| > 0.5), and a swap is kept when the
+    cross-validated log-likelihood rises."""
+    n0 = len(current.additive)
+    vals = dict(zip(cands, basis_values(nominal, rec, states, cands)))
+    for i in range(n0, len(new.additive)):
+        k = new.additive[i][0]
+        for c in cands:
+            if c.equation != k.equation or c.group == k.group or any(c.group == a[0].group for a in new.additive):
+                continue
+            if abs(np.corrcoef(vals[k], vals[c])[0, 1]) < SWAP_CORRELATION:
+                continue
+            trial = Correction(new.additive[:i] + [(c, 0.0, 0.0)] + new.additive[i + 1:], new.structural)
+            try:
+                trial = refit(nominal, trial, rec, rms, size)
+                s = cv_loglik(nominal, trial, rec, folds, rms, size)
+            except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):
+                continue
+            if np.sum(s) > np.sum(score):
+                new, score = trial, s
+    return new, score
 
 
 def _structural(base: Model, s: Structural, rec: Recording, folds: Folds):
@@ -380,7 +410,7 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
         if cands:
             tick("SKI over the additive candidates, per fold")
             try:
-                p = _additive(nominal, corr, cands, rec, folds, rms, size, alpha, focus)
+                p = _additive(nominal, corr, cands, rec, folds, rms, size, alpha, focus, states)
             except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):   # diverged: no proposal
                 p = None
             if p is not None:
