@@ -18,6 +18,7 @@ from skigen.reference import filters as ref
 from skigen.reference.quadrotor import spiral_f, spiral_h
 from skigen.reference.wingrock import wingrock_delay_f, wingrock_h
 from skigen.runtime import run
+from tests import ski_settings
 
 RTOL = 1e-9
 
@@ -30,8 +31,7 @@ def _close(ours, theirs, rtol=RTOL):
 def _ref_ski(filt, st, y, valid, f, h):
     aug, o = filt.aug, filt.options
     return ref.ski_step(st["z"], st["S"], st["s"], y, valid, f, h, aug.Q, aug.R, aug.w_index,
-                        o.alpha, o.beta, o.kappa, o.eta, o.ard_steps, o.margin, o.s_min, o.s_max,
-                        o.max_step, o.backtracks)
+                        o.alpha, o.beta, o.kappa, **ski_settings(filt))
 
 
 def _compare_to_reference(filt, inputs, outputs, valid, f_of, h, cache):

@@ -153,7 +153,7 @@ def _kernel(filt: DerivedFilter, prefix: str, real: str) -> tuple[dict[str, str]
     return {f"{name}.c": c, f"{name}.h": h}, sizes
 
 
-def _work_layout(n: int, ny: int, nw: int, nq: int, model_w: int) -> tuple[str, int]:
+def _work_layout(n: int, ny: int, nw: int, nq: int, model_w: int, em: bool = False) -> tuple[str, int]:
     """Pointers carving the looped kernel's buffers from ``w`` (C text) and the reals needed.
 
     The first group lives through the step; the UKF's scratch and the ARD's (nw > 0)
@@ -163,9 +163,11 @@ def _work_layout(n: int, ny: int, nw: int, nq: int, model_w: int) -> tuple[str, 
     groups = [[("X", n * nsig), ("Y", ny * nsig), ("Sy", ny * ny), ("y_hat", ny), ("noise", 2 * ny * ny),
                ("K", ny * n), ("x_col", n), ("a_col", ny), ("model_w", max(model_w, 1))],
               [("Xf", n * nsig), ("A", max((2 * n + 2 * ny) * ny, (2 * n + nq) * n))]]
-    if nw:   # F_ww, then the larger of ard_optimise's (3 nw + ard_grad's) and ard_correct's scratch
-        grad = 2 * nw + 2 * n * n + n + n * nw
-        groups.append([("F_ww", nw * n), ("ard_work", max(3 * nw + grad, 3 * nw + 3 * n * n + 2 * n))])
+    if nw:   # F_ww, then the larger of ard_optimise's (3 nw + ard_grad's) and ard_correct's scratch,
+        grad = 2 * nw + 2 * n * n + n + n * nw                       # or ard_em's
+        work = (n + nw + 3 * nw + 2 * n * n + 2 * n + n * nw if em else
+                max(3 * nw + grad, 3 * nw + 3 * n * n + 2 * n))
+        groups.append([("F_ww", nw * n), ("ard_work", work)])
     lines, base = [], sum(size for _, size in groups[0])
     for group, start in zip(groups, [0] + [base] * (len(groups) - 1)):
         for name, size in group:
@@ -194,14 +196,17 @@ def _kernel_loops(filt: DerivedFilter, prefix: str, real: str) -> tuple[dict[str
     nq = Qf.shape[1]
     lit = lambda x: _literal(x, real)
     array = lambda a: ", ".join(lit(x) for x in np.ravel(a, order="F")) or lit(0.0)
-    work, work_size = _work_layout(n, ny, nw if ard else 0, nq, msz["w"])
+    em = ard and opts.ard == "em"
+    w_idx = list(aug.w_index)
+    work, work_size = _work_layout(n, ny, nw if ard else 0, nq, msz["w"], em)
     values = dict(
         prefix=prefix, kind=filt.kind, model=aug.model.name, real=real, N=n, NX=d["nx"], NW=nw, NY=ny,
         NQ=nq, NMEM=d["nmem"], QF_SIZE=max(n * nq, 1), ARD=ard, ARD_STEPS=opts.ard_steps, BACKTRACKS=opts.backtracks,
         WM0=lit(Wm[0]), WM1=lit(Wm[1]), WC0=lit(Wc[0]), WC1=lit(Wc[1]), SQRT_WC1=lit(np.sqrt(Wc[1])),
         SQRT_WC0=lit(np.sqrt(abs(Wc[0]))), WC0_SIGN=lit(np.sign(Wc[0])), GAMMA=lit(gamma),
         LOG_2PI=lit(np.log(2 * np.pi)), ETA=lit(opts.eta), MAX_STEP=lit(opts.max_step),
-        MARGIN=lit(opts.margin), S_MIN=lit(opts.s_min), S_MAX=lit(opts.s_max),
+        MARGIN=lit(opts.margin), S_MIN=lit(opts.s_min), S_MAX=lit(opts.s_max), ARD_EM=int(em),
+        ARD_DRIFT=int(bool(np.any(aug.Q[np.ix_(w_idx, w_idx)]))), S_FLOOR=lit(opts.s_floor), S0=array(aug.s0),
         LR=array(np.linalg.cholesky(aug.R)), QF=array(Qf), work=work)
     kc = string.Template((_HERE / "kernel_loops.c.in").read_text()).substitute(values)
     if real == "float":
