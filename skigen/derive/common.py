@@ -35,7 +35,7 @@ class FilterOptions:
     beta: float = 2.0
     kappa: float = 0.0
     ard: str = "em"
-    s_floor: float = 1e-4
+    s_floor: float = 1e-8
     ard_steps: int = 1
     eta: float = 0.3
     max_step: float = 1.0

@@ -23,6 +23,7 @@ runs it through ctypes; :func:`load_c` does all three (it is the C backend of
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import enum
 import functools
 import hashlib
@@ -220,6 +221,18 @@ def _kernel_loops(filt: DerivedFilter, prefix: str, real: str) -> tuple[dict[str
     return {f"{name}.c": kc, f"{name}.h": kh, f"{model}.c": mc, f"{model}.h": mh}, sizes
 
 
+FLOAT_S_FLOOR = 1e-4   # EM's ARD floor in float builds: the correction's condition ~ m / s_floor
+
+
+def single_precision_options(filt: DerivedFilter) -> DerivedFilter:
+    """``filt`` as float builds run it: the EM update's floor raised to :data:`FLOAT_S_FLOOR`,
+    so that the ARD correction stays well conditioned in single precision."""
+    o = filt.options
+    if not filt.has_ard or o.ard != "em" or o.s_floor >= FLOAT_S_FLOOR:
+        return filt
+    return dataclasses.replace(filt, options=dataclasses.replace(o, s_floor=FLOAT_S_FLOOR))
+
+
 def _tidy(c: str, name: str, real: str) -> str:
     """Make CasADi's C strict-C99 clean, helpers static, float builds single precision."""
     # Check the definitions against the header's prototypes.
@@ -252,6 +265,7 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
         raise ValueError(f"prefix '{prefix}' is not a C identifier")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    filt = single_precision_options(filt) if real == "float" else filt
     kernel = _kernel_loops if choose_style(filt, style) == "loops" else _kernel
     kernel_files, sz = kernel(filt, prefix, real)
     d = filt.aug.shapes

@@ -141,7 +141,7 @@ def ukf_step(z, S, y, valid, f, h, Q, R, alpha, beta, kappa):
 
 def ski_step(z, S, s, y, valid, f, h, Q, R, w_idx, alpha, beta, kappa,
              eta=0.3, n_steps=1, margin=0.9, s_min=1e-10, s_max=1e6, max_step=1.0, backtracks=3,
-             ard="gradient", s0=None, s_floor=1e-4):
+             ard="gradient", s0=None, s_floor=1e-8):
     """One SKI step: UKF update, ARD on the prior variances s (m,) of z[w_idx], UKF predict.
 
     Arguments as ukf_step plus the ARD settings. ard='gradient' (see ard.ard_optimise): the
