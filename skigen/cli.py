@@ -15,7 +15,7 @@ from .recording import RecordingError
 
 __all__ = ["main", "load_model"]
 
-BENCHMARKS = ("wingrock", "delay", "quadrotor", "mukf", "speed", "footprint", "diagnose", "logs", "batch")
+BENCHMARKS = ("wingrock", "delay", "quadrotor", "consistency", "mukf", "speed", "footprint", "diagnose", "logs", "batch")
 
 
 class CliError(Exception):

@@ -44,7 +44,8 @@ def _cas_step(d, state, delta, y, valid):
     return {k: np.array(v) for k, v in d.step(**args).items()}
 
 
-OPTIONS = [FilterOptions(), FilterOptions(alpha=0.5, kappa=0.0, ard="gradient", ard_steps=3, eta=0.5)]
+OPTIONS = [FilterOptions(),
+           FilterOptions(alpha=0.5, kappa=0.0, ard="gradient", ard_steps=3, eta=0.5)]
 
 
 @pytest.mark.parametrize("opts", OPTIONS, ids=["alpha1_em", "alpha0.5_gradient"])
