@@ -21,7 +21,7 @@ from models.wingrock_sim import simulate
 from skigen import FilterOptions, derive
 from skigen.runtime import PythonStepper
 
-FILTERS = {"aekf": ("ekf", {}), "aukf": ("ukf", {}), "ski": ("ski", {}), "ski_gradient": ("ski", {"ard": "gradient"})}
+FILTERS = {"aekf": ("ekf", "em"), "aukf": ("ukf", "em"), "ski": ("ski", "em"), "ski_gradient": ("ski", "gradient")}
 
 
 def nees(filt, sim, late=LATE) -> tuple[float, float]:
@@ -46,8 +46,7 @@ def band(flights: int, dof: int) -> tuple[float, float]:
 def main(argv=None) -> int:
     args = parser("consistency", seeds=50).parse_args(argv)
     cfg = settings()
-    filters = {m: derive(cfg["model"], kind, FilterOptions(**{**cfg["options"].asdict(), **o}))
-               for m, (kind, o) in FILTERS.items()}
+    filters = {m: derive(cfg["model"], kind, FilterOptions(ard=ard)) for m, (kind, ard) in FILTERS.items()}
     per = {m: [] for m in filters}
     for seed in range(args.seeds):
         sim = simulate(seed=seed)

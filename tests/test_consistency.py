@@ -1,8 +1,6 @@
 """SKI's posterior is no more confident than the UKF's it rides on (`skigen bench consistency`,
 fewer flights): the EM update reports the filter's own covariance, the paper's gradient ARD
 shrinks pruned weights' variance below their error."""
-import time
-
 import numpy as np
 
 from benchmarks.consistency import band, nees

@@ -126,12 +126,15 @@ def _sim_recording(seed):
 
 
 def test_guard_keeps_ski_finite_where_widening_removes_information():
-    """Random-walk weights + aggressive ARD: unguarded the correction feeds back and
-    diverges (ski-math.md §6); the eigenvalue guard keeps the filter bounded."""
+    """Random-walk weights + aggressive gradient ARD: unguarded the correction feeds back and
+    diverges (ski-math.md §6); the eigenvalue guard keeps the filter bounded. The EM update,
+    whose correction is never fed back, stays bounded too (its widening guarded)."""
     model = build(prior_variance=1.0, weight_std=1e-3)
-    aggressive = dict(ard_steps=5, eta=1.0, max_step=5.0)
+    aggressive = dict(ard="gradient", ard_steps=5, eta=1.0, max_step=5.0)
     rec = _sim_recording(0)
     with pytest.raises(FilterDivergedError, match="diverged"):
         run(derive(model, "ski", FilterOptions(margin=-np.inf, **aggressive)), rec, show_progress=False)
     res = run(derive(model, "ski", FilterOptions(margin=0.9, **aggressive)), rec, show_progress=False)
     assert np.all(np.isfinite(res.mean)) and np.abs(res.weights).max() < 10
+    em = run(derive(model, "ski"), rec, show_progress=False)
+    assert np.all(np.isfinite(em.mean)) and np.abs(em.weights).max() < 10

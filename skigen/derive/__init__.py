@@ -25,13 +25,13 @@ import numpy as np
 
 from ..model import Model
 from .augment import Augmented, augment, step_inputs
-from .common import FilterOptions, innovation_stats
+from .common import ARD_UPDATES, FilterOptions, innovation_stats
 from .ekf import ekf_predict, ekf_update
 from .mukf import Partition, mukf_predict, mukf_update, partition
 from .ski import ard_step
 from .ukf import ukf_predict, ukf_update
 
-__all__ = ["FILTERS", "SKI_KINDS", "MUKF_KINDS", "DerivedFilter", "FilterOptions", "Partition",
+__all__ = ["ARD_UPDATES", "FILTERS", "SKI_KINDS", "MUKF_KINDS", "DerivedFilter", "FilterOptions", "Partition",
            "augment", "derive", "partition", "step_inputs"]
 
 FILTERS = ("ekf", "ukf", "ski", "mukf", "ski_mukf")
