@@ -7,6 +7,7 @@ import time
 
 import numpy as np
 
+from skigen.derive import ARD_UPDATES
 from skigen.recording import Recording
 from skigen.runtime import run
 
@@ -16,6 +17,8 @@ def parser(name: str, seeds: int) -> argparse.ArgumentParser:
     p.add_argument("--json", action="store_true", help="print one JSON object instead of tables")
     p.add_argument("--seeds", type=int, default=seeds, help="noise seeds (median reported)")
     p.add_argument("--out", default="benchmarks/figures", help="folder for the figures")
+    p.add_argument("--ard", choices=ARD_UPDATES, default="em",
+                   help="SKI's ARD update: 'em' (default) or the paper's 'gradient'")
     return p
 
 

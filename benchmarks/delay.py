@@ -19,17 +19,20 @@ from skigen.plots import plot_ard, plot_weights
 
 PAPER = {"ski": 0.03, "aukf": 0.41}
 PRIOR_VARIANCE = 1.0
-OPTIONS = FilterOptions()
 
 
 def main(argv=None) -> int:
-    args = parser("delay", seeds=20).parse_args(argv)
-    model = wingrock_delay.build(prior_variance=PRIOR_VARIANCE)
-    filters = {"ski": derive(model, "ski", OPTIONS), "aukf": derive(model, "ukf", OPTIONS)}
+    p = parser("delay", seeds=20)
+    p.add_argument("--prior-variance", type=float, default=PRIOR_VARIANCE, help="declared prior variance of every weight")
+    args = p.parse_args(argv)
+    options = FilterOptions(ard=args.ard)
+    model = wingrock_delay.build(prior_variance=args.prior_variance)
+    filters = {"ski": derive(model, "ski", options), "aukf": derive(model, "ukf", options)}
     d = wingrock_delay.TRUE_DELAY
     truth = np.eye(wingrock_delay.WINDOW)[d] * L_TRUE
     gain_err = {m: [] for m in filters}
     named = {m: [] for m in filters}
+    others = []          # SKI: the largest other ARD variance relative to the true delay's
     for seed in range(args.seeds):
         sim = simulate(seed=seed, delay=d)
         runs = {m: timed_run(f, recording(sim))[0] for m, f in filters.items()}
@@ -37,6 +40,8 @@ def main(argv=None) -> int:
             gain_err[m].append(abs(res.weights[-1, d] - L_TRUE) / L_TRUE)
             score = res.prior_var[-1] if m == "ski" else np.abs(res.weights[-1])
             named[m].append(int(np.argmax(score)))
+        s = runs["ski"].prior_var[-1]
+        others.append(float(np.delete(s, d).max() / s[d]))
         if seed == 0:
             out = Path(args.out)
             plot_weights(out / "delay_weights.png", sim.t, {m: (r.weights, r.weight_std) for m, r in runs.items()},
@@ -48,10 +53,14 @@ def main(argv=None) -> int:
                       delay_correct_fraction=float(np.mean(np.array(named[m]) == d)),
                       delay_rule="largest ARD prior variance" if m == "ski" else "largest |weight|")
               for m in filters}
+    report["ski"].update(others_below_1pct_fraction=float(np.mean(np.array(others) < 0.01)),
+                         others_max_relative=spread(others))
     report["settings"] = dict(true_delay=d, window=wingrock_delay.WINDOW, true_gain=L_TRUE, seeds=args.seeds,
-                              weight_prior_variance=PRIOR_VARIANCE, filter_options=OPTIONS.asdict(),
+                              weight_prior_variance=args.prior_variance, filter_options=options.asdict(),
                               Q_diag=np.diag(model.process_noise()).tolist(), R=model.measurement_noise().ravel().tolist())
-    table = "\n".join([f"Delay experiment (true delay {d}, median over {args.seeds} seeds)",
+    table = "\n".join([f"Delay experiment (true delay {d}, prior variance {args.prior_variance:g}, ARD {args.ard}, "
+                        f"median over {args.seeds} seeds; SKI: other ARD variances < 1 % of delay {d}'s on "
+                        f"{report['ski']['others_below_1pct_fraction']:.0%} of seeds)",
                        f"{'method':6s} {'gain rel. error':>16s} {'paper':>6s} {'named delay':>12s} {'correct':>8s}"] +
                       [f"{m:6s} {r['gain_relative_error']:16.3f} {PAPER[m]:6.2f} {r['delay']:12d} "
                        f"{r['delay_correct_fraction']:8.0%}" for m, r in report.items() if m in filters])

@@ -65,9 +65,9 @@ def model_error(W, truth, G) -> np.ndarray:
     return np.sqrt(np.maximum(np.einsum("ki,ij,kj->k", dW, G, dW), 0))
 
 
-def _experiment(model, flights, recording, phi_of, names, truth, rms, expected, figures=None):
+def _experiment(model, flights, recording, phi_of, names, truth, rms, expected, figures=None, options=OPTIONS):
     """Run SKI and the AUKF on each flight; per-method summaries over seeds."""
-    filters = {m: derive(model, kind, OPTIONS) for m, kind in FILTERS.items()}
+    filters = {m: derive(model, kind, options) for m, kind in FILTERS.items()}
     per = {m: dict(W=[], S=[], s=[], selected=[], significant=[], by_ard_rule=[], err=[], err_avg=[],
                    wander=[], us=[])
            for m in filters}
@@ -142,6 +142,7 @@ def main(argv=None) -> int:
     p.add_argument("--accel", type=float, default=spiral_model.PRIOR_ACCEL,
                    help="scale-aware prior: each candidate may contribute about this many m/s² (1 by default)")
     args = p.parse_args(argv)
+    options = FilterOptions(ard=args.ard)
     out = Path(args.out)
     gust_kw = dict(gust_std=args.gust)
     seeds = range(args.seeds)
@@ -160,7 +161,7 @@ def main(argv=None) -> int:
     print("spiral", file=sys.stderr)
     report = _experiment(sm, [qs.spiral(s, **gust_kw) for s in seeds], spiral_model.recording, spiral_phi,
                          names, spiral_model.W_TRUE, spiral_model.BASIS_RMS, spiral_model.TRUE_TERMS,
-                         spiral_figures)
+                         spiral_figures, options)
     spiral_truth = {k: report.pop(k) for k in ("weights_true", "expected")}
 
     # -------------------------------------------------------------- vertical
@@ -180,7 +181,7 @@ def main(argv=None) -> int:
     vertical = _experiment(vm, flights, vertical_model.recording,
                            vertical_phi(vertical_model.PWM_OFFSET, vertical_model.PWM_RANGE), vnames,
                            vertical_model.W_TRUE, vertical_model.BASIS_RMS, [vertical_model.TRUE_TERM],
-                           vertical_figures)
+                           vertical_figures, options)
     for m in FILTERS:
         v = vertical[m]["ard_variances"] if m == "ski" else vertical[m]["ard_equivalent_variances"]
         c = np.sqrt(list(v.values())) * vertical_model.BASIS_RMS
@@ -193,7 +194,7 @@ def main(argv=None) -> int:
                                  name="quadrotor_vertical_ms")
     print("vertical, u = pwm / 1000", file=sys.stderr)
     pure = _experiment(vm_ms, flights, vertical_model.recording, vertical_phi(0.0, vertical_model.PWM_RANGE),
-                       vnames, vertical_model.w_true(0.0), rms_ms, [vertical_model.TRUE_TERM, "1"])
+                       vnames, vertical_model.w_true(0.0), rms_ms, [vertical_model.TRUE_TERM, "1"], options=options)
     for m in FILTERS:
         v = pure[m]["ard_variances"] if m == "ski" else pure[m]["ard_equivalent_variances"]
         pure[m]["dominant"] = vnames[int(np.argmax(np.sqrt(list(v.values())) * rms_ms))]
@@ -202,7 +203,7 @@ def main(argv=None) -> int:
 
     report["vertical"] = vertical
     report["settings"] = dict(
-        seeds=args.seeds, filter_options=OPTIONS.asdict(), figures=str(out),
+        seeds=args.seeds, filter_options=options.asdict(), figures=str(out),
         statistics="selected = terms selected on more than half of the seeds; weights, variances, errors = "
                    "medians over seeds",
         spiral=dict(_model_settings(sm, spiral_model.BASIS_RMS, args.accel), **spiral_truth,

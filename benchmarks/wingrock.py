@@ -22,19 +22,19 @@ from skigen.plots import plot_ard, plot_weights
 LATE = 5.0   # s: errors after the first two reference steps, once the weights are identifiable
 PAPER = {"sindy": 11.45, "aekf": 5.85, "aukf": 0.95, "ski": 0.15}
 FILTERS = {"aekf": "ekf", "aukf": "ukf", "ski": "ski"}
-OPTIONS = FilterOptions()
 REFERENCES = {"square": square_wave_reference, "staircase": staircase_reference}
 
 
-def settings() -> dict:
+def settings(ard: str = "em") -> dict:
     m = wingrock.build(prior_variance=wingrock.PRIOR_VARIANCE)
-    return dict(model=m, options=OPTIONS, report=dict(
+    options = FilterOptions(ard=ard)
+    return dict(model=m, options=options, report=dict(
         dt=m.dt, duration_s=15.0, noise_std_deg=wingrock.NOISE_STD, discretization=m.discretization,
         Q_diag=np.diag(m.process_noise()).tolist(), R=m.measurement_noise().ravel().tolist(),
         x0=m.x0, P0_diag=np.diag(m.initial_covariance()).tolist(),
         weight_prior_mean=0.0, weight_prior_variance=m.prior_variances().tolist(),
         prior_rule=f"std_i = {wingrock.PRIOR_ACCEL} deg/s^2 / rms(phi_i), rms = {wingrock.BASIS_RMS.tolist()}",
-        filter_options=OPTIONS.asdict(), sindy="pysindy STLSQ on Savitzky-Golay (SmoothedFiniteDifference) derivatives of phi, "
+        filter_options=options.asdict(), sindy="pysindy STLSQ on Savitzky-Golay (SmoothedFiniteDifference) derivatives of phi, "
         "refitted every 1 s on the data so far", weights_true=wingrock.W_TRUE.tolist()))
 
 
@@ -43,7 +43,7 @@ def main(argv=None) -> int:
     p.add_argument("--reference", choices=REFERENCES, default="square",
                    help="roll reference: the paper's square wave, or a richer staircase")
     args = p.parse_args(argv)
-    cfg = settings()
+    cfg = settings(args.ard)
     filters = {name: derive(cfg["model"], kind, cfg["options"]) for name, kind in FILTERS.items()}
     names = cfg["model"].weight_names
     methods = ["sindy", *FILTERS]

@@ -15,8 +15,8 @@ from .recording import RecordingError
 
 __all__ = ["main", "load_model"]
 
-BENCHMARKS = ("wingrock", "delay", "quadrotor", "mukf", "speed", "footprint", "diagnose", "false_alarms", "fit",
-              "logs", "batch", "faults")
+BENCHMARKS = ("wingrock", "delay", "quadrotor", "consistency", "mukf", "speed", "footprint", "diagnose",
+              "false_alarms", "fit", "logs", "batch", "faults")
 
 
 class CliError(Exception):

@@ -6,6 +6,7 @@ from models.wingrock import build
 from skigen import FilterOptions, derive
 from skigen.reference import filters as ref
 from skigen.reference.wingrock import wingrock_f, wingrock_h
+from tests import ski_settings
 
 RTOL = 1e-9
 
@@ -32,8 +33,7 @@ def _ref_step(kind, d, state, delta, y, valid):
         return ref.ukf_step(state["z"], state["C"], y, valid, f, wingrock_h, aug.Q, aug.R,
                             o.alpha, o.beta, o.kappa)
     return ref.ski_step(state["z"], state["C"], state["s"], y, valid, f, wingrock_h, aug.Q, aug.R,
-                        aug.w_index, o.alpha, o.beta, o.kappa, o.eta, o.ard_steps, o.margin,
-                        o.s_min, o.s_max, o.max_step, o.backtracks)
+                        aug.w_index, o.alpha, o.beta, o.kappa, **ski_settings(d))
 
 
 def _cas_step(d, state, delta, y, valid):
@@ -44,10 +44,11 @@ def _cas_step(d, state, delta, y, valid):
     return {k: np.array(v) for k, v in d.step(**args).items()}
 
 
-OPTIONS = [FilterOptions(), FilterOptions(alpha=0.5, kappa=0.0, ard_steps=3, eta=0.5)]
+OPTIONS = [FilterOptions(),
+           FilterOptions(alpha=0.5, kappa=0.0, ard="gradient", ard_steps=3, eta=0.5)]
 
 
-@pytest.mark.parametrize("opts", OPTIONS, ids=["alpha1", "alpha0.5"])
+@pytest.mark.parametrize("opts", OPTIONS, ids=["alpha1_em", "alpha0.5_gradient"])
 @pytest.mark.parametrize("kind", ["ekf", "ukf", "ski"])
 def test_whole_run_matches_reference(kind, opts):
     """Both paths run side by side, each fed its own previous output, over 300 samples."""

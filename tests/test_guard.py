@@ -221,7 +221,7 @@ def _gain_model(gain=3.0, noise=NOISE_STD, process_std=(1e-4, 1e-3)):
     return model
 
 
-@pytest.mark.parametrize("kind,style", [("ski", "unrolled"), ("ukf", "loops")])
+@pytest.mark.parametrize("kind,style", [("ski", "unrolled"), ("ukf", "loops"), ("ski", "loops")])
 def test_settings_changed_mid_run_equal_a_rebuild(kind, style, sim):
     """Q, R and the parameter L changed between two steps give, from then on, the steps of the
     filter generated from a model declaring them, bit for bit."""

@@ -16,8 +16,8 @@ from skigen.reference.filters import chol
 from skigen.runtime import run
 
 RTOL = 1e-9
-OPTIONS = [FilterOptions(), FilterOptions(alpha=0.5, kappa=0.0, ard_steps=3, eta=0.5)]
-IDS = ["alpha1", "alpha0.5"]          # alpha 0.5: negative Wm0 and Wc0 (downdates)
+OPTIONS = [FilterOptions(), FilterOptions(alpha=0.5, kappa=0.0, ard="gradient", ard_steps=3, eta=0.5)]
+IDS = ["alpha1_em", "alpha0.5_gradient"]          # alpha 0.5: negative Wm0 and Wc0 (downdates)
 OUT = ("z_post", "C_post", "z_next", "C_next", "e", "Pyy", "nis", "loglik")
 REF = dict(z_post="z_post", C_post="S_post", z_next="z", C_next="S", e="e", Pyy="Pyy", nis="nis", loglik="loglik")
 
@@ -290,11 +290,15 @@ def test_ski_mukf_matches_reference_composition(opts):
         dd, A, c, C = _wingrock_affine(u[0])
         upd, P = ref.mukf_update(st["z"], st["S"], y, valid, nl, ll, c, C, aug.R, o.alpha, o.beta, o.kappa)
         z = upd["z_post"]
-        s = ref_ard.ard_optimise(st["s"], z[w], P[np.ix_(w, w)], o.eta, o.ard_steps, o.margin,
-                                 o.s_min, o.s_max, o.max_step, o.backtracks)
-        z, P = ref_ard.ard_correct(z, P, w, s, st["s"])
+        if o.ard == "gradient":
+            s = ref_ard.ard_optimise(st["s"], z[w], P[np.ix_(w, w)], o.eta, o.ard_steps, o.margin,
+                                     o.s_min, o.s_max, o.max_step, o.backtracks)
+            z_report, P = ref_ard.ard_correct(z, P, w, s, st["s"])
+            z = z_report
+        else:
+            z_report, s = ref_ard.ard_fixed_point(z, P, w, st["s"], aug.s0, o.margin, o.s_floor, o.s_max)
         z_pred, S_pred = ref.mukf_predict(z, P, nl, ll, dd, A, aug.Q, o.alpha, o.beta, o.kappa)
-        return dict(z_post=z, S_post=chol(P), z=z_pred, S=S_pred, s=s,
+        return dict(z_post=z_report, S_post=chol(P), z=z_pred, S=S_pred, s=s,
                     e=upd["e"], Pyy=upd["Pyy"], nis=upd["nis"], loglik=upd["loglik"])
     _compare_run(d, step, deltas[:, None], np.array(ys))
 

@@ -6,6 +6,7 @@ from skigen import derive
 from skigen.reference import filters as ref
 from skigen.reference.quadrotor import spiral_f, spiral_h
 from skigen.runtime import run
+from tests import ski_settings
 
 
 def test_spiral_ski_equals_reference_and_c():
@@ -21,8 +22,7 @@ def test_spiral_ski_equals_reference_and_c():
         r = {n: np.asarray(v) for n, v in filt.step(z=st["z"], C=st["C"], s=st["s"], u=u, mem=st["mem"],
                                                      y=np.where(valid, y, 0), valid=valid.astype(float)).items()}
         q = ref.ski_step(ref_st["z"], ref_st["S"], ref_st["s"], y, valid, lambda z: spiral_f(z, u), spiral_h,
-                         aug.Q, aug.R, aug.w_index, o.alpha, o.beta, o.kappa, o.eta, o.ard_steps, o.margin,
-                         o.s_min, o.s_max, o.max_step, o.backtracks)
+                         aug.Q, aug.R, aug.w_index, o.alpha, o.beta, o.kappa, **ski_settings(filt))
         for ours, theirs in [(r["z_post"].ravel(), q["z_post"]), (r["C_next"], q["S"]), (r["s_next"].ravel(), q["s"])]:
             np.testing.assert_allclose(ours, theirs, rtol=0, atol=1e-9 * max(1.0, np.abs(theirs).max()))
         st = dict(z=r["z_next"].ravel(), C=r["C_next"], s=r["s_next"].ravel(), mem=st["mem"])

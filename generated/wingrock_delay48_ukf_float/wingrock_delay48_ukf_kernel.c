@@ -3,7 +3,8 @@
  * Do not edit.
  *
  * The same step as skigen/derive (ukf.py, ard.py, linalg.py), in the same order of operations:
- * square-root UKF update, [ARD on the weights' prior], square-root UKF predict.
+ * square-root UKF update, [ARD on the weights' prior], square-root UKF predict. With the EM
+ * update (ARD_EM) the prediction does not depend on ARD and runs first.
  * Matrices are column-major; A[i + j*rows] is element (i, j).
  */
 #include <math.h>
@@ -21,6 +22,8 @@ typedef float real;
 #define NMEM 47         /* remembered past inputs */
 #define NSIG (2 * N + 1)  /* sigma points */
 #define ARD 0          /* 1: SKI (ARD between update and predict) */
+#define ARD_EM 0       /* 1: EM update, the filter on the declared prior S0 */
+#define ARD_DRIFT 0    /* 1: random-walk weights (EM guards the widening) */
 #define ARD_STEPS 1
 #define BACKTRACKS 3
 
@@ -167,7 +170,18 @@ static void spread(real* P, int rows, const real* extra, int n_extra, int lower,
 #define FIRST(a) ((a) > NX ? (a) - NX : 0)   /* first weight row r with F[r, a] != 0 */
 
 /* ARD options (see skigen.derive.FilterOptions). */
-static const real ETA = 0.3f, MAX_STEP = 1.0f, MARGIN = 0.9f, S_MIN = 1e-10f, S_MAX = 1000000.0f;
+static const real S_MAX = 1000000.0f;
+#if ARD_EM
+static const real S_FLOOR = 1e-08f;
+/* S0 and ARD_DRIFT are generation-time constants even though Q_sqrt (and with it the weights'
+ * random walk) is a run-time setting: ARD_DRIFT was decided from the declared numeric Q_w. */
+static const real S0[NW] = {1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f, 1.0f};   /* declared prior variances of the weights */
+#if ARD_DRIFT
+static const real MARGIN = 0.9f;
+#endif
+#else
+static const real ETA = 0.3f, MAX_STEP = 1.0f, MARGIN = 0.9f, S_MIN = 1e-10f;
+#endif
 
 /* L (n x n, lower) <- the Cholesky factor of the symmetric positive-definite P (its lower
  * triangle is read). */
@@ -188,9 +202,11 @@ static void chol(const real* P, real* L, int n)
 }
 
 
+#if !ARD_EM
 static real softplus(real x) { return fmaxf(x, 0) + log1pf(expf(-fabsf(x))); }
 static real softplus_inv(real s) { return s + logf(-expm1f(-s)); }
 static real sigmoid(real x) { return 1 / (1 + expf(-x)); }
+#endif
 
 /* D = 1/s_new - 1/s_old; Lb = chol(I + F^T diag(D) F); c = Lb^-1 F^T (D mu);
  * G = Lb^-1 F^T when G is not null. F = S[NX:, :] (NW x N) is lower trapezoidal:
@@ -220,6 +236,62 @@ static void ard_pieces(const real* s_new, const real* s_old, const real* mu, con
     }
 }
 
+#if ARD_EM
+/* z_s (N) <- the posterior mean under the prior variances s from (z, S) under S0; when p is
+ * not null, p (NW) <- diag of the weights' posterior covariance under s. F = S[NX:, :]. */
+static void ard_view(const real* z, const real* S, const real* F, const real* s, real* z_s, real* p,
+                     real* work)
+{
+    real *mu = work, *D = mu + NW, *x = D + NW, *Lb = x + NW, *c = Lb + N * N, *Ftx = c + N;
+    real *B = Ftx + N, *G = B + N * N;
+    int a, r;
+    copy(mu, z + NX, NW);
+    ard_pieces(s, S0, mu, F, D, Lb, c, p ? G : 0, B);
+    backward_t(Lb, c, N);
+    for (r = 0; r < NW; ++r) {
+        real Fc = 0;
+        for (a = 0; a < N; ++a) Fc += F[r + a * NW] * c[a];
+        x[r] = D[r] * mu[r] - D[r] * Fc;                 /* (I + D P_ww)^-1 D mu */
+    }
+    for (a = 0; a < N; ++a) {
+        real t = 0;
+        for (r = 0; r < NW; ++r) t += F[r + a * NW] * x[r];
+        Ftx[a] = t;
+    }
+    for (r = 0; r < N; ++r) {
+        real t = 0;
+        for (a = 0; a < N; ++a) t += S[r + a * N] * Ftx[a];
+        z_s[r] = z[r] - t;
+    }
+    if (p)
+        for (r = 0; r < NW; ++r) {
+            real t = 0;
+            for (a = 0; a < N; ++a) t += G[a + r * N] * G[a + r * N];
+            p[r] = t;
+        }
+}
+
+/* s_next <- the EM update mu^2 + p from the moments under s, guarded (ard.py ard_guard);
+ * z_post <- the posterior mean under s_next. The filter's (z_post, S_post) stay as they are. */
+static void ard_em(real* z_post, const real* S_post, const real* F, const real* s, real* s_next,
+                   real* work)
+{
+    real *z_s = work, *p = z_s + N, *view = p + NW;
+    int r;
+    ard_view(z_post, S_post, F, s, z_s, p, view);
+    for (r = 0; r < NW; ++r) {
+        real t = z_s[NX + r] * z_s[NX + r] + p[r], pww = 0;
+        int a;
+        for (a = 0; a < N; ++a) pww += F[r + a * NW] * F[r + a * NW];
+#if ARD_DRIFT
+        t = 1 / (1 / S0[r] + fmaxf(1 / t - 1 / S0[r], -(1 - MARGIN) / (NW * pww)));
+#endif
+        s_next[r] = fminf(fmaxf(t, S_FLOOR * pww), S_MAX);
+    }
+    ard_view(z_post, S_post, F, s_next, z_s, 0, view);
+    copy(z_post, z_s, N);
+}
+#else
 /* L(s_new) up to a constant: minus the log evidence of past data under s_new. */
 static real ard_loss(const real* s_new, const real* s_old, const real* mu, const real* F, real* work)
 {
@@ -339,6 +411,7 @@ static void ard_correct(real* z, real* S, const real* F, const real* s_new, cons
     forward(Lb, A, N, N);
     tria(A, N, N, S);
 }
+#endif /* ARD_EM */
 #endif /* ARD */
 
 /* ---- the step ----------------------------------------------------------------------- */
@@ -420,7 +493,7 @@ int wingrock_delay48_ukf_kernel(const real** arg, real** res, int* iw, real* w, 
         *loglik = -0.5f * (*nis + 2 * log_det + n_valid * LOG_2PI);
     }
 
-#if ARD
+#if ARD && !ARD_EM
     /* Re-weigh the weights' prior on the posterior (z_post, S_post). */
     {
         const real* s = arg[2];
@@ -436,6 +509,14 @@ int wingrock_delay48_ukf_kernel(const real** arg, real** res, int* iw, real* w, 
     sigma_points(z_post, S_post, X);
     if (map_points(wingrock_delay48_ukf_model_f, N, X, u, mem_in, param, Xf, iw, model_w)) return 1;
     spread(Xf, N, QF, NQ, 1, z_next, A, S_next);
+#if ARD_EM
+    /* The weights' prior re-weighed on the filter's posterior; z_post becomes the mean under it. */
+    {
+        for (i = 0; i < N; ++i)
+            for (r = 0; r < NW; ++r) F_ww[r + i * NW] = S_post[NX + r + i * N];
+        ard_em(z_post, S_post, F_ww, arg[2], res[2], ard_work);
+    }
+#endif
 #if NMEM
     {
         const real* m_arg[2];

@@ -25,13 +25,13 @@ import numpy as np
 
 from ..model import Model
 from .augment import Augmented, augment, step_inputs
-from .common import FilterOptions, innovation_stats
+from .common import ARD_UPDATES, FilterOptions, innovation_stats
 from .ekf import ekf_predict, ekf_update
 from .mukf import Partition, mukf_predict, mukf_update, partition
 from .ski import ard_step
 from .ukf import ukf_predict, ukf_update
 
-__all__ = ["FILTERS", "SKI_KINDS", "MUKF_KINDS", "DerivedFilter", "FilterOptions", "Partition",
+__all__ = ["ARD_UPDATES", "FILTERS", "SKI_KINDS", "MUKF_KINDS", "DerivedFilter", "FilterOptions", "Partition",
            "augment", "derive", "partition", "step_inputs"]
 
 FILTERS = ("ekf", "ukf", "ski", "mukf", "ski_mukf")
@@ -142,14 +142,16 @@ def _step(filt: DerivedFilter) -> ca.Function:
         z_next, C_next = ekf_predict(aug_b, z_post, C_post, u, mem)
     elif part is not None:
         z_post, C_post, e, Pyy, Ly = mukf_update(aug_b, part, opts, z, C, u, mem, y, valid)
+        z_carry, C_carry = z_post, C_post
         if kind == "ski_mukf":
-            z_post, C_post, s_next = ard_step(aug_b, opts, z_post, C_post, s)
-        z_next, C_next = mukf_predict(aug_b, part, opts, z_post, C_post, u, mem)
+            z_post, C_post, s_next, z_carry, C_carry = ard_step(aug_b, opts, z_post, C_post, s)
+        z_next, C_next = mukf_predict(aug_b, part, opts, z_carry, C_carry, u, mem)
     else:
         z_post, C_post, e, Pyy, Ly = ukf_update(aug_b, opts, z, C, u, mem, y, valid)
+        z_carry, C_carry = z_post, C_post
         if kind == "ski":
-            z_post, C_post, s_next = ard_step(aug_b, opts, z_post, C_post, s)
-        z_next, C_next = ukf_predict(aug_b, opts, z_post, C_post, u, mem)
+            z_post, C_post, s_next, z_carry, C_carry = ard_step(aug_b, opts, z_post, C_post, s)
+        z_next, C_next = ukf_predict(aug_b, opts, z_carry, C_carry, u, mem)
     nis, loglik = innovation_stats(Ly, e, valid)
     mem_next = ca.substitute(aug.mem_next, ca.vertcat(aug.u, aug.mem), ca.vertcat(u_in, mem))
     values = dict(z=z, C=C, s=s, u=u_in, mem=mem, y=y, valid=valid, z_post=z_post, C_post=C_post,

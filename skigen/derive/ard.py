@@ -10,6 +10,16 @@ guard, and is I when nothing changes:
     P (I + D P)⁻¹ = F B⁻¹ Fᵀ,           det(I + D P) = det B,
 
 and the corrected covariance is P' = S B⁻¹ Sᵀ, so S' = tria(S L_B⁻ᵀ).
+
+The EM update ('em') keeps the filter on the declared prior s₀; the ARD
+posterior is a view of the filter's, corrected with D = 1/s − 1/s₀ by the
+same pieces (never fed back), and the relevance update is the EM fixed point
+s' = μ² + P_s,ii from the weights' moments under s, diag P_s = diag(F B⁻¹ Fᵀ)
+the column sums of squares of G (no cancellation). With constant
+weights P_ww ≤ diag(s₀) (updates only shrink it, predictions leave it), so
+P_s⁻¹ = P_ww⁻¹ + D ≥ diag(1/s) and B is positive definite for any s; with
+random-walk weights the guard D_i ≥ −(1 − margin)/(m P_ii) (a trace bound:
+λmin(B) ≥ margin) limits the widening.
 """
 from __future__ import annotations
 
@@ -18,7 +28,7 @@ import casadi as ca
 from .linalg import backward, chol, forward, tria
 
 __all__ = ["softplus", "softplus_inv", "sigmoid", "ard_loss", "ard_grad", "ard_project",
-           "ard_optimise", "ard_correct"]
+           "ard_optimise", "ard_correct", "ard_view", "ard_guard"]
 
 
 def softplus(x):
@@ -92,3 +102,23 @@ def ard_correct(z, S, w_index, s_new, s_old):
     D, Lb, _, c = _pieces(s_new, s_old, z[w], F)
     X_mu = D * z[w] - D * (F @ backward(Lb.T, c))          # (I + D P_ww)⁻¹ D μ
     return z - S @ (F.T @ X_mu), tria(forward(Lb, S.T).T)
+
+
+def ard_view(z, S, w_index, s, s0):
+    """The posterior under prior variances s from (z, S Sᵀ) under s₀ (the pseudo-observation
+    with D = 1/s − 1/s₀, any sign). Returns z_s and diag P_s,ww."""
+    w = list(w_index)
+    F = S[w, :]
+    D, Lb, G, c = _pieces(s, s0, z[w], F)
+    x = D * z[w] - D * (F @ backward(Lb.T, c))              # (I + D P_ww)⁻¹ D μ
+    return z - S @ (F.T @ x), ca.sum1(G * G).T
+
+
+def ard_guard(s, s0, p, opts, drift):
+    """s within [s_floor p, s_max], p = diag P_ww (B's condition stays below about
+    1 + m/s_floor), and with random-walk weights (drift) D_i ≥ −(1 − margin)/(m p_i)."""
+    if drift:
+        s = 1 / (1 / s0 + ca.fmax(1 / s - 1 / s0, -(1 - opts.margin) / (s.shape[0] * p)))
+    return ca.fmin(ca.fmax(s, opts.s_floor * p), opts.s_max)
+
+

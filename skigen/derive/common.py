@@ -8,17 +8,25 @@ import numpy as np
 
 from .linalg import chol, forward
 
-__all__ = ["FilterOptions", "masked_noise_factor", "innovation_stats", "model_functions", "process_factor",
-           "process_noise", "measurement_factor"]
+__all__ = ["ARD_UPDATES", "FilterOptions", "masked_noise_factor", "innovation_stats", "model_functions",
+           "process_factor", "process_noise", "measurement_factor"]
+
+ARD_UPDATES = ("em", "gradient")
 
 
 @dataclass(frozen=True)
 class FilterOptions:
     """Tuning of the filters; the same values serve every filter compared.
 
-    alpha, beta, kappa: Merwe's scaled sigma points. ard_steps (N_hp) and
-    eta: gradient steps on ξ (softplus⁻¹ of the prior variances) per sample.
-    max_step: clip of one ξ step; backtracks: halvings tried so that a step
+    alpha, beta, kappa: Merwe's scaled sigma points. ard: the ARD update of
+    SKI — 'em' (default), the EM fixed point s' = μ² + P_s of the relevance,
+    the filter kept on the declared prior and the ARD posterior a correction
+    of it (ard.py); 'gradient', the paper's softplus gradient steps with the
+    correction fed back. s_floor: 'em' keeps s ≥ s_floor × the filter's
+    posterior variance of the weight (a pruned weight's ARD std is then 1 %
+    of what the data leave it; it bounds the correction's conditioning).
+    The rest configure 'gradient': ard_steps (N_hp) and eta: gradient steps
+    on ξ (softplus⁻¹ of the prior variances) per sample. max_step: clip of one ξ step; backtracks: halvings tried so that a step
     lowers the ARD loss (else the prior stays). margin: lower bound kept on the eigenvalues
     of I + Lᵀ D L (the posterior correction amplifies the mean at most
     1/margin). s_min, s_max: bounds on the prior variances (weight units²).
@@ -27,6 +35,8 @@ class FilterOptions:
     alpha: float = 1.0
     beta: float = 2.0
     kappa: float = 0.0
+    ard: str = "em"
+    s_floor: float = 1e-8
     ard_steps: int = 1
     eta: float = 0.3
     max_step: float = 1.0
@@ -34,6 +44,10 @@ class FilterOptions:
     margin: float = 0.9
     s_min: float = 1e-10
     s_max: float = 1e6
+
+    def __post_init__(self):
+        if self.ard not in ARD_UPDATES:
+            raise ValueError(f"ard must be one of {', '.join(ARD_UPDATES)}, got '{self.ard}'")
 
     def asdict(self) -> dict:
         return asdict(self)

@@ -1,7 +1,10 @@
 """Sparse Kalman identification: square-root UKF + online ARD, one step."""
 from __future__ import annotations
 
-from .ard import ard_correct, ard_optimise
+import casadi as ca
+import numpy as np
+
+from .ard import ard_correct, ard_guard, ard_optimise, ard_view
 
 __all__ = ["ard_step"]
 
@@ -9,9 +12,21 @@ __all__ = ["ard_step"]
 def ard_step(aug, opts, z, S, s):
     """Re-weigh the prior of the weights on the posterior (z, S Sᵀ).
 
-    Returns the corrected (z, S) and the new prior variances s'.
+    Returns (z, S) to report, the new prior variances s' and (z, S) to predict from.
+    'gradient' (the paper's): the posterior corrected to s', reported and predicted from.
+    'em': the filter stays on the declared prior s₀ (reported covariance and prediction
+    unchanged); s' = μ² + diag P_s from the weights' moments under s (the EM fixed point
+    of the evidence), guarded (ard.ard_guard); the reported mean is the posterior mean under s'.
     """
     w = list(aug.w_index)
-    s_new = ard_optimise(s, z[w], S[w, :], opts)
-    z, S = ard_correct(z, S, w, s_new, s)
-    return z, S, s_new
+    if opts.ard == "gradient":
+        s_new = ard_optimise(s, z[w], S[w, :], opts)
+        z, S = ard_correct(z, S, w, s_new, s)
+        return z, S, s_new, z, S
+    # s₀ and the drift decision are generation-time constants even in the tunable step (Q_sqrt a
+    # run-time setting): drift is read from the declared numeric Q_w (aug.Q, not aug.Q_sqrt).
+    s0 = ca.DM(aug.s0)
+    z_s, p_s = ard_view(z, S, w, s, s0)
+    drift = bool(np.any(aug.Q[np.ix_(w, w)]))               # random-walk weights
+    s_new = ard_guard(z_s[w] * z_s[w] + p_s, s0, ca.sum2(S[w, :] * S[w, :]), opts, drift)
+    return ard_view(z, S, w, s_new, s0)[0], S, s_new, z, S

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..derive import derive
+from ..derive import FilterOptions, derive
 from ..derive.augment import memory_values
 from ..model import Model
 from ..recording import Recording
@@ -91,11 +91,12 @@ def _restart(filt, start: Trace, rec: Recording, k: int, w: np.ndarray, Pw: np.n
 
 
 def fit_without(model: Model, kind: str, rec: Recording, folds: Folds, f: int | None,
-                start: Trace) -> tuple[np.ndarray, np.ndarray]:
+                start: Trace, options: FilterOptions | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(weights, their std) of ``model``'s unknown term estimated by filter ``kind`` ("ekf", "ukf" or "ski")
     from every fold but f (f = None: the whole recording). ``start``: the current model's EKF trace,
-    where each piece after a gap restarts. Raises FloatingPointError if the filter diverges."""
-    filt = derive(model, kind)
+    where each piece after a gap restarts; ``options``: the filter's (default FilterOptions()).
+    Raises FloatingPointError if the filter diverges."""
+    filt = derive(model, kind, options)
     idx = filt.aug.w_index
     w = Pw = s = None
     for a, b in folds.outside(f):

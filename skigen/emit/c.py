@@ -25,6 +25,7 @@ runs it through ctypes; :func:`load_c` does all three (it is the C backend of
 from __future__ import annotations
 
 import ctypes
+import dataclasses
 import enum
 import functools
 import hashlib
@@ -207,7 +208,7 @@ def _kernel(filt: DerivedFilter, prefix: str, real: str) -> tuple[dict[str, str]
     return {f"{name}.c": c, f"{name}.h": h}, sizes
 
 
-def _work_layout(n: int, ny: int, nw: int, nq: int, model_w: int) -> tuple[str, int]:
+def _work_layout(n: int, ny: int, nw: int, nq: int, model_w: int, em: bool = False) -> tuple[str, int]:
     """Pointers carving the looped kernel's buffers from ``w`` (C text) and the reals needed.
 
     The first group lives through the step; the UKF's scratch and the ARD's (nw > 0)
@@ -217,9 +218,11 @@ def _work_layout(n: int, ny: int, nw: int, nq: int, model_w: int) -> tuple[str, 
     groups = [[("X", n * nsig), ("Y", ny * nsig), ("Sy", ny * ny), ("y_hat", ny), ("noise", 2 * ny * ny),
                ("K", ny * n), ("x_col", n), ("a_col", ny), ("model_w", max(model_w, 1))],
               [("Xf", n * nsig), ("A", max((2 * n + 2 * ny) * ny, (2 * n + nq) * n))]]
-    if nw:   # F_ww, then the larger of ard_optimise's (3 nw + ard_grad's) and ard_correct's scratch
-        grad = 2 * nw + 2 * n * n + n + n * nw
-        groups.append([("F_ww", nw * n), ("ard_work", max(3 * nw + grad, 3 * nw + 3 * n * n + 2 * n))])
+    if nw:   # F_ww, then the larger of ard_optimise's (3 nw + ard_grad's) and ard_correct's scratch,
+        grad = 2 * nw + 2 * n * n + n + n * nw                       # or ard_em's
+        work = (n + nw + 3 * nw + 2 * n * n + 2 * n + n * nw if em else
+                max(3 * nw + grad, 3 * nw + 3 * n * n + 2 * n))
+        groups.append([("F_ww", nw * n), ("ard_work", work)])
     lines, base = [], sum(size for _, size in groups[0])
     for group, start in zip(groups, [0] + [base] * (len(groups) - 1)):
         for name, size in group:
@@ -246,14 +249,23 @@ def _kernel_loops(filt: DerivedFilter, prefix: str, real: str) -> tuple[dict[str
     mc, mh, msz = _casadi_code(functions, model, real, stamp)
     Wm, Wc, gamma = merwe_weights(n, opts.alpha, opts.beta, opts.kappa)
     lit = lambda x: _literal(x, real)
-    work, work_size = _work_layout(n, ny, nw if ard else 0, n, msz["w"])
+    array = lambda a: ", ".join(lit(x) for x in np.ravel(a, order="F")) or lit(0.0)
+    em = ard and opts.ard == "em"
+    w_idx = list(aug.w_index)
+    work, work_size = _work_layout(n, ny, nw if ard else 0, n, msz["w"], em)
+    # Q, R and the parameters are run-time settings (arg[ARD + 6..8]), but the EM update's
+    # ARD_DRIFT (random-walk weights, decided from the declared numeric Q_w here) and its
+    # declared prior S0 stay generation-time constants for now: a Q_sqrt set at run time that
+    # gives the weights a random walk the declared Q did not keeps the widening unguarded.
+    drift = int(bool(np.any(aug.Q[np.ix_(w_idx, w_idx)])))
     values = dict(
         prefix=prefix, kind=filt.kind, model=aug.model.name, real=real, N=n, NX=d["nx"], NW=nw, NY=ny,
         NMEM=d["nmem"], ARD=ard, ARD_STEPS=opts.ard_steps, BACKTRACKS=opts.backtracks,
         WM0=lit(Wm[0]), WM1=lit(Wm[1]), WC0=lit(Wc[0]), WC1=lit(Wc[1]), SQRT_WC1=lit(np.sqrt(Wc[1])),
         SQRT_WC0=lit(np.sqrt(abs(Wc[0]))), WC0_SIGN=lit(np.sign(Wc[0])), GAMMA=lit(gamma),
         LOG_2PI=lit(np.log(2 * np.pi)), ETA=lit(opts.eta), MAX_STEP=lit(opts.max_step),
-        MARGIN=lit(opts.margin), S_MIN=lit(opts.s_min), S_MAX=lit(opts.s_max), work=work)
+        MARGIN=lit(opts.margin), S_MIN=lit(opts.s_min), S_MAX=lit(opts.s_max), ARD_EM=int(em),
+        ARD_DRIFT=drift, S_FLOOR=lit(opts.s_floor), S0=array(aug.s0), work=work)
     kc = string.Template((_HERE / "kernel_loops.c.in").read_text()).substitute(values)
     if real == "float":
         kc = _single_precision(kc)
@@ -264,6 +276,18 @@ def _kernel_loops(filt: DerivedFilter, prefix: str, real: str) -> tuple[dict[str
           + "".join(f"#define {name}_SZ_{k.upper()} {v}\n" for k, v in sizes.items())
           + f"\nint {name}(const {real}** arg, {real}** res, int* iw, {real}* w, int mem);\n\n#endif\n")
     return {f"{name}.c": kc, f"{name}.h": kh, f"{model}.c": mc, f"{model}.h": mh}, sizes
+
+
+FLOAT_S_FLOOR = 1e-4   # EM's ARD floor in float builds: the correction's condition ~ m / s_floor
+
+
+def single_precision_options(filt: DerivedFilter) -> DerivedFilter:
+    """``filt`` as float builds run it: the EM update's floor raised to :data:`FLOAT_S_FLOOR`,
+    so that the ARD correction stays well conditioned in single precision."""
+    o = filt.options
+    if not filt.has_ard or o.ard != "em" or o.s_floor >= FLOAT_S_FLOOR:
+        return filt
+    return dataclasses.replace(filt, options=dataclasses.replace(o, s_floor=FLOAT_S_FLOOR))
 
 
 def _tidy(c: str, name: str, real: str) -> str:
@@ -298,6 +322,7 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
         raise ValueError(f"prefix '{prefix}' is not a C identifier")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    filt = single_precision_options(filt) if real == "float" else filt
     kernel = _kernel_loops if choose_style(filt, style) == "loops" else _kernel
     kernel_files, sz = kernel(filt, prefix, real)
     d = filt.aug.shapes

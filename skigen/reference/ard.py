@@ -116,3 +116,20 @@ def ard_optimise(s_old, mu, Pww, eta, n_steps, margin, s_min, s_max, max_step, b
         s = best
         xi = softplus_inv(s)
     return s
+
+
+def ard_fixed_point(m, P, w_idx, s, s0, margin, s_floor, s_max, drift=False):
+    """One fixed-point ARD update on a posterior (m (n,), P (n, n)) under the declared prior s0.
+
+    The posterior under s is the exact correction of (m, P) from s0 to s; the EM update
+    s' = μ_s² + diag(P_s)[w] is bounded to [s_floor Pww_ii, s_max] and, with random-walk
+    weights (drift), D_i = 1/s' − 1/s0 ≥ −(1 − margin)/(m Pww_ii). Returns (m' (n,), the mean under s', s' (m,)).
+    """
+    w_idx = np.asarray(w_idx)
+    m_s, P_s = ard_correct(m, P, w_idx, s, s0)
+    s_new = m_s[w_idx] ** 2 + np.diag(P_s)[w_idx]
+    p = np.diag(P)[w_idx]
+    if drift:
+        s_new = 1.0 / (1.0 / s0 + np.maximum(_d(s_new, s0), -(1.0 - margin) / (len(s) * p)))
+    s_new = np.minimum(np.maximum(s_new, s_floor * p), s_max)
+    return ard_correct(m, P, w_idx, s_new, s0)[0], s_new

@@ -18,7 +18,7 @@ Conventions (shared with the CasADi derivation):
 
 import numpy as np
 
-from .ard import ard_correct, ard_optimise
+from .ard import ard_correct, ard_fixed_point, ard_optimise
 
 LOG_2PI = np.log(2.0 * np.pi)
 
@@ -140,19 +140,29 @@ def ukf_step(z, S, y, valid, f, h, Q, R, alpha, beta, kappa):
 
 
 def ski_step(z, S, s, y, valid, f, h, Q, R, w_idx, alpha, beta, kappa,
-             eta, n_steps, margin, s_min, s_max, max_step, backtracks=3):
-    """One SKI step: UKF update, ARD on the prior variances s (m,) of z[w_idx], correction, UKF predict.
+             eta=0.3, n_steps=1, margin=0.9, s_min=1e-10, s_max=1e6, max_step=1.0, backtracks=3,
+             ard="gradient", s0=None, s_floor=1e-8):
+    """One SKI step: UKF update, ARD on the prior variances s (m,) of z[w_idx], UKF predict.
 
-    Arguments as ukf_step plus the ARD settings (see ard.ard_optimise).
+    Arguments as ukf_step plus the ARD settings. ard='gradient' (see ard.ard_optimise): the
+    posterior is corrected to the new prior and predicted from. ard='em' (see
+    ard.ard_fixed_point, s0 the declared prior variances): the UKF posterior is kept and
+    predicted from; the reported mean z_post is the posterior mean under the new prior.
     Returns the ukf_step dict plus "s" (m,), the new prior variances.
     """
     W = merwe_weights(len(z), alpha, beta, kappa)
     upd, P = _ukf_update(z, S, y, valid, h, R, *W)
     w_idx = np.asarray(w_idx)
     z_post = upd["z_post"]
-    s_new = ard_optimise(s, z_post[w_idx], P[np.ix_(w_idx, w_idx)],
-                         eta, n_steps, margin, s_min, s_max, max_step, backtracks)
-    z_post, P = ard_correct(z_post, P, w_idx, s_new, s)
+    if ard == "gradient":
+        s_new = ard_optimise(s, z_post[w_idx], P[np.ix_(w_idx, w_idx)],
+                             eta, n_steps, margin, s_min, s_max, max_step, backtracks)
+        z_post, P = ard_correct(z_post, P, w_idx, s_new, s)
+        z_report = z_post
+    else:
+        drift = np.any(Q[np.ix_(w_idx, w_idx)])
+        z_report, s_new = ard_fixed_point(z_post, P, w_idx, s, np.asarray(s0, float), margin,
+                                          s_floor, s_max, drift)
     S_post = chol(P)
     z_pred, S_pred = _ukf_predict(z_post, S_post, f, Q, *W)
-    return _out(upd, z_post=z_post, S_post=S_post, z=z_pred, S=S_pred, s=s_new)
+    return _out(upd, z_post=z_report, S_post=S_post, z=z_pred, S=S_pred, s=s_new)
