@@ -17,18 +17,22 @@ from models.unbalanced_disk import DT, GAMMA, KU, NOISE_STD, OMEGA0, TRAIN_FRACT
 W = 0.05                            # rad/s, Coulomb smoothing width
 
 
-def build(name="unbalanced_disk_greybox", width=W, substeps=1):
+def build(name="unbalanced_disk_greybox", width=W, substeps=1, coulomb=True):
+    """The grey box; ``coulomb=False`` gives the viscous-only pendulum with the same parameters."""
     model = Model(name, dt=DT, discretization="rk4", substeps=substeps)
     theta = model.state("theta", unit="rad", role="angle", std=0.1, process_std=1e-4)
     w = model.state("w", unit="rad/s", role="rate", std=1.0, process_std=1e-2)
     u = model.input("u", unit="V")
     omega0 = model.parameter("omega0", OMEGA0, unit="rad/s", bounds=(0, 100))
     gamma = model.parameter("gamma", GAMMA, unit="1/s", bounds=(0, 100))
-    fc = model.parameter("fc", 0.0, unit="rad/s^2")
     ku = model.parameter("ku", KU, unit="rad/(s^2 V)")
-    model.dynamics({theta: w, w: -omega0 ** 2 * ca.sin(theta) - gamma * w - fc * ca.tanh(w / width) + ku * u})
+    rate = -omega0 ** 2 * ca.sin(theta) - gamma * w + ku * u
+    if coulomb:
+        rate -= model.parameter("fc", 0.0, unit="rad/s^2") * ca.tanh(w / width)
+    model.dynamics({theta: w, w: rate})
     model.output("th", theta, unit="rad", noise_std=NOISE_STD)
     return model
 
 
 model = build()
+viscous = build(name="unbalanced_disk_viscous", coulomb=False)   # the nominal `skigen diagnose` starts from

@@ -222,7 +222,10 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         stage("fit of the corrected model")
         after = evaluate_fit(corrected, rec)
         data["fit"]["after"] = after.metrics
-        same_noise = run_fast(derive(calibrated, "ekf"), rec)      # the nominal under the corrected model's noise
+        same = T.copy_model(calibrated)         # the nominal under the corrected model's final noise
+        same.covariances(Q=corrected.process_noise()[:len(same.states), :len(same.states)],
+                         R=corrected.measurement_noise(), P0=calibrated.initial_covariance())
+        same_noise = run_fast(derive(same, "ekf"), rec)
         w, regime = windows_from_gain(calibrated, rec, after.run.loglik - same_noise.loglik, loc.states, alpha,
                                       loc.active)
         data["located"].update(windows=[[float(a), float(b)] for a, b in w], regime=regime or loc.regime,

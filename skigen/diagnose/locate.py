@@ -134,10 +134,11 @@ def windows_from_gain(nominal: Model, rec: Recording, gain: np.ndarray, states: 
     """Windows and regime where a corrected model predicts significantly better than the nominal
     (``gain``: per-sample log-likelihood difference; effects too fast for a random walk), joined
     with the samples already ``active``."""
-    active = _local_gain(gain, nominal.dt, alpha) | (False if active is None else active)
+    better = _local_gain(gain, nominal.dt, alpha)
+    both = better | (False if active is None else active)
     duration = rec.t[-1] - rec.t[0]
-    windows = windows_of(rec.t, active, merge=max(0.5, 0.01 * duration), shortest=max(0.2, 10 * nominal.dt))
-    return windows, regime_stump(features(nominal, rec, states), active)
+    windows = windows_of(rec.t, both, merge=max(0.5, 0.01 * duration), shortest=max(0.2, 10 * nominal.dt))
+    return windows, regime_stump(features(nominal, rec, states), better)
 
 
 def regime_stump(features: dict[str, tuple[np.ndarray, str]], active: np.ndarray,
