@@ -39,7 +39,7 @@ from .fastrun import run_fast
 from .figures import diagnosis_figures, plot_residuals
 from .fit import evaluate_fit
 from .inputs import MIN_SAMPLES, check, load
-from .locate import Location, locate, windows_from_gain
+from .locate import Location, locate
 from .name import Correction, basis_rms, beyond_parameters, focus_window, name_terms, shape_search
 from .name import refit as refit_terms
 from .plausible import screen
@@ -222,15 +222,10 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         stage("fit of the corrected model")
         after = evaluate_fit(corrected, rec)
         data["fit"]["after"] = after.metrics
-        same = T.copy_model(calibrated)         # the nominal under the corrected model's final noise
-        same.covariances(Q=corrected.process_noise()[:len(same.states), :len(same.states)],
-                         R=corrected.measurement_noise(), P0=calibrated.initial_covariance())
-        same_noise = run_fast(derive(same, "ekf"), rec)
-        w, regime = windows_from_gain(calibrated, rec, after.run.loglik - same_noise.loglik, loc.states, alpha,
-                                      loc.active)
+        w, regime = windows_where_it_acts(calibrated, after, rec, loc.equations, loc.states)
         data["located"].update(windows=[[float(a), float(b)] for a, b in w], regime=regime or loc.regime,
-                               windows_from="where the random-walk disturbance is significant or the corrected "
-                                            "model predicts significantly better")
+                               windows_from="where the found terms add at least 20 % of their 99th-percentile "
+                                            "rate (along the corrected model's filtered trajectory)")
         loc.windows, loc.regime = w, regime or loc.regime
         stage("testing what remains")
         data["remaining"] = remaining(T.constants(corrected), rec, after.run, eqs, alpha, out if figures else None)
@@ -248,6 +243,21 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         stage("figures")
         meta["figures"] = diagnosis_figures(out, calibrated, rec, eps, loc, before, after, None) + meta["figures"]
     return _finish(report, meta, t_start, stage)
+
+
+def windows_where_it_acts(nominal: Model, after, rec, equations, states) -> tuple[list, str | None]:
+    """Windows and regime where the correction matters: the corrected minus nominal rate of the
+    located equations beyond 20 % of its 99th percentile."""
+    from .figures import identified_rate
+    from .locate import features, regime_stump, windows_of
+    active = np.zeros(len(rec.t), bool)
+    for eq in equations:
+        r = np.abs(identified_rate(nominal, after, rec, eq))
+        if np.isfinite(r).all() and r.max() > 0:
+            active |= r > 0.2 * np.percentile(r, 99)
+    duration = rec.t[-1] - rec.t[0]
+    windows = windows_of(rec.t, active, merge=max(0.5, 0.01 * duration), shortest=max(0.2, 10 * nominal.dt))
+    return windows, regime_stump(features(nominal, rec, states), active)
 
 
 def _update_findings(findings: list[dict], names: dict, fitted: dict) -> None:

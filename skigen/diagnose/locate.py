@@ -31,7 +31,7 @@ from .fastrun import loglik
 from .transform import with_disturbance
 
 __all__ = ["Location", "locate", "rate_scales", "windows_of", "regime_stump", "disturbance_gains",
-           "disturbance_threshold", "features", "windows_from_gain"]
+           "disturbance_threshold", "features"]
 
 GRID = 10.0 ** np.arange(-6.0, -0.5, 1.0)    # disturbance step per sample, × the equation's rate scale
 Z_WINDOW = 3.0
@@ -127,18 +127,6 @@ def _local_gain(gain: np.ndarray, dt: float, alpha: float, seconds: float = 0.5)
     for k in np.flatnonzero(hit):
         out[k:k + w] = True
     return out
-
-
-def windows_from_gain(nominal: Model, rec: Recording, gain: np.ndarray, states: np.ndarray,
-                      alpha: float, active: np.ndarray | None = None) -> tuple[list, str | None]:
-    """Windows and regime where a corrected model predicts significantly better than the nominal
-    (``gain``: per-sample log-likelihood difference; effects too fast for a random walk), joined
-    with the samples already ``active``."""
-    better = _local_gain(gain, nominal.dt, alpha)
-    both = better | (False if active is None else active)
-    duration = rec.t[-1] - rec.t[0]
-    windows = windows_of(rec.t, both, merge=max(0.5, 0.01 * duration), shortest=max(0.2, 10 * nominal.dt))
-    return windows, regime_stump(features(nominal, rec, states), better)
 
 
 def regime_stump(features: dict[str, tuple[np.ndarray, str]], active: np.ndarray,
