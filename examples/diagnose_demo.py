@@ -42,7 +42,7 @@ def main() -> None:
               f"eq={r['equations'] or '-':3s} windows recall/precision {r['recall']:.2f}/{r['precision']:.2f}  "
               f"{'RIGHT' if r['right'] else 'WRONG'}", flush=True)
         print(f"    truth: {r['truth']}   found: {r['found']}")
-        if r["ll"][1] is not None:
+        if r["rmse"][1] is not None:
             print(f"    cross-validated log-lik {r['ll'][0]:.0f} -> {r['ll'][1]:.0f}, free-run RMSE "
                   f"{r['rmse'][0]:.3g} -> {r['rmse'][1]:.3g}; regime: {r['regime']}; "
                   f"{'a mismatch remains' if r['remaining'] else 'nothing remains'}")
