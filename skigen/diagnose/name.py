@@ -253,8 +253,9 @@ def _swaps(nominal, current: Correction, new: Correction, score, cands, rec, fol
         for c in cands:
             if c.equation != k.equation or c.group == k.group or any(c.group == a[0].group for a in new.additive):
                 continue
-            if min(np.std(vals[k]), np.std(vals[c])) == 0 or abs(np.corrcoef(vals[k], vals[c])[0, 1]) < SWAP_CORRELATION:
-                continue                   # a constant (bias) correlates with nothing
+            constant = min(np.std(vals[k]), np.std(vals[c])) == 0       # a bias is tried against every term
+            if not constant and abs(np.corrcoef(vals[k], vals[c])[0, 1]) < SWAP_CORRELATION:
+                continue
             trial = Correction(new.additive[:i] + [(c, 0.0, 0.0)] + new.additive[i + 1:], new.structural)
             try:
                 trial = refit(nominal, trial, rec, rms, size)
