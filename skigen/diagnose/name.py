@@ -244,7 +244,8 @@ SWAP_CORRELATION = 0.5
 def _swaps(nominal, current: Correction, new: Correction, score, cands, rec, folds, rms, size, states):
     """ARD keeps one of several terms that explain the same thing (a one-sided limit or a cubic
     spring for a hardening): each kept term is swapped for every other candidate on its equation
-    whose values along the trajectory correlate with it (|r| > 0.5), and a swap is kept when the
+    whose values along the trajectory correlate with it (|r| > 0.5; a constant, with every term),
+    and a swap is kept when the
     cross-validated log-likelihood rises."""
     n0 = len(current.additive)
     vals = dict(zip(cands, basis_values(nominal, rec, states, cands)))
