@@ -6,12 +6,15 @@
 
 The nominal model is the user's simulation (its declared unknown term, if
 any, is left out); the recording is the truth. Steps, one module each:
-:mod:`detect` (consistency of the nominal EKF), :mod:`locate` (outputs,
-equations, windows, regime), :mod:`name` (catalog terms by SKI, structural
-changes by likelihood), :mod:`evidence` (held-out log-likelihood per
-finding), :mod:`correct` (the corrected model file and its C), :mod:`fit`
-(before/after on validation), :mod:`report` and :mod:`figures`. The last
-``validation`` fraction of the recording is never used to fit.
+:mod:`calibrate` (noise and declared parameters by maximum likelihood),
+:mod:`detect` (the verdict on the calibrated model, and what remains after
+the correction), :mod:`locate` (outputs, equations, windows, regime),
+:mod:`name` (catalog terms by SKI, structural changes by profile, each scored
+by the blocked cross-validation of :mod:`cv`), :mod:`plausible` (signs and
+identifiability), :mod:`evidence` (drop-one cross-validated log-likelihood per
+finding), :mod:`correct` (the jointly refitted corrected model, its file and
+its C), :mod:`fit` (before/after statistics), :mod:`suggest` (what the rest
+follows), :mod:`report` and :mod:`figures`.
 """
 from __future__ import annotations
 
