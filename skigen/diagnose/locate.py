@@ -1,7 +1,8 @@
 """Locate: which outputs disagree, which equations absorb the error, when, and in what regime.
 
 Per equation j a random-walk disturbance d_j (units of dx_j/dt) is added to
-the nominal model, its step size chosen by the fit segment's log-likelihood,
+the (noise-calibrated) nominal model, its step size chosen by the recording's
+log-likelihood,
 and an EKF + RTS smoother estimates it over the whole recording. The
 equation whose disturbance buys the most likelihood absorbs the error (a
 second one joins if it adds significantly on top). Kinematic identities
@@ -11,7 +12,8 @@ the disturbance model predicts the data significantly better than the nominal
 one (a fast-varying effect a random walk cannot follow sample by sample); the
 regime is the one-feature rule
 (a decision stump on the smoothed states and the inputs) that best separates
-those samples from the rest.
+those samples from the rest. Once a correction is found, the diagnosis
+replaces both by where the found terms act (``diagnose.windows_where_it_acts``).
 """
 from __future__ import annotations
 
