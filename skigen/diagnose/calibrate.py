@@ -79,18 +79,3 @@ def calibrate(model: Model, recs: list[Recording], show_progress: bool = False,
     noise = res.noise
     params = {n: {"declared": p["initial"], "calibrated": p["value"], "std": p["std"]} for n, p in res.parameters.items()}
     return res.model, Noise(noise["declared"], noise["calibrated"], noise["scales"], res.seconds, params, note)
-
-
-def scaled(model: Model, q: float = 1.0, r: float = 1.0) -> Model:
-    """A copy with the process noise std × q and the measurement noise std × r (test helper and
-    the mis-declared-noise scenarios)."""
-    from .transform import copy_model
-    m = copy_model(model)
-    m.covariances(Q=model.process_noise() * q ** 2, R=model.measurement_noise() * r ** 2,
-                  P0=model.initial_covariance())
-    return m
-
-
-def declared_std(model: Model) -> dict:
-    return dict(process_std=dict(zip(model.state_names, np.sqrt(np.diag(model.process_noise())).tolist())),
-                measurement_std=dict(zip(model.output_names, np.sqrt(np.diag(model.measurement_noise())).tolist())))
