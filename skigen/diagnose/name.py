@@ -45,7 +45,7 @@ from ..recording import Recording
 from . import transform as T
 from .catalog import Additive, Structural, _num
 from .cv import Folds, fit_without, fold_loglik
-from .fastrun import Trace, run_fast
+from .fastrun import Trace, loglik, run_fast
 
 __all__ = ["Correction", "Proposal", "name_terms", "refit", "basis_rms", "distinct", "start_trace",
            "focus_window", "recalibrated"]
@@ -172,11 +172,14 @@ def beyond_parameters(model: Model, rec: Recording, states: np.ndarray, cands: l
     p = ca.vertcat(*[q.sym for q in model.parameters])
     values = np.array([q.value for q in model.parameters])
     vals = basis_values(T.constants(model), rec, states, cands)
+    slopes = {}                                  # equation → ∂rate/∂p along the trajectory, (parameters, N)
+    for eq in {c.equation for c in cands}:
+        J = ca.Function("J", [x, u, p], [ca.jacobian(model.rhs[eq], p)]).map(len(rec.t))
+        d = np.asarray(J(states[:, :len(model.states)].T, rec.inputs.T, np.tile(values, (len(rec.t), 1)).T))
+        slopes[eq] = d.reshape(len(rec.t), len(model.parameters)).T
     keep = []
     for c, phi in zip(cands, vals):
-        J = ca.Function("J", [x, u, p], [ca.jacobian(model.rhs[c.equation], p)]).map(len(rec.t))
-        d = np.asarray(J(states[:, :len(model.states)].T, rec.inputs.T, np.tile(values, (len(rec.t), 1)).T))
-        d = d.reshape(len(rec.t), len(model.parameters)).T          # (parameters, N)
+        d = slopes[c.equation]
         cos = np.abs(d @ phi) / (np.linalg.norm(d, axis=1) * np.linalg.norm(phi) + 1e-300)
         if not np.any(cos > 0.999):
             keep.append(c)
@@ -368,7 +371,7 @@ def shape_search(nominal: Model, corr: Correction, variants: dict, rec: Recordin
             trial = Correction(corr.additive[:i] + [(alt, 0.0, 0.0)] + corr.additive[i + 1:], corr.structural)
             try:
                 trial = refit(nominal, trial, rec, rms, size)
-                ll = float(fold_loglik(trial.build(nominal), rec, Folds.of(len(rec.t), 1))[0])
+                ll = loglik(trial.build(nominal), rec)
             except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):
                 continue
             fits.append(trial)
@@ -473,12 +476,11 @@ def reprofiled(nominal: Model, corr: Correction, rec: Recording) -> Correction:
     """The last structural change's parameter profiled again on the whole recording."""
     s, _, _ = corr.structural[-1]
     base = Correction(corr.additive, corr.structural[:-1]).build(nominal)
-    whole = Folds.of(len(rec.t), 1)
 
     def total(v):
         try:
-            return float(fold_loglik(s.build(base, v), rec, whole)[0])
-        except ValueError:
+            return loglik(s.build(base, v), rec)
+        except ValueError:                # a parameter the transformation refuses
             return -np.inf
     grid = s.grid if not s.integer else range(int(min(s.grid)), int(max(s.grid)) + 1)
     value, _, std = _profile(total, s, [float(g) for g in grid])
