@@ -5,15 +5,17 @@ model by free-run simulation on the three standard test sets.
 
 The nominal is the linear oscillator with first-order input hold and its constants declared as
 parameters (`models/silverbox_greybox.py:linear`); the circuit is a Duffing oscillator. The
-diagnosis should name `cubic_stiffness` first; its corrected model (every constant refitted
-jointly with the cubic term and the noise, by filter error) is then refitted by output error
-(`skigen fit`, as a user would) and simulated free on the test sets (initial state from the first
-50 samples, as in examples/silverbox_greybox.py).
+diagnosis should name `cubic_stiffness` first. Its corrected model (every constant refitted
+jointly with the cubic term and the noise on spread blocks of the record) is simulated free on
+the three test sets as written (initial state from the first 50 samples, as in
+examples/silverbox_greybox.py), then once more after a user's output-error refit (`skigen fit`)
+on the whole training range.
 """
 from __future__ import annotations
 
 import argparse
 import sys
+from types import SimpleNamespace
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -45,12 +47,16 @@ def main(argv=None) -> dict:
     out = {"findings": rep.findings, "seconds": rep.seconds}
     if rep.data["corrected_model"]:
         corrected = load_model(rep.data["corrected_model"])
-        r = fit(corrected, [train])
         tests = {name: rec.slice(s, e) for name, (s, e) in G.TESTS.items()}
-        checks = validate(r, list(tests.values()))
-        out["test_mV"] = {name: 1e3 * c["rmse"]["V2"] for name, c in zip(tests, checks)}
-        print("free-run RMSE of the corrected model, refitted by output error (mV): "
+        as_written = validate(SimpleNamespace(model=corrected, weights={}), list(tests.values()))
+        out["test_mV"] = {name: 1e3 * c["rmse"]["V2"] for name, c in zip(tests, as_written)}
+        print("free-run RMSE of corrected_model.py as the diagnosis wrote it (mV): "
               + ", ".join(f"{k} {v:.2f}" for k, v in out["test_mV"].items()))
+        r = fit(corrected, [train])
+        refitted = validate(r, list(tests.values()))
+        out["refit_test_mV"] = {name: 1e3 * c["rmse"]["V2"] for name, c in zip(tests, refitted)}
+        print("... refitted by output error on the whole training range (skigen fit) (mV): "
+              + ", ".join(f"{k} {v:.2f}" for k, v in out["refit_test_mV"].items()))
     return out
 
 

@@ -254,6 +254,28 @@ def test_first_order_hold_matches_a_smooth_input_and_recovers_parameters():
     assert max(abs(v) for v in z["foh"].values()) < 2.5              # measured 1.6 (d)
 
 
+def test_output_error_does_not_depend_on_the_size_of_a_declared_r():
+    """A filter-error calibration can leave R at 10⁻²⁰ (it trusts the sensor and calls the model
+    error process noise); output error must give the same fit from such a model. Measured: with
+    R = 10⁻²⁰ and no reweighing IPOPT stops at its iteration limit (on Silverbox: "search direction
+    becomes too small"); reweighed,
+    the estimates equal those with the declared R to 1e-9."""
+    rng = np.random.default_rng(3)
+    U = smooth_noise(rng, 500, 5, 3.0)[:, None]
+    _, Y = simulate(duffing(DUFFING), U, [0.1, 0.0], rng)
+    rec = recording(duffing(DUFFING), U, Y)
+    fits = {}
+    for R in (None, 1e-20):
+        m = duffing(DUFFING_START)
+        if R:
+            m.covariances(R=np.array([[R]]))
+        fits[R] = fit(m, [rec], show_progress=False)
+    for n, p in fits[None].parameters.items():
+        assert fits[1e-20].parameters[n]["value"] == pytest.approx(p["value"], rel=1e-9, abs=1e-12)
+        assert fits[1e-20].parameters[n]["std"] == pytest.approx(p["std"], rel=1e-6)
+    assert fits[1e-20].model.measurement_noise()[0, 0] == 1e-20          # the fitted model keeps its R
+
+
 # -------------------------------------------------------------- 4. online vs offline
 
 def test_online_estimate_matches_the_offline_fit():

@@ -217,6 +217,10 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
         hint = ("; use shorter shooting intervals" if shooting else
                 "; give a shooting interval (shooting=... samples, --shooting) to fit it by multiple shooting")
         raise FitError(f"the simulation of '{model.name}' at the initial values diverges in {where}{hint}")
+    if method == "output-error" and np.nanmax(np.nanmean(rho0 ** 2, axis=1)) > STRAY:
+        weighted = _weighted_by_free_run(model, rho0)      # a free run strays far beyond the sensor noise
+        prob, solver, jac_g = _problem(weighted, lengths, method, estimate, shooting, max_iter, tol)
+        V = prob.variables
     scale = _scales(prob, theta0, data)
     p = np.r_[scale, data]
     J0, prior, _ = (np.asarray(ca.DM(v)) for v in prob.fisher(theta0 / scale, p))
@@ -258,6 +262,22 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     Y = np.asarray(prob.predict(xi, p)).T
     return _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_at,
                    nll, Y, stats, status, time.perf_counter() - t0, float(sol["f"]), info, robust)
+
+
+STRAY = 1e4        # output error reweighs when the start's free run strays 100 noise std from the data
+
+
+def _weighted_by_free_run(model: Model, rho0: np.ndarray) -> Model:
+    """``model`` with R scaled per output to the mean square of its free-run residual at the start.
+
+    Output error's estimate does not depend on R's size (one output) but IPOPT does: a filter's
+    R (say 10⁻²⁴ V² from a filter-error calibration) against a free run off by a millivolt makes
+    an objective of 10²⁰ that IPOPT cannot resolve. The mean squares are those of the whitened
+    residuals ``rho0`` (outputs × samples); the fitted model keeps the declared R."""
+    d = np.sqrt(np.maximum(np.nanmean(rho0 ** 2, axis=1), 1.0))
+    weighted = copy.copy(model)
+    weighted.R = model.measurement_noise() * np.outer(d, d)
+    return weighted
 
 
 def _scales(prob: Problem, theta0: np.ndarray, data: np.ndarray) -> np.ndarray:
