@@ -44,8 +44,8 @@ from ..model import Model
 from ..recording import Recording
 from . import transform as T
 from .catalog import Additive, Structural, _num
-from .cv import Folds, fit_without, fold_loglik
-from .fastrun import Trace, loglik, run_fast
+from ..runtime import RunResult, run
+from .cv import Folds, fit_without, fold_loglik, loglik
 
 __all__ = ["Correction", "Proposal", "name_terms", "refit", "basis_rms", "distinct", "start_trace",
            "focus_window", "recalibrated"]
@@ -156,9 +156,9 @@ def focus_window(strength: np.ndarray, n: int = SKI_MAX_SAMPLES) -> tuple[int, i
     return a, a + n
 
 
-def start_trace(model: Model, rec: Recording) -> Trace:
-    """The EKF trace of ``model``: where a fit without a fold restarts after the gap."""
-    return run_fast(derive(model, "ekf"), rec, trace=True)
+def start_trace(model: Model, rec: Recording) -> RunResult:
+    """The EKF run of ``model``, with its trace: where a fit without a fold restarts after the gap."""
+    return run(derive(model, "ekf"), rec, backend="casadi", trace=True, strict=True, show_progress=False)
 
 
 def beyond_parameters(model: Model, rec: Recording, states: np.ndarray, cands: list[Additive]) -> list[Additive]:
