@@ -18,7 +18,8 @@ def run(model: Model, data, *, filter: str = "ukf", backend: str = "python", col
     data: a CSV, Parquet or PX4 ULog path, or a pandas DataFrame (a time column, or a numeric or
     datetime index). columns: model input/output name -> column. time: the time column (default
     t, time or timestamp). time_unit: s, ms, us, ns or auto. max_gap: seconds without a sample
-    reported as a hole (``result.holes``). backend: python or c (``real`` double or float).
+    reported as a hole (``result.holes``). backend: python, c (``real`` double or float) or casadi
+    (no guard policy: see :mod:`skigen.runtime`).
     guard: outlier gate and recovery settings (a :class:`skigen.guard.Guard`; default its defaults).
     Returns a :class:`~skigen.runtime.RunResult`; ``.to_frame()`` gives a DataFrame.
     """

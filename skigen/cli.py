@@ -245,7 +245,9 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("model", help="model file (.py exposing `model`) or package.module:attribute")
     r.add_argument("data", help="recording: CSV, Parquet or PX4 ULog")
     r.add_argument("--filter", choices=FILTERS, default="ski")
-    r.add_argument("--backend", choices=["python", "c"], default="python")
+    r.add_argument("--backend", choices=["python", "c", "casadi"], default="python",
+                   help="python: step by step; c: the generated C; casadi: chained by CasADi, without the "
+                        "gate, stuck-sensor test and restarts (raw innovations)")
     r.add_argument("--real", choices=["double", "float"], default="double", help="C backend precision")
     r.add_argument("--out", required=True, help="result CSV")
     _add_data_options(r)

@@ -60,6 +60,14 @@ class Guard:
             if not (isinstance(v, (int, float)) and v >= 0 and not np.isnan(v)):
                 raise ValueError(f"Guard.{name} must be a non-negative number, got {v!r}")
 
+    @classmethod
+    def off(cls) -> "Guard":
+        """No policy beyond skipping a bad input and rejecting a non-finite step: no gate, no
+        stuck-sensor test, no restart, no bound on the prior std (what the ``casadi`` backend of
+        :func:`skigen.runtime.run` does where no step fails)."""
+        return cls(gate=0.0, reject_limit=2 ** 31 - 1, gap_limit=2 ** 31 - 1, stuck_limit=0,
+                   std_scale=float("inf"))
+
     def std_max(self, P0: np.ndarray) -> np.ndarray:
         """The bound on each augmented state's prior std (inf where the declared std is 0)."""
         sd = np.sqrt(np.diag(P0))

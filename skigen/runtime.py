@@ -1,12 +1,23 @@
-"""Run a derived filter over a recording, in Python or through the generated C.
+"""Run a derived filter over a recording: in Python, through the generated C, or chained by CasADi.
 
-Both backends step with the same guards and recovery policy (those of the
-generated C, :mod:`skigen.guard`): a non-finite input skips the sample (state
-unchanged), a non-finite or stuck measurement skips its update, an outlier
-fails the innovation gate and is not used, a step whose result is not finite
-is rejected (prior kept), and after a run of rejections or a long gap the
+The ``python`` and ``c`` backends step with the same guards and recovery policy
+(those of the generated C, :mod:`skigen.guard`): a non-finite input skips the
+sample (state unchanged), a non-finite or stuck measurement skips its update, an
+outlier fails the innovation gate and is not used, a step whose result is not
+finite is rejected (prior kept), and after a run of rejections or a long gap the
 physical states restart from the measurement. A run never stops on bad data:
 its summary reports these events.
+
+The ``casadi`` backend (:class:`CasadiStepper`) chains the same derived step over
+a part of the recording in one CasADi call (``mapaccum``): about 15× faster than
+``python`` and without ``c``'s compile time. It runs the step *without* the
+policy — no gate, no stuck-sensor test, no restart after rejections or a gap, no
+bound on the prior std — so its innovations are the filter's own (what the
+diagnosis scores); where nothing fails it equals ``python`` with
+:meth:`Guard.off`. A part in which a step gives a non-finite number (or an input
+is not finite) is redone by the Python stepper with the default :class:`Guard`.
+The restarts after an input hole, the parts and the result are those of the
+other backends.
 """
 from __future__ import annotations
 
@@ -20,8 +31,8 @@ from .guard import Guard, bound_std, reinit
 from .progress import note, progress
 from .recording import Recording, write_table
 
-__all__ = ["RunResult", "RunSummary", "PythonStepper", "Guard", "run", "iter_run", "iter_run_stream",
-           "check_columns",
+__all__ = ["RunResult", "RunSummary", "Trace", "PythonStepper", "CasadiStepper", "Guard", "run", "iter_run",
+           "iter_run_stream", "check_columns", "BACKENDS",
            "Status", "STATUS_WORDS"]
 
 SLOW_DERIVATION_N = 80      # above this augmented-state size the symbolic step takes seconds: say so
@@ -44,6 +55,21 @@ def status_words(code: np.ndarray, measured: np.ndarray) -> np.ndarray:
 
 
 @dataclass
+class Trace:
+    """What a smoother or a restart needs besides the :class:`RunResult` (``run(..., trace=True)``):
+    per sample k, the posterior covariance, the prior for k + 1 and the input memory used at k."""
+
+    C_post: np.ndarray   # (N, n, n) covariance (EKF) or Cholesky factor (UKF, SKI)
+    z_next: np.ndarray   # (N, n)
+    C_next: np.ndarray   # (N, n, n)
+    mem: np.ndarray      # (N, nmem)
+
+    @classmethod
+    def concat(cls, parts: list["Trace"]) -> "Trace":
+        return cls(*(np.concatenate([getattr(p, f) for p in parts]) for f in ("C_post", "z_next", "C_next", "mem")))
+
+
+@dataclass
 class RunResult:
     """Per-sample filter output. Arrays have one row per sample of the model's grid."""
 
@@ -61,6 +87,7 @@ class RunResult:
     measured: np.ndarray | None = None   # (N, ny) True where the output was measured
     holes: tuple = ()         # grid.Hole of the recording
     notes: tuple = ()         # what reading the recording decided
+    trace: Trace | None = None   # with run(..., trace=True)
 
     def __post_init__(self):
         if self.measured is None:
@@ -111,7 +138,8 @@ class RunResult:
         cat = lambda name: np.concatenate([getattr(p, name) for p in parts])
         return cls(first.filter, cat("t"), cat("mean"), cat("std"), cat("innovation"), cat("innovation_var"),
                    cat("nis"), cat("loglik"), cat("prior_var"), cat("code"), last.final_cov, cat("measured"),
-                   first.holes, first.notes)
+                   first.holes, first.notes,
+                   Trace.concat([p.trace for p in parts]) if first.trace is not None else None)
 
 
 EVENTS = (Status.OUTLIER_REJECTED, Status.SENSOR_STUCK, Status.BAD_INPUT, Status.NUMERICAL_FAILURE,
@@ -311,24 +339,121 @@ def check_columns(model, rec: Recording) -> None:
             + f" (model inputs {model.input_names}, outputs {model.output_names})")
 
 
-CHUNK = {"python": 1_000, "c": 1 << 16}     # samples per part of a run
+BACKENDS = ("python", "c", "casadi")
+CHUNK = {"python": 1_000, "c": 1 << 16, "casadi": 1 << 16}     # samples per part of a run
 
 
-def _step_python(stepper: PythonStepper, inputs, outputs) -> dict[str, np.ndarray]:
-    """The per-sample records of :meth:`CFilter.run_many`, from the Python step."""
+def _step_python(stepper: PythonStepper, inputs, outputs, trace: bool = False) -> dict[str, np.ndarray]:
+    """The per-sample records of :meth:`CFilter.run_many`, from the Python step (with ``trace``
+    also those of a :class:`Trace`)."""
     N, n, ny = len(inputs), stepper.filt.aug.n, outputs.shape[1]
     nw = len(stepper.filt.aug.w_index) if stepper.filt.has_ard else 0
     raw = dict(z_post=np.empty((N, n)), std=np.empty((N, n)), e=np.empty((N, ny)), pyy=np.empty((N, ny)),
                nis=np.empty(N), loglik=np.empty(N), s=np.empty((N, nw)), used=np.empty((N, ny)),
                code=np.empty(N, int))
+    if trace:
+        raw.update(C_post=np.empty((N, n, n)), z_next=np.empty((N, n)), C_next=np.empty((N, n, n)),
+                   mem=np.empty((N, len(stepper.mem))))
     for k in range(N):
+        if trace:
+            raw["mem"][k] = stepper.mem
         raw["code"][k] = stepper.step(inputs[k], outputs[k])
         raw["z_post"][k], raw["std"][k] = stepper.z_post, stepper.std()
         raw["e"][k], raw["pyy"][k], raw["used"][k] = stepper.e, np.diag(stepper.Pyy), stepper.used
         raw["nis"][k], raw["loglik"][k] = stepper.nis, stepper.loglik
         if nw:
             raw["s"][k] = stepper.s
+        if trace:
+            raw["C_post"][k], raw["z_next"][k], raw["C_next"][k] = stepper.C_post, stepper.z, stepper.C
     return raw
+
+
+class CasadiStepper:
+    """The derived step chained over a part of a recording in one CasADi call (``mapaccum``),
+    behind :meth:`CFilter.run_many`'s interface, *without* the guard policy (see the module
+    docstring). A part whose chain gives a non-finite number is redone by a :class:`PythonStepper`
+    with the default :class:`Guard` from the same state, or, when ``strict``, raises
+    FloatingPointError. Holds the filter state (z, C, s, mem) and the last posterior C_post."""
+
+    def __init__(self, filt: DerivedFilter, strict: bool = False, trace: bool = False):
+        self.filt, self.strict, self.trace = filt, strict, trace
+        st = filt.initial()
+        self.z, self.C, self.mem, self.s = st["z"], st["C"], st["mem"], st.get("s")
+        self.C_post = self.C
+        self._chains = {}
+
+    def _chain(self, N: int):
+        """The step chained over at least N samples, as a mapaccum of B fully unrolled steps repeated
+        ⌈N/B⌉ times (B ≈ √N: built ~10× faster than one long mapaccum); returns it and its length."""
+        B = max(1, int(np.ceil(np.sqrt(N))))
+        blocks = int(np.ceil(N / B))
+        if (B, blocks) not in self._chains:
+            import casadi as ca
+            filt, ski = self.filt, self.filt.has_ard
+            d = filt.aug.shapes
+            z, C = ca.MX.sym("z", d["n"]), ca.MX.sym("C", d["n"], d["n"])
+            s, mem = ca.MX.sym("s", d["nw"]), ca.MX.sym("mem", d["nmem"])
+            u, y, valid = ca.MX.sym("u", d["nu"]), ca.MX.sym("y", d["ny"]), ca.MX.sym("valid", d["ny"])
+            out = dict(zip(filt.names_out, filt.step(*([z, C] + ([s] if ski else []) + [u, mem, y, valid]))))
+            acc_in = [z, C] + ([s] if ski else []) + [mem]
+            acc_out = [out["z_next"], out["C_next"]] + ([out["s_next"]] if ski else []) + [out["mem_next"]]
+            g = ca.Function("chain_step", acc_in + [u, y, valid], acc_out + [
+                out["z_post"], out["C_post"], out["e"], ca.diag(out["Pyy"]), out["nis"], out["loglik"], mem])
+            inner = g.mapaccum("block", B, len(acc_in), {"base": -1})
+            self._chains[B, blocks] = inner.mapaccum("chain", blocks, len(acc_in), {"base": -1})
+        return self._chains[B, blocks], B * blocks
+
+    def run_many(self, inputs, outputs) -> dict[str, np.ndarray]:
+        filt, ski = self.filt, self.filt.has_ard
+        n, N = filt.aug.n, len(inputs)
+        U, Y = np.asarray(inputs, float).reshape(N, -1), np.asarray(outputs, float).reshape(N, -1)
+        valid = np.isfinite(Y)
+        chain, M = self._chain(N)
+        pad = lambda a: np.vstack([a, np.repeat(a[-1:], M - N, axis=0)]).T    # prediction-only steps after N
+        V = pad(np.zeros_like(Y))
+        V[:, :N] = valid.T
+        state = [self.z, self.C] + ([self.s] if ski else []) + [self.mem]
+        with np.errstate(all="ignore"):
+            out = [np.asarray(o)[:, :N * (o.shape[1] // M)] for o in chain(*state, pad(U), pad(np.where(valid, Y, 0.0)), V)]
+        acc, (z_post, C_post, e, pyy, nis, ll, mem) = out[:len(state)], out[len(state):]
+        if not (np.all(np.isfinite(U)) and all(np.all(np.isfinite(a)) for a in out)):
+            return self._fallback(U, Y)
+        blocks = lambda a: a.reshape(n, N, n).transpose(1, 0, 2)    # (n, n·N) side by side → (N, n, n)
+        Cp = blocks(C_post)
+        nmem = len(self.mem)
+        mem = mem if nmem else np.zeros((0, N))
+        self.z, self.C, self.mem = acc[0][:, -1], acc[1][:, -n:], acc[-1][:, -1] if nmem else self.mem
+        if ski:
+            self.s = acc[2][:, -1]
+        self.C_post = Cp[-1]
+        std = np.sqrt(np.einsum("kij,kij->ki", Cp, Cp)) if filt.square_root else \
+            np.sqrt(np.clip(np.einsum("kii->ki", Cp), 0, None))
+        raw = dict(z_post=z_post.T, std=std, e=e.T, pyy=pyy.T, nis=nis.ravel(), loglik=ll.ravel(),
+                   s=acc[2].T if ski else np.zeros((N, 0)), used=valid.astype(float),
+                   code=np.where(valid.all(axis=1), Status.OK, Status.MEASUREMENT_SKIPPED))
+        if self.trace:       # acc holds the accumulated values *after* each step: the prior for k + 1
+            raw.update(C_post=Cp, z_next=acc[0].T, C_next=blocks(acc[1]), mem=mem.T)
+        return raw
+
+    def _fallback(self, U, Y) -> dict[str, np.ndarray]:
+        """The part again, by the Python stepper and its guards, from the same state."""
+        if self.strict:
+            raise FloatingPointError(f"the {self.filt.kind} filter of '{self.filt.aug.model.name}' produced "
+                                     f"non-finite numbers")
+        py = PythonStepper(self.filt)
+        _start(py, dict(z=self.z, C=self.C, mem=self.mem, s=self.s))
+        raw = _step_python(py, U, Y, self.trace)
+        self.z, self.C, self.mem, self.s, self.C_post = py.z, py.C, py.mem, py.s, py.C_post
+        return raw
+
+
+def _start(stepper, init: dict) -> None:
+    """Set the filter state before the first sample: z, C, mem and (SKI) s."""
+    stepper.z, stepper.C = np.array(init["z"], float).ravel(), np.array(init["C"], float)
+    stepper.mem = np.array(init["mem"], float).ravel()
+    if stepper.filt.has_ard and init.get("s") is not None:
+        stepper.s = np.array(init["s"], float).ravel()
+    stepper.z_post, stepper.C_post = stepper.z, stepper.C
 
 
 def _part(filt, t, outputs, raw, holes=(), notes=()) -> RunResult:
@@ -344,17 +469,22 @@ def _part(filt, t, outputs, raw, holes=(), notes=()) -> RunResult:
     nis = f(raw["nis"], update)
     ll = np.where(update, raw["loglik"], np.where(stepped, 0.0, np.nan))
     s = f(raw["s"], stepped[:, None]) if filt.has_ard else np.zeros((len(t), 0))
+    trace = Trace(*(np.asarray(raw[k], float) for k in ("C_post", "z_next", "C_next", "mem"))) \
+        if "C_next" in raw else None
     return RunResult(filt, t, mean, std, e, ev, nis, ll, s, code, np.full((filt.aug.n,) * 2, np.nan),
-                     valid, holes, notes)
+                     valid, holes, notes, trace)
 
 
-def _steps(filt, stepper, backend, pieces, again, path, time_at, holes=(), notes=()):
+def _steps(filt, stepper, backend, pieces, again, path, time_at, holes=(), notes=(), strict=False, trace=False):
     """Step over ``pieces`` (grid index of the first sample, t, step inputs, outputs), restarting the
     states before a piece whose first index is in ``again``; a RunResult per piece."""
     for a, t, u, y in pieces:
         if a in again and a > 0:
             forget_states(stepper, filt)
-        raw = stepper.run_many(u, y) if backend == "c" else _step_python(stepper, u, y)
+        raw = _step_python(stepper, u, y, trace) if backend == "python" else stepper.run_many(u, y)
+        if strict and np.any(np.asarray(raw["code"]) == Status.NUMERICAL_FAILURE):
+            raise FloatingPointError(f"the {filt.kind} filter of '{filt.aug.model.name}' produced non-finite "
+                                     f"numbers at t = {t[np.argmax(raw['code'] == Status.NUMERICAL_FAILURE)]:g} s")
         part = _part(filt, t, y, raw, holes, notes)
         C = np.asarray(stepper.C_post, float)
         part.final_cov = C @ C.T if filt.square_root else C
@@ -387,31 +517,43 @@ def forget_states(stepper, filt: DerivedFilter) -> None:
         stepper.C = new
 
 
-def _stepper(filt, backend, real, show_progress, cache_dir, guard=None):
+def _stepper(filt, backend, real, show_progress, cache_dir, guard=None, init=None, strict=False, trace=False):
     aug, model = filt.aug, filt.aug.model
-    if backend == "c":
+    if backend == "c" and (init is not None or trace):
+        raise ValueError("init and trace need backend 'python' or 'casadi'")
+    if backend == "casadi":
+        if guard is not None:
+            raise ValueError("backend 'casadi' runs the derived step without the guard policy (no gate, "
+                             "stuck-sensor test, restart or std bound): give no guard, or use backend "
+                             "'python' or 'c' for a guarded run")
+        stepper = CasadiStepper(filt, strict, trace)
+    elif backend == "c":
         from .emit.c import load_c
         cf = load_c(filt, real, cache_dir=cache_dir)
         if guard is not None:
             cf.configure(guard)
         return cf
-    if backend == "python":
+    elif backend == "python":
         if show_progress and "step" not in filt.__dict__ and aug.n > SLOW_DERIVATION_N:
             note(f"deriving the {filt.kind} step of '{model.name}' symbolically (n = {aug.n}: this "
                  f"takes a while; the C backend does not need it)")
-        return PythonStepper(filt, guard)
-    raise ValueError(f"unknown backend '{backend}'; choose python or c")
+        stepper = PythonStepper(filt, guard)
+    else:
+        raise ValueError(f"unknown backend '{backend}'; choose {', '.join(BACKENDS)}")
+    if init is not None:
+        _start(stepper, init)
+    return stepper
 
 
 def iter_run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", real: str = "double",
              show_progress: bool = True, label: str | None = None, cache_dir=None, chunk: int | None = None,
-             guard: Guard | None = None):
+             guard: Guard | None = None, init: dict | None = None, strict: bool = False, trace: bool = False):
     """:func:`run` part by part: yields a RunResult per ``chunk`` samples, so that a long
     recording can be written as it is filtered. Each part's ``final_cov`` is the posterior
     covariance at its end (the last part's is the run's)."""
     model = filt.aug.model
     check_columns(model, rec)
-    stepper = _stepper(filt, backend, real, show_progress, cache_dir, guard)
+    stepper = _stepper(filt, backend, real, show_progress, cache_dir, guard, init, strict, trace)
     inputs, N = step_inputs(model, rec.inputs), len(rec.t)
     chunk = chunk or CHUNK[backend]
     again = set(restarts(rec, model.dt))
@@ -420,7 +562,8 @@ def iter_run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", re
     parts = list(zip(bounds[:-1], bounds[1:]))
     pieces = ((a, rec.t[a:b], inputs[a:b], rec.outputs[a:b]) for a, b in
               (progress(parts, len(parts), f"{label}, {N} samples in parts") if show_progress else parts))
-    yield from _steps(filt, stepper, backend, pieces, again, rec.path, lambda k: rec.t[k], rec.holes, rec.notes)
+    yield from _steps(filt, stepper, backend, pieces, again, rec.path, lambda k: rec.t[k], rec.holes, rec.notes,
+                      strict, trace)
 
 
 def _stream_pieces(grid, foh: bool, chunk: int):
@@ -473,12 +616,20 @@ def iter_run_stream(filt: DerivedFilter, grid, *, backend: str = "python", real:
 
 def run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", real: str = "double",
         show_progress: bool = True, label: str | None = None, cache_dir=None,
-        guard: Guard | None = None) -> RunResult:
+        guard: Guard | None = None, init: dict | None = None, strict: bool = False,
+        trace: bool = False) -> RunResult:
     """Filter the whole recording; returns the posterior at every sample.
 
-    backend: ``"python"`` (the CasADi Function) or ``"c"`` (the generated C,
-    compiled and cached on first use, in ``real`` precision). guard: the
-    recovery policy's settings (default :class:`~skigen.guard.Guard`).
+    backend: ``"python"`` (the CasADi Function, stepped sample by sample), ``"c"``
+    (the generated C, compiled and cached on first use, in ``real`` precision) or
+    ``"casadi"`` (the Function chained over the recording by CasADi, without the
+    guard policy: see the module docstring). guard: the recovery policy's settings
+    (default :class:`~skigen.guard.Guard`; not with ``casadi``). init: the filter
+    state before the first sample, a dict like :meth:`DerivedFilter.initial`'s
+    (``python`` and ``casadi``). strict: a step that gives a non-finite number
+    raises FloatingPointError instead of being rejected. trace: also record the
+    per-sample covariances (:class:`Trace`, ``python`` and ``casadi``).
     """
     return RunResult.concat(list(iter_run(filt, rec, backend=backend, real=real, show_progress=show_progress,
-                                          label=label, cache_dir=cache_dir, guard=guard)))
+                                          label=label, cache_dir=cache_dir, guard=guard, init=init,
+                                          strict=strict, trace=trace)))

@@ -40,6 +40,25 @@ def test_run_writes_the_result_contract(recording, tmp_path):
     assert all(np.isfinite(float(v)) for v in rows[-1][:17])
 
 
+def test_run_with_the_casadi_backend(recording, tmp_path):
+    """--backend casadi (no guard policy) writes the same table as python on this clean flight."""
+    tables = []
+    for backend in ("python", "casadi"):
+        out = tmp_path / f"{backend}.csv"
+        r = skigen("run", MODEL, str(recording), "--filter", "ekf", "--backend", backend, "--out", str(out))
+        assert r.returncode == 0, r.stderr
+        assert f"ekf ({backend})" in r.stdout
+        tables.append(list(csv.reader(open(out))))
+    a, b = tables
+    assert a[0] == b[0] and len(a) == len(b) == 1 + 201
+    num = lambda rows, j: np.array([float(r[j]) if r[j] else np.nan for r in rows[1:]])
+    for j, name in enumerate(a[0]):
+        if name == "status":
+            assert [r[j] for r in b] == [r[j] for r in a]
+        else:
+            np.testing.assert_allclose(num(b, j), num(a, j), rtol=1e-9, atol=1e-12, err_msg=name)
+
+
 @pytest.mark.parametrize("content, expected", [
     ("t,delta,phi\n0,0,0\n0.02,abc,0.1\n", ["row 3", "column 'delta'", "'abc' is not a number"]),
     ("t,delta,phi\n0,0,0\n0.02,0\n", ["row 3", "fields"]),

@@ -22,7 +22,6 @@ from skigen.cli import load_model, main
 from skigen.diagnose import MIN_SAMPLES, diagnose
 from skigen.diagnose import transform as T
 from skigen.diagnose.correct import same_model
-from skigen.diagnose.fastrun import run_fast
 from skigen.diagnose.source import to_python
 from skigen.emit.c import compile_shared
 from skigen.recording import Recording, write_recording
@@ -253,7 +252,7 @@ def test_fast_run_equals_the_runtime(kind):
     phi[[10, 11, 50]] = np.nan
     rec = Recording("w", sim.t, sim.delta[:, None], phi[:, None], ("delta",), ("phi",))
     filt = derive(build(), kind)
-    a, b = run_fast(filt, rec), run(filt, rec, show_progress=False)
+    a, b = run(filt, rec, backend="casadi", show_progress=False), run(filt, rec, show_progress=False)
     for f in ("mean", "std", "innovation", "innovation_var", "nis", "loglik", "prior_var"):
         np.testing.assert_allclose(getattr(a, f), getattr(b, f), rtol=1e-9, atol=1e-12, err_msg=f)
     np.testing.assert_array_equal(a.code, b.code)
@@ -342,7 +341,7 @@ def test_a_fold_never_sees_its_own_data():
         else:
             assert np.max(np.abs(w2 - w)) > 1e-3 * np.abs(w).max()
     whole, _ = fit_without(model, "ukf", rec, Folds.of(len(rec.t), 1), None, None)
-    np.testing.assert_allclose(whole, run_fast(derive(model, "ukf"), rec).weights[-1], rtol=1e-12)
+    np.testing.assert_allclose(whole, run(derive(model, "ukf"), rec, backend="casadi", show_progress=False).weights[-1], rtol=1e-12)
 
 
 def test_focus_window_is_where_the_disturbance_is():

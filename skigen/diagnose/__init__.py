@@ -27,6 +27,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from .. import runtime
 from ..derive import derive
 from ..model import Model, ModelError
 from ..recording import RecordingError
@@ -38,7 +39,6 @@ from .cv import DEFAULT_FOLDS, Folds, fold_loglik
 from .detect import Consistency, consistency, judge, normalised_innovations, remaining
 from .errors import DiagnosisError
 from .evidence import weigh
-from .fastrun import run_fast
 from .figures import diagnosis_figures, plot_residuals
 from .fit import evaluate_fit
 from .inputs import MIN_SAMPLES, check, load
@@ -134,11 +134,11 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     cv = Folds.of(N, folds)
 
     stage("calibrating the noise")
-    declared_run = run_fast(derive(T.constants(nominal), "ekf"), rec)
+    declared_run = runtime.run(derive(T.constants(nominal), "ekf"), rec, backend="casadi", show_progress=False)
     declared, noise = calibrate(nominal, [rec])
     calibrated = T.constants(declared)          # parameters at their values, for every test below
     stage("testing the calibrated model")
-    nominal_run = run_fast(derive(calibrated, "ekf"), rec)
+    nominal_run = runtime.run(derive(calibrated, "ekf"), rec, backend="casadi", show_progress=False)
     eqs = list(equations) if equations else C.rate_equations(nominal)
     verdict = judge(calibrated, rec, nominal_run, eqs, alpha)
     cons = verdict.consistency
@@ -285,7 +285,7 @@ def detect(model, recording, *, alpha: float = 0.01, equations=None, **read) -> 
     nominal = T.copy_model(user, unknowns=False)
     declared, noise = calibrate(nominal, [rec])
     calibrated = T.constants(declared)
-    run = run_fast(derive(calibrated, "ekf"), rec)
+    run = runtime.run(derive(calibrated, "ekf"), rec, backend="casadi", show_progress=False)
     v = judge(calibrated, rec, run, list(equations) if equations else C.rate_equations(nominal), alpha)
     return {"mismatch_detected": v.mismatch, "noise": noise.asdict(),
             "consistency": dict(v.consistency.asdict(), disturbance_gain=v.gains, disturbance_threshold=v.threshold)}

@@ -23,9 +23,9 @@ from ..derive import FilterOptions, derive
 from ..derive.augment import memory_values
 from ..model import Model
 from ..recording import Recording
-from .fastrun import Trace, run_fast
+from ..runtime import RunResult, run
 
-__all__ = ["Folds", "fold_loglik", "fit_without"]
+__all__ = ["Folds", "fold_loglik", "loglik", "fit_without"]
 
 DEFAULT_FOLDS = 5
 MIN_SEGMENT = 20          # samples: a shorter piece of a split is skipped when fitting
@@ -63,12 +63,21 @@ class Folds:
 def fold_loglik(model: Model, rec: Recording, folds: Folds) -> np.ndarray:
     """Per-fold summed predictive log-likelihood of ``model``'s EKF over ``rec`` (−inf if it diverges)."""
     try:
-        return folds.sums(run_fast(derive(model, "ekf"), rec).loglik)
+        return folds.sums(run(derive(model, "ekf"), rec, backend="casadi", show_progress=False).loglik)
     except (FloatingPointError, RuntimeError):
         return np.full(len(folds), -np.inf)
 
 
-def _restart(filt, start: Trace, rec: Recording, k: int, w: np.ndarray, Pw: np.ndarray, s) -> dict:
+def loglik(model: Model, rec: Recording, start: int = 0) -> float:
+    """Summed predictive log-likelihood of the model's EKF over ``rec`` from sample ``start``
+    on (the filter runs from the beginning); −inf if it diverges."""
+    try:
+        return float(np.sum(run(derive(model, "ekf"), rec, backend="casadi", show_progress=False).loglik[start:]))
+    except (FloatingPointError, RuntimeError):
+        return -np.inf
+
+
+def _restart(filt, start: RunResult, rec: Recording, k: int, w: np.ndarray, Pw: np.ndarray, s) -> dict:
     """The augmented filter's state before sample k: the physical states' prior from ``start``
     (the current model's EKF), the weights' posterior carried from the previous piece."""
     aug = filt.aug
@@ -76,8 +85,8 @@ def _restart(filt, start: Trace, rec: Recording, k: int, w: np.ndarray, Pw: np.n
     init = filt.initial()
     P = init["C"] @ init["C"].T if filt.square_root else init["C"].copy()
     if k > 0:
-        init["z"][:nx] = start.z_next[k - 1, :nx]
-        P[:nx, :nx] = start.C_next[k - 1][:nx, :nx]
+        init["z"][:nx] = start.trace.z_next[k - 1, :nx]
+        P[:nx, :nx] = start.trace.C_next[k - 1][:nx, :nx]
         P[:nx, nx:] = P[nx:, :nx] = 0.0
     if w is not None:
         idx = aug.w_index
@@ -91,9 +100,9 @@ def _restart(filt, start: Trace, rec: Recording, k: int, w: np.ndarray, Pw: np.n
 
 
 def fit_without(model: Model, kind: str, rec: Recording, folds: Folds, f: int | None,
-                start: Trace, options: FilterOptions | None = None) -> tuple[np.ndarray, np.ndarray]:
+                start: RunResult, options: FilterOptions | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(weights, their std) of ``model``'s unknown term estimated by filter ``kind`` ("ekf", "ukf" or "ski")
-    from every fold but f (f = None: the whole recording). ``start``: the current model's EKF trace,
+    from every fold but f (f = None: the whole recording). ``start``: the current model's EKF run with its trace,
     where each piece after a gap restarts; ``options``: the filter's (default FilterOptions()).
     Raises FloatingPointError if the filter diverges."""
     filt = derive(model, kind, options)
@@ -101,7 +110,7 @@ def fit_without(model: Model, kind: str, rec: Recording, folds: Folds, f: int | 
     w = Pw = s = None
     for a, b in folds.outside(f):
         init = _restart(filt, start, rec, a, w, Pw, s) if (a > 0 or w is not None) else None
-        res = run_fast(filt, rec.slice(a, b), init=init)
+        res = run(filt, rec.slice(a, b), backend="casadi", init=init, strict=True, show_progress=False)
         w, Pw = res.mean[-1, idx], res.final_cov[np.ix_(idx, idx)]
         s = res.prior_var[-1] if res.prior_var.size else None
     return w, np.sqrt(np.clip(np.diag(Pw), 0, None))

@@ -17,8 +17,8 @@ from ..derive import augment, derive
 from ..derive.augment import step_inputs
 from ..model import Model
 from ..recording import Recording
+from .. import runtime
 from ..runtime import RunResult
-from .fastrun import run_fast
 from .transform import memory_values
 
 __all__ = ["Fit", "evaluate_fit", "free_run", "settle"]
@@ -61,7 +61,7 @@ def free_run(model: Model, run: RunResult, rec: Recording, k0: int) -> np.ndarra
 
 def evaluate_fit(model: Model, rec: Recording, run: RunResult | None = None) -> Fit:
     """Statistics of ``model`` on ``rec`` (see the module docstring)."""
-    run = run or run_fast(derive(model, "ekf"), rec)
+    run = run or runtime.run(derive(model, "ekf"), rec, backend="casadi", show_progress=False)
     k0 = settle(len(rec.t))
     free = free_run(model, run, rec, k0)
     err = free - rec.outputs

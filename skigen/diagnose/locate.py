@@ -29,7 +29,7 @@ from ..recording import Recording
 from .detect import Consistency, normalised_innovations, whiteness
 from . import transform as T
 from .smoother import smooth
-from .fastrun import loglik
+from .cv import loglik
 from .transform import with_disturbance
 
 __all__ = ["Location", "locate", "rate_scales", "windows_of", "regime_stump", "disturbance_gains",
@@ -220,7 +220,7 @@ def locate(nominal: Model, rec: Recording, nominal_run, cons: Consistency, alpha
         dist[e] = (d, s)
         active |= np.abs(d) > Z_WINDOW * np.maximum(s, 1e-300)
     significant = active.copy()
-    active |= _local_gain(sm.trace.result.loglik - nominal_run.loglik, nominal.dt, alpha)
+    active |= _local_gain(sm.run.loglik - nominal_run.loglik, nominal.dt, alpha)
     duration = rec.t[-1] - rec.t[0]
     windows = windows_of(rec.t, active, merge=max(0.5, 0.01 * duration), shortest=max(0.2, 10 * nominal.dt))
     regime = regime_stump(features(nominal, rec, sm.mean[:, :nx]),

@@ -44,11 +44,11 @@ from ..model import Model
 from ..recording import Recording
 from . import transform as T
 from .catalog import Additive, Structural, _num
-from .cv import Folds, fit_without, fold_loglik
-from .fastrun import Trace, loglik, run_fast
+from ..runtime import RunResult, run
+from .cv import Folds, fit_without, fold_loglik, loglik
 
 __all__ = ["Correction", "Proposal", "name_terms", "refit", "basis_rms", "distinct", "start_trace",
-           "focus_window", "recalibrated"]
+           "focus_window", "recalibrated", "significant"]
 
 MAX_ROUNDS = 3
 FINALISTS = 2      # proposals scored again, each under the noise calibrated with it
@@ -156,9 +156,9 @@ def focus_window(strength: np.ndarray, n: int = SKI_MAX_SAMPLES) -> tuple[int, i
     return a, a + n
 
 
-def start_trace(model: Model, rec: Recording) -> Trace:
-    """The EKF trace of ``model``: where a fit without a fold restarts after the gap."""
-    return run_fast(derive(model, "ekf"), rec, trace=True)
+def start_trace(model: Model, rec: Recording) -> RunResult:
+    """The EKF run of ``model``, with its trace: where a fit without a fold restarts after the gap."""
+    return run(derive(model, "ekf"), rec, backend="casadi", trace=True, strict=True, show_progress=False)
 
 
 def beyond_parameters(model: Model, rec: Recording, states: np.ndarray, cands: list[Additive]) -> list[Additive]:
@@ -184,6 +184,12 @@ def beyond_parameters(model: Model, rec: Recording, states: np.ndarray, cands: l
         if not np.any(cos > 0.999):
             keep.append(c)
     return keep
+
+
+def significant(coef: float, std: float, alpha: float) -> bool:
+    """|coef| beyond z·std of 0, z the two-sided (1 − alpha) normal quantile; never with a std
+    that is not finite and positive."""
+    return bool(np.isfinite(std) and std > 0 and abs(coef) > stats.norm.isf(alpha / 2) * std)
 
 
 def _prior(cands, rms, size) -> np.ndarray:
@@ -457,11 +463,10 @@ def _adopt(nominal: Model, corr: Correction, p: Proposal, rec: Recording, rms: d
     """(the correction with proposal ``p`` adopted, the nominal with the noise recalibrated under it),
     or None when none of an additive proposal's terms survives an honest (EKF) refit."""
     accepted = refit(nominal, p.correction, rec, rms, size)
-    z = stats.norm.isf(alpha / 2)
-    significant = [a for a in accepted.additive[len(corr.additive):] if abs(a[1]) > z * a[2]]
-    if p.kind == "additive" and not significant:
+    new_terms = [a for a in accepted.additive[len(corr.additive):] if significant(a[1], a[2], alpha)]
+    if p.kind == "additive" and not new_terms:
         return None
-    new = refit(nominal, Correction(accepted.additive[:len(corr.additive)] + significant, accepted.structural),
+    new = refit(nominal, Correction(accepted.additive[:len(corr.additive)] + new_terms, accepted.structural),
                 rec, rms, size)
     nominal = recalibrated(nominal, new, rec)
     if p.kind == "structural":             # its parameter again, under the noise it leaves

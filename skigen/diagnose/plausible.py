@@ -20,7 +20,7 @@ from scipy import stats
 
 from ..model import Model
 from ..recording import Recording
-from .name import Correction
+from .name import Correction, significant
 
 __all__ = ["screen", "nominal_damping"]
 
@@ -51,7 +51,7 @@ def screen(model: Model, corr: Correction, states: np.ndarray, rec: Recording,
     kept, comp, lost = [], [], []
     for c, coef, std in corr.additive:
         item = {"effect": c.effect, "equation": c.equation, "expression": c.formula, "coefficient": coef, "std": std}
-        if not (np.isfinite(std) and std > 0 and abs(coef) > z * std):
+        if not significant(coef, std, alpha):
             sig = _signals(c.formula, model) or [c.equation]
             lost.append(dict(item, note=f"not identifiable from this recording (|coefficient| < {z:.2f} std): "
                                         f"excite {', '.join(sig)} over a wider range or for longer"))

@@ -1,7 +1,7 @@
 """Rauch–Tung–Striebel smoothing of an EKF run: the state given the whole recording.
 
-The forward pass is the derived EKF (:func:`~skigen.diagnose.fastrun.run_fast`
-with ``trace=True``); the backward pass uses A_k = ∂F/∂z at the filtered mean,
+The forward pass is the derived EKF (:func:`skigen.runtime.run`, backend
+``casadi``, with ``trace=True``); the backward pass uses A_k = ∂F/∂z at the filtered mean,
 from the augmented transition ``skigen.derive.augment(model).f``:
 
     G_k = P_k Aᵀ_k (P⁻_{k+1})⁻¹
@@ -17,23 +17,23 @@ import numpy as np
 from ..derive.augment import step_inputs
 from ..derive import DerivedFilter
 from ..recording import Recording
-from .fastrun import Trace, run_fast
+from ..runtime import RunResult, run
 
 __all__ = ["Smoothed", "smooth"]
 
 
 @dataclass
 class Smoothed:
-    trace: Trace
+    run: RunResult     # the forward pass, with its trace
     mean: np.ndarray   # (N, n)
     std: np.ndarray    # (N, n)
 
 
-def _jacobians(filt: DerivedFilter, tr: Trace, inputs: np.ndarray) -> np.ndarray:
+def _jacobians(filt: DerivedFilter, res: RunResult, inputs: np.ndarray) -> np.ndarray:
     aug = filt.aug
     A = ca.Function("A", [aug.z, aug.u, aug.mem], [ca.densify(ca.jacobian(aug.f, aug.z))])
-    N, n = tr.z_next.shape
-    out = A.map(N)(tr.result.mean.T, np.asarray(inputs, float).T, tr.mem.T)
+    N, n = res.trace.z_next.shape
+    out = A.map(N)(res.mean.T, np.asarray(inputs, float).T, res.trace.mem.T)
     return np.asarray(out).reshape(n, N, n).transpose(1, 0, 2)
 
 
@@ -41,9 +41,10 @@ def smooth(filt: DerivedFilter, rec: Recording) -> Smoothed:
     """EKF forward, RTS backward over the whole recording."""
     if filt.kind != "ekf":
         raise ValueError("the smoother works on an EKF run")
-    tr = run_fast(filt, rec, trace=True)
-    A = _jacobians(filt, tr, step_inputs(filt.aug.model, rec.inputs))
-    x, P = tr.result.mean, tr.C_post
+    res = run(filt, rec, backend="casadi", trace=True, strict=True, show_progress=False)
+    tr = res.trace
+    A = _jacobians(filt, res, step_inputs(filt.aug.model, rec.inputs))
+    x, P = res.mean, tr.C_post
     N, n = x.shape
     xs, Ps = x.copy(), P.copy()
     eye = 1e-12 * np.eye(n)
@@ -53,4 +54,4 @@ def smooth(filt: DerivedFilter, rec: Recording) -> Smoothed:
         xs[k] = x[k] + G @ (xs[k + 1] - tr.z_next[k])
         Ps[k] = P[k] + G @ (Ps[k + 1] - tr.C_next[k]) @ G.T
     std = np.sqrt(np.clip(np.einsum("kii->ki", Ps), 0, None))
-    return Smoothed(tr, xs, std)
+    return Smoothed(res, xs, std)

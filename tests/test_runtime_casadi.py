@@ -1,0 +1,88 @@
+"""The casadi backend of skigen.runtime: the derived step chained by CasADi (mapaccum) over parts
+of the recording, without the guard policy. Where no step fails it equals the python backend with
+Guard.off(), step for step, across parts, output dropouts and a restart after an input hole; a part
+in which a step gives a non-finite number is redone by the python backend with the default Guard.
+"""
+import numpy as np
+import pytest
+
+from models.wingrock import build
+from models.wingrock_sim import simulate
+from skigen import derive
+from skigen.emit import Status
+from skigen.grid import Hole
+from skigen.guard import Guard
+from skigen.recording import Recording
+from skigen.runtime import RunResult, iter_run, run
+
+FIELDS = ("mean", "std", "innovation", "innovation_var", "nis", "loglik", "prior_var", "final_cov")
+TRACE = ("C_post", "z_next", "C_next", "mem")
+
+
+@pytest.fixture(scope="module")
+def rec():
+    sim = simulate(seed=0, duration=4.0)
+    phi = sim.phi.copy()
+    phi[[10, 11, 50]] = np.nan          # output dropouts
+    phi[120:150] = np.nan               # ... and a longer one, with the input unknown in its middle
+    hole = Hole(float(sim.t[125]), float(sim.t[140]), ("delta", "phi"), inputs=True)
+    return Recording("w", sim.t, sim.delta[:, None], phi[:, None], ("delta",), ("phi",), holes=(hole,))
+
+
+def _scale(y) -> float:
+    return 1e-10 * max([1.0] + list(np.abs(y[np.isfinite(y)])))
+
+
+def _close(a: RunResult, b: RunResult, trace: bool):
+    for f in FIELDS:
+        x, y = getattr(a, f), getattr(b, f)
+        np.testing.assert_allclose(x, y, rtol=1e-10, atol=_scale(y), err_msg=f)
+    np.testing.assert_array_equal(a.code, b.code)
+    np.testing.assert_array_equal(a.measured, b.measured)
+    if trace:
+        for f in TRACE:
+            y = getattr(b.trace, f)
+            np.testing.assert_allclose(getattr(a.trace, f), y, rtol=1e-10, atol=_scale(y), err_msg=f)
+
+
+@pytest.mark.parametrize("kind", ["ekf", "ukf", "ski"])
+def test_casadi_equals_python_without_the_guard(rec, kind):
+    filt = derive(build(), kind)
+    init = filt.initial()
+    init["z"] = init["z"] + 0.01           # a given starting state, as the diagnosis's cross-validation uses
+    py = run(filt, rec, guard=Guard.off(), init=init, trace=True, show_progress=False)
+    assert np.any(py.code == Status.MEASUREMENT_SKIPPED)
+    one = run(filt, rec, backend="casadi", init=init, trace=True, show_progress=False)
+    parts = RunResult.concat(list(iter_run(filt, rec, backend="casadi", init=init, trace=True, chunk=37,
+                                           show_progress=False)))
+    _close(one, py, trace=True)
+    _close(parts, py, trace=True)
+    # the input hole restarted the physical states: without it the run differs after the hole
+    plain = Recording("w", rec.t, rec.inputs, rec.outputs, rec.input_names, rec.output_names)
+    other = run(filt, plain, backend="casadi", init=init, show_progress=False)
+    k = int(np.searchsorted(rec.t, rec.holes[0].t1 - 1e-9))
+    np.testing.assert_allclose(other.mean[:k], one.mean[:k], rtol=1e-12, atol=1e-12)
+    assert not np.allclose(other.std[k], one.std[k])
+
+
+def test_a_non_finite_step_falls_back_to_the_guarded_python_part(rec):
+    filt = derive(build(), "ekf")
+    y = rec.outputs.copy()
+    y[170] = 1e200                       # its NIS overflows: the chain's numbers are not finite
+    bad = Recording("w", rec.t, rec.inputs, y, rec.input_names, rec.output_names, holes=rec.holes)
+    fast = RunResult.concat(list(iter_run(filt, bad, backend="casadi", chunk=50, show_progress=False)))
+    assert fast.code[170] == Status.OUTLIER_REJECTED       # the default gate of the python part caught it
+    guarded = run(filt, bad, show_progress=False)           # this clean flight has no other guard event
+    _close(fast, guarded, trace=False)
+    with pytest.raises(FloatingPointError, match="non-finite"):
+        run(filt, bad, backend="casadi", strict=True, show_progress=False)
+
+
+def test_the_casadi_backend_takes_no_guard(rec):
+    filt = derive(build(), "ekf")
+    with pytest.raises(ValueError, match="without the guard policy"):
+        run(filt, rec, backend="casadi", guard=Guard(gate=3.0), show_progress=False)
+    with pytest.raises(ValueError, match="choose python, c, casadi"):
+        run(filt, rec, backend="jax", show_progress=False)
+    with pytest.raises(ValueError, match="init and trace"):
+        run(filt, rec, backend="c", trace=True, show_progress=False)
