@@ -161,6 +161,8 @@ def test_report_follows_the_contract(diagnosed):
     for f in d["findings"]:
         assert {"effect", "equation", "expression", "coefficient", "std", "evidence"} <= set(f)
     assert {"before", "after", "validation", "folds"} <= set(d["fit"])
+    assert {"calibrating the noise", "naming", "refitting the corrected model jointly (skigen fit)"} \
+        <= set(d["seconds_per_stage"]) and all(v >= 0 for v in d["seconds_per_stage"].values())
     for name in ("report.md", "residuals.png", "disturbance.png", "fit.png"):
         assert (r["out"] / name).stat().st_size > 0
     md = (r["out"] / "report.md").read_text()

@@ -80,13 +80,22 @@ class _Stages:
         tty = getattr(stream, "isatty", lambda: False)()
         self.on = show and (env == "1" or (env != "0" and tty))
         self.stream, self.t0, self.width = stream, perf_counter(), 0
+        self.log: list[tuple[str, float]] = []           # (stage, start in s)
 
     def __call__(self, label: str):
+        self.log.append((label.split(":")[0], perf_counter() - self.t0))
         if self.on:
             text = f"diagnose {perf_counter() - self.t0:5.1f} s: {label}"
             self.stream.write("\r" + text.ljust(self.width))
             self.stream.flush()
             self.width = len(text)
+
+    def seconds(self) -> dict:
+        """Seconds spent per stage (stages of the same name summed)."""
+        out: dict[str, float] = {}
+        for (label, t), (_, t_next) in zip(self.log, self.log[1:]):
+            out[label] = out.get(label, 0.0) + t_next - t
+        return {k: round(v, 2) for k, v in out.items()}
 
     def done(self):
         if self.on and self.width:
@@ -207,7 +216,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
 
     corrected = None
     if not corr.empty:
-        stage("refitting the corrected model jointly (skigen fit, filter error)")
+        stage("refitting the corrected model jointly (skigen fit)")
         base = T.copy_model(declared)         # the user's parameters, the noise recalibrated while naming
         base.covariances(Q=calibrated.process_noise(), R=calibrated.measurement_noise(),
                          P0=declared.initial_covariance())
@@ -322,6 +331,7 @@ def _finish(report: Report, meta: dict, t_start: float, stage) -> Report:
     stage("report")
     report.seconds = perf_counter() - t_start
     meta["seconds"] = report.seconds
+    report.data["seconds_per_stage"] = stage.seconds()
     out = report.out_dir
     report.files = [write_json(out / "report.json", report.data),
                     write_markdown(out / "report.md", report.data, meta)] + list(meta["figures"])
