@@ -6,7 +6,9 @@ shapes of each state and input x along the filtered trajectory — x, x·|x|,
 x³, tanh(x/s), and sin/cos(2πx/L) for periods L from the range of x down to
 1/20 of it — each with an intercept, weighted by d's precision; the shape with
 the largest weighted R² names the feature and the suggested formula. It is a
-hint for a person, not a finding: it is not cross-validated.
+hint for a person, not a finding: it is not cross-validated. Below an R² of
+``HINT_R2`` no shape of one state or input explains the leftover (coloured
+noise, or dynamics of another order), and the report says so instead.
 """
 from __future__ import annotations
 
@@ -18,6 +20,8 @@ from .catalog import _num
 from .locate import Location, features
 
 __all__ = ["explain"]
+
+HINT_R2 = 0.05      # a shape explaining less than 5 % of what remains is not worth suggesting
 
 
 def _shapes(name: str, x: np.ndarray):
@@ -59,6 +63,10 @@ def explain(model, rec, loc: Location, out_dir=None) -> dict:
     r2, name, formula, phi, coef = best
     if name is None:
         return {"explained_by": None, "r2": None, "suggested_candidate": None}
+    if r2 < HINT_R2:
+        return {"explained_by": None, "r2": r2, "suggested_candidate": None,
+                "note": f"no shape of one state or input explains what remains in {eq} (best: {formula}, "
+                        f"R² {r2:.2g}): coloured noise, or dynamics of another order"}
     out = {"explained_by": name, "r2": r2, "shape": formula,
            "suggested_candidate": f"remaining:{eq}:{formula}"}
     if out_dir is not None:
