@@ -165,7 +165,8 @@ def ski_step(z, S, s, y, valid, f, h, Q, R, w_idx, alpha, beta, kappa,
     Arguments as ukf_step plus the ARD settings. ard='gradient' (see ard.ard_optimise): the
     posterior is corrected to the new prior and predicted from. ard='em' (see
     ard.ard_fixed_point, s0 the declared prior variances): the UKF posterior is kept and
-    predicted from; the reported mean z_post is the posterior mean under the new prior.
+    predicted from; the reported mean z_post is the posterior mean under the new prior and
+    the reported factor S_post that of P + (z_post − z)(z_post − z)ᵀ, z the UKF's mean.
     Returns the ukf_step dict plus "s" (m,), the new prior variances.
     """
     W = merwe_weights(len(z), alpha, beta, kappa)
@@ -183,4 +184,5 @@ def ski_step(z, S, s, y, valid, f, h, Q, R, w_idx, alpha, beta, kappa,
                                           s_floor, s_max, drift)
     S_post = chol(P)
     z_pred, S_pred = _ukf_predict(z_post, S_post, f, Q, *W)
-    return _out(upd, z_post=z_report, S_post=S_post, z=z_pred, S=S_pred, s=s_new)
+    d = z_report - z_post                  # EM: the covariance reported about the reported mean
+    return _out(upd, z_post=z_report, S_post=chol(P + np.outer(d, d)), z=z_pred, S=S_pred, s=s_new)
