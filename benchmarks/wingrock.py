@@ -87,7 +87,8 @@ def _correlation(res, i, j):
 
 
 def _figures(out, sim, runs, sindy, names, reference):
-    est = {"sindy": _hold(sim.t, *sindy), **{m: (r.weights, r.weight_std) for m, r in runs.items()}}
+    est = {"sindy": _hold(sim.t, *sindy),
+           **{m: (r.weights, r.weight_std) for m, r in runs.items() if m != "aekf2"}}    # the paper's four
     plot_weights(out / f"wingrock_{reference}_weights.png", sim.t, est, names, wingrock.W_TRUE,
                  f"WingRock weight estimates ({reference} reference, seed 0, ±2σ)")
     plot_ard(out / f"wingrock_{reference}_ard.png", names, runs["ski"].prior_var[-1],
