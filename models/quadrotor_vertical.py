@@ -20,6 +20,8 @@ the paper's raw-PWM flight. ``build(pwm_offset=0)`` gives u = pwm / 1000
 With the simulator's thrust a_T = THRUST_GAIN·(pwm − 1000 µs) the truth in
 this basis is w_u = 2 g = 19.62 and all other weights 0, up to the two
 effects the model leaves out: the tilt (cos ≤ 1) and linear drag −0.3 v_z.
+``build(drag=True)`` adds the candidate ``drag_lin`` (−v_z, as in the spiral's
+basis) so that the simulator's drag has a term of its own (truth 0.3).
 """
 import numpy as np
 
@@ -35,6 +37,7 @@ PWM_RANGE = 1000.0                    # µs (PWM_MAX − PWM_MIN)
 DEGREE = 5
 TERMS = ["1", "pwm"] + [f"pwm^{k}" for k in range(2, DEGREE + 1)]
 TRUE_TERM = "pwm"
+DRAG_RMS = 0.676                      # m/s: RMS of v_z over the vertical flight (seed 0)
 
 
 def w_true(pwm_offset=PWM_OFFSET, pwm_range=PWM_RANGE) -> np.ndarray:
@@ -60,8 +63,10 @@ def basis_rms(pwm, pwm_offset=PWM_OFFSET, pwm_range=PWM_RANGE) -> np.ndarray:
 
 def build(prior_variance=PRIOR_VARIANCE, process_std=PROCESS_STD, weight_std=0.0, initial=1.5,
           position_std=0.1, velocity_std=0.5, pwm_offset=PWM_OFFSET, pwm_range=PWM_RANGE,
-          name="quadrotor_vertical"):
-    """The vertical model. process_std: (position m, velocity m/s) per sample."""
+          name="quadrotor_vertical", drag=False):
+    """The vertical model. process_std: (position m, velocity m/s) per sample. drag: add the
+    candidate drag_lin (−v_z) after the powers; its prior variance is then prior_variance's last
+    entry (default (PRIOR_ACCEL / DRAG_RMS)²)."""
     model = Model(name, dt=DT, discretization="rk4")
     z = model.state("pz", unit="m", role="position", initial=initial, std=position_std,
                     process_std=process_std[0])
@@ -72,6 +77,10 @@ def build(prior_variance=PRIOR_VARIANCE, process_std=PROCESS_STD, weight_std=0.0
     u = (pwm - pwm_offset) / pwm_range
     basis = [term("1", 1, key="one"), term("pwm", u, key="pwm")]
     basis += [term(f"pwm^{k}", u ** k, key=f"pwm{k}") for k in range(2, DEGREE + 1)]
+    if drag:
+        basis.append(term("drag_lin", -vz, key="drag_lin"))
+        if prior_variance is PRIOR_VARIANCE:
+            prior_variance = np.r_[PRIOR_VARIANCE, (PRIOR_ACCEL / DRAG_RMS) ** 2]
     model.unknown(vz, basis, prior_variance=prior_variance, process_std=weight_std)
     return model
 

@@ -28,7 +28,8 @@ def _ref_step(kind, d, state, delta, y, valid):
     aug, o = d.aug, d.options
     f = lambda z: wingrock_f(z, delta)
     if kind == "ekf":
-        return ref.ekf_step(state["z"], state["C"], y, valid, f, wingrock_h, aug.Q, aug.R)
+        return ref.ekf_step(state["z"], state["C"], y, valid, f, wingrock_h, aug.Q, aug.R,
+                            second_order=o.second_order)
     if kind == "ukf":
         return ref.ukf_step(state["z"], state["C"], y, valid, f, wingrock_h, aug.Q, aug.R,
                             o.alpha, o.beta, o.kappa)
@@ -46,12 +47,16 @@ def _cas_step(d, state, delta, y, valid):
 
 OPTIONS = [FilterOptions(),
            FilterOptions(alpha=0.5, kappa=0.0, ard="gradient", ard_steps=3, eta=0.5)]
+CASES = [(kind, o, RTOL) for o in OPTIONS for kind in ("ekf", "ukf", "ski")]
+# the reference's Hessians are central differences (step 1e-6) of complex-step Jacobians
+CASES.append(("ekf", FilterOptions(second_order=True), 1e-8))
 
 
-@pytest.mark.parametrize("opts", OPTIONS, ids=["alpha1_em", "alpha0.5_gradient"])
-@pytest.mark.parametrize("kind", ["ekf", "ukf", "ski"])
-def test_whole_run_matches_reference(kind, opts):
+@pytest.mark.parametrize("kind, opts, rtol", CASES,
+                         ids=[f"{k}_{i}" for i, k in enumerate(c[0] for c in CASES)])
+def test_whole_run_matches_reference(kind, opts, rtol):
     """Both paths run side by side, each fed its own previous output, over 300 samples."""
+    _close = lambda a, b, scale=None: globals()["_close"](a, b, rtol, scale)
     d = derive(build(prior_variance=0.5), kind, opts)
     cov = "P" if kind == "ekf" else "S"
     rng = np.random.default_rng(1)

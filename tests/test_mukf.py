@@ -298,7 +298,8 @@ def test_ski_mukf_matches_reference_composition(opts):
         else:
             z_report, s = ref_ard.ard_fixed_point(z, P, w, st["s"], aug.s0, o.margin, o.s_floor, o.s_max)
         z_pred, S_pred = ref.mukf_predict(z, P, nl, ll, dd, A, aug.Q, o.alpha, o.beta, o.kappa)
-        return dict(z_post=z_report, S_post=chol(P), z=z_pred, S=S_pred, s=s,
+        d_rep = z_report - z                 # EM: reported about its mean (0 for gradient)
+        return dict(z_post=z_report, S_post=chol(P + np.outer(d_rep, d_rep)), z=z_pred, S=S_pred, s=s,
                     e=upd["e"], Pyy=upd["Pyy"], nis=upd["nis"], loglik=upd["loglik"])
     _compare_run(d, step, deltas[:, None], np.array(ys))
 

@@ -272,8 +272,9 @@ static void ard_view(const real* z, const real* S, const real* F, const real* s,
 }
 
 /* s_next <- the EM update mu^2 + p from the moments under s, guarded (ard.py ard_guard);
- * z_post <- the posterior mean under s_next. The filter's (z_post, S_post) stay as they are. */
-static void ard_em(real* z_post, const real* S_post, const real* F, const real* s, real* s_next,
+ * z_post <- the posterior mean z' under s_next and S_post <- the factor of
+ * S_post S_post^T + (z' - z_post)(z' - z_post)^T (reported only: the prediction has run). */
+static void ard_em(real* z_post, real* S_post, const real* F, const real* s, real* s_next,
                    real* work)
 {
     real *z_s = work, *p = z_s + N, *view = p + NW;
@@ -289,7 +290,9 @@ static void ard_em(real* z_post, const real* S_post, const real* F, const real* 
         s_next[r] = fminf(fmaxf(t, S_FLOOR * pww), S_MAX);
     }
     ard_view(z_post, S_post, F, s_next, z_s, 0, view);
+    for (r = 0; r < N; ++r) view[r] = z_s[r] - z_post[r];
     copy(z_post, z_s, N);
+    cholupdate(S_post, view, N, 1);
 }
 #else
 /* L(s_new) up to a constant: minus the log evidence of past data under s_new. */

@@ -139,7 +139,7 @@ def _step(filt: DerivedFilter) -> ca.Function:
     aug_b = _rebind(aug, u_in, mem, param, lower["Q_sqrt"], lower["R_sqrt"])
     if kind == "ekf":
         z_post, C_post, e, Pyy, Ly = ekf_update(aug_b, z, C, u, mem, y, valid)
-        z_next, C_next = ekf_predict(aug_b, z_post, C_post, u, mem)
+        z_next, C_next = ekf_predict(aug_b, z_post, C_post, u, mem, opts.second_order)
     elif part is not None:
         z_post, C_post, e, Pyy, Ly = mukf_update(aug_b, part, opts, z, C, u, mem, y, valid)
         z_carry, C_carry = z_post, C_post

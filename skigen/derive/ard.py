@@ -13,7 +13,8 @@ and the corrected covariance is P' = S B⁻¹ Sᵀ, so S' = tria(S L_B⁻ᵀ).
 
 The EM update ('em') keeps the filter on the declared prior s₀; the ARD
 posterior is a view of the filter's, corrected with D = 1/s − 1/s₀ by the
-same pieces (never fed back), and the relevance update is the EM fixed point
+same pieces (never fed back; SKI reports its mean z′ with the filter's second
+moment about it, P + (z′ − z)(z′ − z)ᵀ, ski.py), and the relevance update is the EM fixed point
 s' = μ² + P_s,ii from the weights' moments under s, diag P_s = diag(F B⁻¹ Fᵀ)
 the column sums of squares of G (no cancellation). With constant
 weights P_ww ≤ diag(s₀) (updates only shrink it, predictions leave it), so

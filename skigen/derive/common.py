@@ -18,7 +18,8 @@ ARD_UPDATES = ("em", "gradient")
 class FilterOptions:
     """Tuning of the filters; the same values serve every filter compared.
 
-    alpha, beta, kappa: Merwe's scaled sigma points. ard: the ARD update of
+    alpha, beta, kappa: Merwe's scaled sigma points. second_order: the EKF predicts with the
+    second-order terms of the transition (ekf.ekf_predict); no effect on the other kinds. ard: the ARD update of
     SKI — 'em' (default), the EM fixed point s' = μ² + P_s of the relevance,
     the filter kept on the declared prior and the ARD posterior a correction
     of it (ard.py); 'gradient', the paper's softplus gradient steps with the
@@ -35,6 +36,7 @@ class FilterOptions:
     alpha: float = 1.0
     beta: float = 2.0
     kappa: float = 0.0
+    second_order: bool = False
     ard: str = "em"
     s_floor: float = 1e-8
     ard_steps: int = 1

@@ -5,6 +5,7 @@ import casadi as ca
 import numpy as np
 
 from .ard import ard_correct, ard_guard, ard_optimise, ard_view
+from .linalg import cholupdate
 
 __all__ = ["ard_step"]
 
@@ -14,9 +15,11 @@ def ard_step(aug, opts, z, S, s):
 
     Returns (z, S) to report, the new prior variances s' and (z, S) to predict from.
     'gradient' (the paper's): the posterior corrected to s', reported and predicted from.
-    'em': the filter stays on the declared prior s₀ (reported covariance and prediction
-    unchanged); s' = μ² + diag P_s from the weights' moments under s (the EM fixed point
-    of the evidence), guarded (ard.ard_guard); the reported mean is the posterior mean under s'.
+    'em': the filter stays on the declared prior s₀ (prediction unchanged); s' = μ² + diag P_s
+    from the weights' moments under s (the EM fixed point of the evidence), guarded
+    (ard.ard_guard); the reported mean z' is the posterior mean under s', and the reported
+    covariance the filter posterior's second moment about it, P + (z' − z)(z' − z)ᵀ: the
+    expected squared error of the reported mean under the filter's (declared-prior) posterior.
     """
     w = list(aug.w_index)
     if opts.ard == "gradient":
@@ -29,4 +32,5 @@ def ard_step(aug, opts, z, S, s):
     z_s, p_s = ard_view(z, S, w, s, s0)
     drift = bool(np.any(aug.Q[np.ix_(w, w)]))               # random-walk weights
     s_new = ard_guard(z_s[w] * z_s[w] + p_s, s0, ca.sum2(S[w, :] * S[w, :]), opts, drift)
-    return ard_view(z, S, w, s_new, s0)[0], S, s_new, z, S
+    z_rep = ard_view(z, S, w, s_new, s0)[0]
+    return z_rep, cholupdate(S, z_rep - z, 1.0), s_new, z, S

@@ -85,11 +85,25 @@ def _out(upd, **kw):
 
 # --------------------------------------------------------------------------- EKF
 
-def ekf_step(z, P, y, valid, f, h, Q, R, jac_f=None, jac_h=None):
+def hessians_cs(fun, z, delta=1e-6):
+    """Hessians (m, n, n) of fun's m outputs at real z: central differences (step delta × max(1, |z_j|))
+    of the complex-step Jacobian, accurate to O(delta²)."""
+    z = np.asarray(z, dtype=float)
+    cols = []
+    for j in range(len(z)):
+        d = delta * max(1.0, abs(z[j])) * np.eye(len(z))[j]
+        cols.append((jacobian_cs(fun, z + d) - jacobian_cs(fun, z - d)) / (2 * d[j]))
+    H = np.stack(cols, axis=2)                     # H[i, k, j] = ∂²f_i / ∂z_k ∂z_j
+    return 0.5 * (H + H.transpose(0, 2, 1))
+
+
+def ekf_step(z, P, y, valid, f, h, Q, R, jac_f=None, jac_h=None, second_order=False):
     """One augmented-EKF step (update at k, then predict to k+1).
 
     z (n,), P (n, n): prior at k; y (ny,); valid (ny,) bool; Q (n, n); R (ny, ny).
     jac_f, jac_h: optional callables z -> Jacobian; default complex-step.
+    second_order: the second-order prediction, z⁻ᵢ += ½ tr(Hᵢ P), P⁻ᵢⱼ += ½ tr(Hᵢ P Hⱼ P)
+    (Hessians by :func:`hessians_cs`).
     Returns dict: z_post, P_post, z, P (prior at k+1), e, Pyy, nis, loglik.
     """
     H = jac_h(z) if jac_h is not None else jacobian_cs(h, z)
@@ -99,8 +113,12 @@ def ekf_step(z, P, y, valid, f, h, Q, R, jac_f=None, jac_h=None):
     z_post = upd["z_post"]
     P_post = IKH @ P @ IKH.T + K @ R[np.ix_(v, v)] @ K.T
     A = jac_f(z_post) if jac_f is not None else jacobian_cs(f, z_post)
-    return _out(upd, z_post=z_post, P_post=P_post,
-                z=np.asarray(f(z_post), float), P=A @ P_post @ A.T + Q)
+    z_next, P_next = np.asarray(f(z_post), float), A @ P_post @ A.T + Q
+    if second_order:
+        HP = hessians_cs(f, z_post) @ P_post
+        z_next = z_next + 0.5 * np.trace(HP, axis1=1, axis2=2)
+        P_next = P_next + 0.5 * np.einsum("iab,jba->ij", HP, HP)
+    return _out(upd, z_post=z_post, P_post=P_post, z=z_next, P=P_next)
 
 
 # --------------------------------------------------------------------------- UKF / SKI
@@ -147,7 +165,8 @@ def ski_step(z, S, s, y, valid, f, h, Q, R, w_idx, alpha, beta, kappa,
     Arguments as ukf_step plus the ARD settings. ard='gradient' (see ard.ard_optimise): the
     posterior is corrected to the new prior and predicted from. ard='em' (see
     ard.ard_fixed_point, s0 the declared prior variances): the UKF posterior is kept and
-    predicted from; the reported mean z_post is the posterior mean under the new prior.
+    predicted from; the reported mean z_post is the posterior mean under the new prior and
+    the reported factor S_post that of P + (z_post − z)(z_post − z)ᵀ, z the UKF's mean.
     Returns the ukf_step dict plus "s" (m,), the new prior variances.
     """
     W = merwe_weights(len(z), alpha, beta, kappa)
@@ -165,4 +184,5 @@ def ski_step(z, S, s, y, valid, f, h, Q, R, w_idx, alpha, beta, kappa,
                                           s_floor, s_max, drift)
     S_post = chol(P)
     z_pred, S_pred = _ukf_predict(z_post, S_post, f, Q, *W)
-    return _out(upd, z_post=z_report, S_post=S_post, z=z_pred, S=S_pred, s=s_new)
+    d = z_report - z_post                  # EM: the covariance reported about the reported mean
+    return _out(upd, z_post=z_report, S_post=chol(P + np.outer(d, d)), z=z_pred, S=S_pred, s=s_new)
