@@ -198,21 +198,21 @@ def dead_zone(model: Model, u: str, width: float, smooth: float | None = None) -
 
 
 def backlash(model: Model, u: str, width: float, initial: float = 0.0) -> Model:
-    """The plant sees u through a play of ±width (same unit as u; gear backlash, a hysteresis): a new
-    state ``<u>_play`` that stays put while |u − play| < width and otherwise moves to the band's edge
-    u ∓ width: at once in a discrete or Euler model; in an RK4 model with a time constant of half an
-    integration step h (RK4 then closes two thirds of the gap per step: a play operator lagging about
-    half a step). The band is exact, not smoothed: a smoothed one would let the play creep inwards
-    while it rests."""
+    """The plant sees u through a play of ±width (same unit as u; gear backlash, a hysteresis):
+    clip(p, u − width, u + width), p a new state ``<u>_play``, the play's last position, which
+    follows that output: at once in a discrete or Euler model, with a time constant of half an
+    integration step in an RK4 one. The output is exact while p has caught up (within a sample:
+    RK4 closes two thirds of the gap per step); the band is not smoothed (a smoothed one would let
+    the play creep while it rests)."""
     if not width > 0:
         raise ValueError(f"a backlash on input '{u}' needs a positive width, got {width}")
     sym = ca.SX.sym(_unique(model, f"{u}_play"))
-    m = replace_input(model, u, sym)
-    x, a = _input(m, u) - sym, float(width)
-    gap = ca.fmax(x - a, 0) + ca.fmin(x + a, 0)
+    x, a = _input(model, u), float(width)
+    seen = ca.fmin(ca.fmax(sym, x - a), x + a)
+    m = replace_input(model, u, seen)
     h = m.dt / m.substeps
-    rhs = {"discrete": sym + gap, "euler": gap / h}.get(m.discretization, gap / (0.5 * h))
-    m, _ = add_state(m, sym.name(), rhs, unit=_unit(m, u), initial=initial, std=float(width), sym=sym)
+    rhs = {"discrete": seen, "euler": (seen - sym) / h}.get(m.discretization, (seen - sym) / (0.5 * h))
+    m, _ = add_state(m, sym.name(), rhs, unit=_unit(m, u), initial=initial, std=a, sym=sym)
     return m
 
 
