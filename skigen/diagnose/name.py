@@ -431,7 +431,7 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
         for s in structural:
             if s.key in done:
                 continue
-            label = f"{s.effect} of {s.target}" + (f" ({s.side})" if s.side else "")
+            label = _label(s)
             tick(label)
             value, std, cv = _structural(base, s, rec, folds)
             proposals.append(Proposal("structural", 0.0, s.params,
@@ -457,8 +457,14 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
         if not adopted:
             break
         corr, nominal, current, chosen = max(adopted, key=lambda a: np.sum(a[2]))
+        if chosen.kind == "structural":    # a fractional delay may have become the whole one
+            chosen.label = _label(corr.structural[-1][0])
         history[-1] = chosen
     return corr, history, rms, size, nominal
+
+
+def _label(s: Structural) -> str:
+    return f"{s.effect} of {s.target}" + (f" ({s.side})" if s.side else "")
 
 
 def _adopt(nominal: Model, corr: Correction, p: Proposal, rec: Recording, rms: dict, size: dict,
