@@ -30,8 +30,8 @@ tanks_sensor_sat    tanks       sensor_saturation   the upper level sensor's ran
                                 h1_meas (upper)     while the level rises on during the pump bursts
 arm_backlash        arm         backlash V          a ±0.15 V play between command and motor: only
                                                     felt after each reversal of the voltage
-arm_frac_delay      arm         fractional_delay V  2.25 samples (11.25 ms): a quarter sample off
-                                                    the grid of the integer delay
+arm_frac_delay      arm         fractional_delay V  2.5 samples (12.5 ms): half a sample off the
+                                                    grid of the integer delay
 arm_detent          arm         (none) detent       outside the catalog, no candidate: a torque
                                 omega               periodic in the angle (16 per turn)
 tanks_float_valve   tanks       (none) float valve  outside the catalog, no candidate: a refill of
@@ -244,7 +244,7 @@ UNSEEN = {
         "felt only after each reversal", s, seed, truth=arm.EFFECTS["backlash"][0]),
     "arm_frac_delay": lambda s, seed: _arm(
         "arm_frac_delay", "fractional_delay", lambda sec, sd: arm.multisine(sec, 2.0, f_hi=8.0, seed=sd),
-        "the voltage (a 2 V multisine up to 8 Hz) acts 2.25 samples (11.25 ms) late: a quarter sample "
+        "the voltage (a 2 V multisine up to 8 Hz) acts 2.5 samples (12.5 ms) late: half a sample "
         "off the integer delay's grid",
         s, seed, truth=arm.EFFECTS["fractional_delay"][0]),
     "tanks_float_valve": lambda s, seed: _tanks(

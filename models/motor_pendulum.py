@@ -38,7 +38,7 @@ EFFECTS = {   # name: (default parameter, what it means)
     "quadratic_drag": (0.15, "aerodynamic drag c (1/rad): −c·ω|ω|"),
     "detent": (2.0, f"detent torque amplitude A (rad/s²): −A·sin({DETENT_N}·θ); not in the catalog"),
     "backlash": (0.15, "play half-width r (V): the motor sees p[k] = clip(p[k−1], V[k] − r, V[k] + r)"),
-    "fractional_delay": (2.25, "delay d (samples) of the held voltage: the motor sees V(t − d·dt)"),
+    "fractional_delay": (2.5, "delay d (samples) of the held voltage: the motor sees V(t − d·dt)"),
 }
 TORQUES = ("quadratic_drag", "detent")      # effects that add a torque; the others change the voltage seen
 

@@ -3,7 +3,7 @@ terms, on the systems the diagnosis was not developed on (scenarios in benchmark
 
 - tanks_sensor_sat: the upper level sensor's range ends (sensor_saturation, in the output equation);
 - arm_backlash: a play between the commanded and the applied voltage (backlash);
-- arm_frac_delay: a delay of 2.25 samples (fractional_delay: whole and fractional part searched).
+- arm_frac_delay: a delay of 2.5 samples (fractional_delay: whole and fractional part searched).
 
 Each is asserted from report.json (named first, on its equation, its parameter near the truth,
 nothing remaining) and from corrected_model.py: the file loads, states the effect where it acts
@@ -20,12 +20,12 @@ from skigen.modelfile import load_model
 from skigen.simulate import free_run
 
 SEED = 1
-# parameter tolerances, in the parameter's unit; measured with seed 1: bound 0.320 m (0.32),
-# play 0.150 ± 0.004 V (0.15), delay 2.23 ± 0.09 samples (2.25)
+# parameter tolerances, in the parameter's unit; measured with seeds 1, 2, 3: bound 0.320, 0.320,
+# 0.321 m (0.32), play 0.150, 0.152, 0.151 ± 0.005 V (0.15), delay 2.48, 2.46, 2.54 ± 0.09 samples (2.5)
 TOLERANCE = {
     "tanks_sensor_sat": 3 * tanks.H_NOISE["h1_meas"],      # m: three noise std of one sample
     "arm_backlash": 0.015,                                  # V: about 3 std, a tenth of the play
-    "arm_frac_delay": 0.25,                                 # samples: about 3 std, below a quarter sample
+    "arm_frac_delay": 0.25,                                 # samples: about 3 std, half the fraction
 }
 
 

@@ -457,8 +457,8 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
         if not adopted:
             break
         corr, nominal, current, chosen = max(adopted, key=lambda a: np.sum(a[2]))
-        if chosen.kind == "structural":    # a fractional delay may have become the whole one
-            chosen.label = _label(corr.structural[-1][0])
+        if chosen.kind == "structural" and _label(corr.structural[-1][0]) != chosen.label:
+            chosen.label += f", adopted as {_label(corr.structural[-1][0])}"   # a fractional delay, whole
         history[-1] = chosen
     return corr, history, rms, size, nominal
 
