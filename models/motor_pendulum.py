@@ -40,7 +40,6 @@ EFFECTS = {   # name: (default parameter, what it means)
     "backlash": (0.15, "play half-width r (V): the motor sees p[k] = clip(p[k−1], V[k] − r, V[k] + r)"),
     "fractional_delay": (2.5, "delay d (samples) of the held voltage: the motor sees V(t − d·dt)"),
 }
-TORQUES = ("quadratic_drag", "detent")      # effects that add a torque; the others change the voltage seen
 
 
 def build(name: str = "motor_pendulum", *, process_scale: float = 1.0, measurement_scale: float = 1.0) -> Model:
