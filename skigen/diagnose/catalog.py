@@ -299,6 +299,8 @@ def output_candidates(model: Model, outputs, recorded: np.ndarray) -> list[Struc
     for y in outputs:
         j = model.output_names.index(y)
         x = recorded[:, j][np.isfinite(recorded[:, j])]
+        if len(x) < 2:                   # never measured: no range to search
+            continue
         unit = model.outputs[j].unit
         for side, qs in (("upper", SENSOR_QUANTILES), ("lower", [1 - a for a in SENSOR_QUANTILES])):
             grid = tuple(sorted({float(_num(v)) for v in np.quantile(x, qs)}))
