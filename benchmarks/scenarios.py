@@ -26,6 +26,12 @@ arm_drag_early      arm         quadratic_drag      ∝ ω²: large swings only 
                                 omega               the run; the second half's drag is 25× smaller
 tanks_overflow      tanks       physical_limit h1   the upper tank spills at its 0.30 m rim during
                                 (upper, 0.30 m)     two pump bursts only (~8 % of the samples)
+tanks_sensor_sat    tanks       sensor_saturation   the upper level sensor's range ends at 0.32 m
+                                h1_meas (upper)     while the level rises on during the pump bursts
+arm_backlash        arm         backlash V          a ±0.15 V play between command and motor: only
+                                                    felt after each reversal of the voltage
+arm_frac_delay      arm         fractional_delay V  2.5 samples (12.5 ms): half a sample off the
+                                                    grid of the integer delay
 arm_detent          arm         (none) detent       outside the catalog, no candidate: a torque
                                 omega               periodic in the angle (16 per turn)
 tanks_float_valve   tanks       (none) float valve  outside the catalog, no candidate: a refill of
@@ -226,6 +232,21 @@ UNSEEN = {
         "the upper level rests on the rim only during two pump bursts (a few % of the samples); "
         "the level sensor's updates follow the flat top", s, seed, equation="h1",
         truth=tanks.EFFECTS["overflow"][0], side="upper", bursts=_overflow_bursts(s)),
+    "tanks_sensor_sat": lambda s, seed: _tanks(
+        "tanks_sensor_sat", "sensor_saturation",
+        "the upper level sensor reads at most 0.32 m; during two pump bursts the level rises past it "
+        "and only the lower tank's faster rise shows it", s, seed, equation="h1",
+        truth=tanks.EFFECTS["sensor_saturation"][0], side="upper", bursts=_overflow_bursts(s),
+        active_of=lambda r: r.h1 > tanks.EFFECTS["sensor_saturation"][0]),
+    "arm_backlash": lambda s, seed: _arm(
+        "arm_backlash", "backlash", _arm_multisine(1.2),
+        "a ±0.15 V play between command and motor (gear backlash as a hysteresis on the voltage): "
+        "felt only after each reversal", s, seed, truth=arm.EFFECTS["backlash"][0]),
+    "arm_frac_delay": lambda s, seed: _arm(
+        "arm_frac_delay", "fractional_delay", lambda sec, sd: arm.multisine(sec, 2.0, f_hi=8.0, seed=sd),
+        "the voltage (a 2 V multisine up to 8 Hz) acts 2.5 samples (12.5 ms) late: half a sample "
+        "off the integer delay's grid",
+        s, seed, truth=arm.EFFECTS["fractional_delay"][0]),
     "tanks_float_valve": lambda s, seed: _tanks(
         "tanks_float_valve", "float_valve",
         "a hysteretic refill of the lower tank (opens below 0.08 m, closes above 0.11 m): depends on "

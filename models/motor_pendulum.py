@@ -13,8 +13,10 @@ sample on ω.
 
 :func:`simulate` runs the truth on a voltage signal; the true arm may add one
 effect the nominal model leaves out (``effect=``): aerodynamic (quadratic)
-drag of the arm, −c·ω|ω|, or a magnetic detent torque periodic in the angle,
-−A·sin(N·θ) with N = 16 per revolution (not in the catalog). The truth is
+drag of the arm, −c·ω|ω|, a magnetic detent torque periodic in the angle,
+−A·sin(N·θ) with N = 16 per revolution (not in the catalog), a play
+(backlash) between the commanded and the applied voltage, or a delay of the
+voltage off the sample grid (a continuous delay of the held voltage). The truth is
 integrated with four RK4 sub-steps per sample, its process and measurement
 noise drawn exactly as the model states them, so that with ``effect=None``
 the nominal model is right.
@@ -35,6 +37,8 @@ DETENT_N = 16                      # detent periods per revolution
 EFFECTS = {   # name: (default parameter, what it means)
     "quadratic_drag": (0.15, "aerodynamic drag c (1/rad): −c·ω|ω|"),
     "detent": (2.0, f"detent torque amplitude A (rad/s²): −A·sin({DETENT_N}·θ); not in the catalog"),
+    "backlash": (0.15, "play half-width r (V): the motor sees p[k] = clip(p[k−1], V[k] − r, V[k] + r)"),
+    "fractional_delay": (2.5, "delay d (samples) of the held voltage: the motor sees V(t − d·dt)"),
 }
 
 
@@ -72,6 +76,27 @@ def chirp(duration: float, amplitude: float, f_lo: float = 0.2, f_hi: float = 2.
     return amplitude * np.sin(2 * np.pi * (f_lo * tau + (f_hi - f_lo) * tau ** 2 / (2 * period)))
 
 
+def play(V: np.ndarray, r: float) -> np.ndarray:
+    """The play (backlash) operator on the sample grid: p[k] = clip(p[k−1], V[k] − r, V[k] + r), p[−1] = 0 (V)."""
+    p, prev = np.empty(len(V)), 0.0
+    for k, v in enumerate(V):
+        prev = p[k] = min(max(prev, v - r), v + r)
+    return p
+
+
+def applied_voltage(V: np.ndarray, effect: str | None, par, substeps: int) -> np.ndarray:
+    """(n, substeps): the voltage the motor sees during each integration sub-step: V itself, its play,
+    or V held and delayed by ``par`` samples (read at each sub-step's middle; 0 before the start)."""
+    n = len(V)
+    if effect == "backlash":
+        V = play(V, par)
+    if effect != "fractional_delay":
+        return np.repeat(V[:, None], substeps, axis=1)
+    mid = np.arange(n)[:, None] + (np.arange(substeps) + 0.5) / substeps - par
+    idx = np.floor(mid).astype(int)
+    return np.where(idx >= 0, V[np.clip(idx, 0, n - 1)], 0.0)
+
+
 @dataclass
 class ArmRun:
     """One open-loop run: recorded (t, V, theta_meas) and the truth behind it."""
@@ -92,15 +117,20 @@ class ArmRun:
         return {"theta_meas": self.theta_meas}
 
 
-def simulate(voltage, *, effect: str | None = None, parameter=None, seed: int = 0, substeps: int = 4) -> ArmRun:
-    """Open-loop run on ``voltage`` (V, one value per sample) with the true arm's ``effect``."""
+def simulate(voltage, *, effect: str | None = None, parameter=None, seed: int = 0, substeps: int = 4,
+             noise: bool = True) -> ArmRun:
+    """Open-loop run on ``voltage`` (V, one value per sample) with the true arm's ``effect``;
+    ``noise=False``: without process and encoder noise."""
     if effect is not None and effect not in EFFECTS:
         raise ValueError(f"unknown effect '{effect}'; choose from {', '.join(EFFECTS)}")
     par = EFFECTS[effect][0] if effect and parameter is None else parameter
     V = np.asarray(voltage, float)
     n = len(V)
+    seen = applied_voltage(V, effect, par, substeps)
     rng = np.random.default_rng(seed)
     meas, proc = rng.normal(0.0, NOISE_STD, n), rng.normal(0.0, RATE_STD, n)
+    if not noise:
+        meas, proc = np.zeros(n), np.zeros(n)
 
     def extra(th, om):
         if effect == "quadratic_drag":
@@ -116,12 +146,13 @@ def simulate(voltage, *, effect: str | None = None, parameter=None, seed: int = 
     th, om, acc = np.empty(n), np.empty(n), np.empty(n)
     h = DT / substeps
     for k in range(n):
-        th[k], om[k], acc[k] = x[0], x[1], extra(*x)
-        for _ in range(substeps):
-            k1 = f(x, V[k])
-            k2 = f(x + h / 2 * k1, V[k])
-            k3 = f(x + h / 2 * k2, V[k])
-            k4 = f(x + h * k3, V[k])
+        th[k], om[k] = x[0], x[1]
+        acc[k] = extra(*x) + K * (seen[k].mean() - V[k])
+        for v in seen[k]:
+            k1 = f(x, v)
+            k2 = f(x + h / 2 * k1, v)
+            k3 = f(x + h / 2 * k2, v)
+            k4 = f(x + h * k3, v)
             x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         x[1] += proc[k]
     return ArmRun(np.arange(n) * DT, V, th + meas, th, om, acc, effect, None if par is None else float(par))

@@ -17,7 +17,8 @@ commands above 2 V (√h is not differentiable at an empty tank).
 :func:`simulate` runs the truth open loop on a pump command; the true plant may
 add one effect the nominal model leaves out (``effect=``): the upper tank
 overflows at its rim (a physical limit: h₁ cannot pass H, the excess spills to
-the sump) or a float valve refills the lower tank from the mains with
+the sump), the upper level sensor's range ends (it reads min(h₁, B): the level
+itself goes on) or a float valve refills the lower tank from the mains with
 hysteresis (opens below one level, closes above another: not in the catalog).
 The truth is integrated with four RK4 sub-steps per sample, its process and
 measurement noise drawn exactly as the model states them, so that with
@@ -41,6 +42,7 @@ INITIAL = (0.10, 0.07)             # m: levels at start (near equilibrium for u 
 
 EFFECTS = {   # name: (default parameter, what it means)
     "overflow": (0.30, "rim height H (m) of the upper tank: h₁ ≤ H, the excess spills to the sump"),
+    "sensor_saturation": (0.32, "range end B (m) of the upper level sensor: it reads min(h₁, B) + noise"),
     "float_valve": (4e-5, "mains inflow q_v (m³/s) into the lower tank while a float valve is open: it "
                           "opens when h₂ < 0.08 m and closes when h₂ > 0.11 m; not in the catalog"),
 }
@@ -154,6 +156,7 @@ def simulate(pump, *, effect: str | None = None, parameter=None, seed: int = 0, 
             x[0] = min(x[0], rim)
         x = x + w[k]
         x[0] = min(x[0], rim)
-    y = np.column_stack([out["h1"], out["h2"]]) + v
+    seen = np.minimum(out["h1"], par) if effect == "sensor_saturation" else out["h1"]
+    y = np.column_stack([seen, out["h2"]]) + v
     return TankRun(np.arange(n) * DT, u_all, y[:, 0], y[:, 1], out["h1"], out["h2"], missing,
                    out["valve"].astype(bool), effect, None if par is None else float(par))

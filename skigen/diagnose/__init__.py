@@ -183,7 +183,8 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     rate_eqs = [e for e in loc.equations if e in C.rate_equations(nominal)] or C.rate_equations(nominal)
     additive = beyond_parameters(declared, rec, loc.states,
                                  C.additive_candidates(calibrated, rate_eqs, scale, loc.states)) + user_cands
-    structural = C.structural_candidates(calibrated, rate_eqs, np.asarray(rec.inputs))
+    structural = (C.structural_candidates(calibrated, rate_eqs, np.asarray(rec.inputs))
+                  + C.output_candidates(calibrated, loc.outputs or nominal.output_names, np.asarray(rec.outputs)))
     # the size of what is missing per equation: the slow disturbance located, or what the calibrated
     # process noise had to absorb (a fast effect a random walk cannot follow), whichever is larger
     q = np.sqrt(np.diag(calibrated.process_noise())) / (nominal.dt if nominal.discretization != "discrete" else 1)
@@ -259,12 +260,13 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
 
 def windows_where_it_acts(nominal: Model, after, rec, equations, states) -> tuple[list, str | None]:
     """Windows and regime where the correction matters: the corrected minus nominal rate of the
-    located equations beyond 20 % of its 99th percentile."""
-    from .figures import identified_rate
+    located equations, or output expression (a clipped sensor), beyond 20 % of its 99th percentile."""
+    from .figures import identified_output, identified_rate
     from .locate import features, regime_stump, windows_of
     active = np.zeros(len(rec.t), bool)
-    for eq in equations:
-        r = np.abs(identified_rate(nominal, after, rec, eq))
+    changes = [identified_rate(nominal, after, rec, eq) for eq in equations]
+    changes += [identified_output(nominal, after, rec, y) for y in nominal.output_names]
+    for r in map(np.abs, changes):
         if np.isfinite(r).all() and r.max() > 0:
             active |= r > 0.2 * np.percentile(r, 99)
     duration = rec.t[-1] - rec.t[0]
@@ -319,12 +321,23 @@ def _findings(nominal: Model, corr: Correction, ev: dict, shapes: dict) -> list[
             f["shape_search"] = shapes[c]
         out.append(f)
     for s, value, std in corr.structural:
-        eqs = [e for e in nominal.state_names
-               if any(v.name == s.input and ca.depends_on(nominal.rhs[e], v.sym) for v in nominal.inputs)]
-        out.append({"effect": s.effect, "equation": "+".join(eqs), "expression": s.describe(value),
-                    "coefficient": value, "std": std, "evidence": ev[s], "kind": "structural",
-                    "parameter": s.parameter, "unit": s.unit, "input": s.input, "reading": s.reading})
+        f = {"effect": s.effect, "equation": "+".join(_acted_on(nominal, s)), "expression": s.describe(value),
+             "coefficient": value, "std": std, "evidence": ev[s], "kind": "structural",
+             "parameter": s.parameter, "unit": s.unit, "reading": s.reading}
+        f.update({"output": s.output, "shape": {"bound": value, "side": s.side, "output": s.output}}
+                 if s.output else {"input": s.input})
+        out.append(f)
     return sorted(out, key=lambda f: -f["evidence"])
+
+
+def _acted_on(nominal: Model, s) -> list[str]:
+    """The equations a structural change acts through: those its input drives, or, for a sensor,
+    the states its output reads."""
+    if s.output:
+        expr = next(v.sym for v in nominal.outputs if v.name == s.output)
+        return [v.name for v in nominal.states if ca.depends_on(expr, v.sym)]
+    return [e for e in nominal.state_names
+            if any(v.name == s.input and ca.depends_on(nominal.rhs[e], v.sym) for v in nominal.inputs)]
 
 
 def _finish(report: Report, meta: dict, t_start: float, stage) -> Report:

@@ -3,9 +3,10 @@
 Additive effects are basis terms φ(x, u) for the rate equation of a velocity
 or rate state, written as formulas in the model's own names (``-tanh(v/0.005)``)
 so that a person can read them and a corrected model file can restate them.
-Structural effects transform the model: the plant sees a delayed, lagged,
-saturated or dead-zoned version of an input; each has one parameter searched
-over a grid.
+Structural effects transform the model: the plant sees a delayed (by whole
+samples or a fraction of one), lagged, saturated, dead-zoned or backlashed
+version of an input, or a sensor reads a clipped output; each has one
+parameter searched over a grid.
 """
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ from ..model import Model
 from . import transform as T
 
 __all__ = ["Additive", "Structural", "EFFECTS", "READINGS", "evaluate", "additive_candidates",
-           "structural_candidates", "user_candidates", "declared_candidates", "rate_equations",
+           "structural_candidates", "output_candidates", "user_candidates", "declared_candidates", "rate_equations",
            "kinematic_equations", "pairs", "COULOMB_WIDTHS"]
 
 VELOCITY_ROLES = ("velocity", "rate")
@@ -42,6 +43,12 @@ READINGS = {
     "actuator_lag": "the actuator follows its command with a first-order lag",
     "input_saturation": "the actuator cannot deliver more than a limit",
     "dead_zone": "small commands produce nothing (backlash, stiction in the actuator, an ESC dead band)",
+    "fractional_delay": "the plant responds to the input a delay off the sample grid (a whole number of "
+                        "samples and a fraction of one)",
+    "backlash": "play between command and plant (gear backlash, hysteresis): after a reversal the command "
+                "must cross the play before the plant sees it move",
+    "sensor_saturation": "a sensor whose range ends at a bound: it reads the bound while the quantity "
+                         "itself goes on",
 }
 EFFECTS = tuple(READINGS)
 
@@ -76,7 +83,11 @@ class Additive:
 
 @dataclass(frozen=True)
 class Structural:
-    """A model transformation with one parameter searched over ``grid``."""
+    """A model transformation with one parameter searched over ``grid``, acting on ``input`` (or, for
+    a sensor, on ``output``, clipped on ``side``); ``params``: how many numbers the search chooses
+    (a fractional delay: its whole and its fractional part); ``coarser``: the nested simpler change
+    it is replaced by when it is not significantly better (a fractional delay: the whole delay it
+    rounds to)."""
 
     effect: str
     input: str
@@ -88,6 +99,20 @@ class Structural:
     build: Callable[[Model, float], Model]
     describe: Callable[[float], str]   # expression a person reads
     reading: str
+    output: str = ""
+    side: str = ""
+    params: int = 1
+    coarser: "Structural | None" = None
+
+    @property
+    def target(self) -> str:
+        """The input or output it acts on."""
+        return self.output or self.input
+
+    @property
+    def key(self) -> tuple:
+        """One change per (effect, signal, side) is adopted; a nested change shares its coarser one's."""
+        return (self.coarser or self).effect, self.target, self.side
 
 
 def rate_equations(model: Model) -> list[str]:
@@ -126,6 +151,9 @@ def _num(x: float) -> str:
 
 COULOMB_WIDTHS = (0.005, 0.02, 0.08)         # × the RMS rate: the smoothing of sign(v)
 LIMIT_QUANTILES = (0.8, 0.9, 0.95, 0.99)    # where a bound may sit, on the state's own distribution
+SENSOR_QUANTILES = (0.7, 0.8, 0.9, 0.95, 0.99, 1.0)   # where a sensor's range may end (1: never reached)
+# fractional delays (samples): quarter samples up to 4, then half samples like the integer delay's grid
+FRACTIONAL_DELAYS = tuple(n + a for n in range(4) for a in (0.25, 0.5, 0.75)) + (5.5, 7.5, 10.5, 14.5)
 
 
 def _limit_states(model: Model, eq: str) -> list[str]:
@@ -221,10 +249,11 @@ def structural_candidates(model: Model, equations, inputs: np.ndarray) -> list[S
         dev = np.abs(x - centre)
         first = float(x[0])
 
-        out.append(Structural(
+        whole = Structural(
             "input_delay", u, "delay", "samples", tuple(range(1, 16)), True, False,
             lambda m, d, u=u: T.input_delay(m, u, int(round(d))),
-            lambda d, u=u: f"{u}[k-{int(round(d))}] ({int(round(d)) * dt:g} s)", READINGS["input_delay"]))
+            lambda d, u=u: f"{u}[k-{int(round(d))}] ({int(round(d)) * dt:g} s)", READINGS["input_delay"])
+        out.append(whole)
         out.append(Structural(
             "actuator_lag", u, "tau", "s", tuple(dt * 2.0 ** np.arange(0, 6)), False, True,
             lambda m, tau, u=u, first=first, s=float(np.std(x)) + 1e-9:
@@ -243,4 +272,41 @@ def structural_candidates(model: Model, equations, inputs: np.ndarray) -> list[S
                 "dead_zone", u, "width", unit, widths, False, True,
                 lambda m, a, u=u: T.dead_zone(m, u, a),
                 lambda a, u=u: f"deadzone({u}, ±{_num(a)})", READINGS["dead_zone"]))
+        if widths:
+            out.append(Structural(
+                "backlash", u, "width", unit, widths, False, True,
+                lambda m, a, u=u, first=first: T.backlash(m, u, a, initial=first),
+                lambda a, u=u: f"play({u}, ±{_num(a)})", READINGS["backlash"]))
+        out.append(Structural(
+            "fractional_delay", u, "delay", "samples", FRACTIONAL_DELAYS, False, False,
+            lambda m, d, u=u: T.fractional_delay(m, u, d),
+            lambda d, u=u: _describe_fraction(u, d, dt), READINGS["fractional_delay"], params=2, coarser=whole))
+    return out
+
+
+def _describe_fraction(u: str, samples: float, dt: float) -> str:
+    """(1 − a)·u[k−n] + a·u[k−n−1] for a delay of n + a samples."""
+    n = int(np.floor(samples))
+    a = float(_num(samples - n))
+    now = f"{u}[k-{n}]" if n else f"{u}[k]"
+    return f"{_num(1 - a)}·{now} + {_num(a)}·{u}[k-{n + 1}] ({_num(samples * dt)} s)"
+
+
+def output_candidates(model: Model, outputs, recorded: np.ndarray) -> list[Structural]:
+    """A sensor saturation, upper and lower, of each listed output: the bound searched over the
+    recorded output's quantiles (SENSOR_QUANTILES, its extremes included). ``recorded``: (N, ny)."""
+    out = []
+    for y in outputs:
+        j = model.output_names.index(y)
+        x = recorded[:, j][np.isfinite(recorded[:, j])]
+        if len(x) < 2:                   # never measured: no range to search
+            continue
+        unit = model.outputs[j].unit
+        for side, qs in (("upper", SENSOR_QUANTILES), ("lower", [1 - a for a in SENSOR_QUANTILES])):
+            grid = tuple(sorted({float(_num(v)) for v in np.quantile(x, qs)}))
+            out.append(Structural(
+                "sensor_saturation", "", "bound", unit, grid, False, False,
+                lambda m, b, y=y, side=side: T.output_saturation(m, y, b, side),
+                lambda b, y=y, side=side: f"{'fmin' if side == 'upper' else 'fmax'}({y}, {_num(b)})",
+                READINGS["sensor_saturation"], output=y, side=side))
     return out

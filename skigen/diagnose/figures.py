@@ -16,7 +16,8 @@ from ..plots import save_figure  # noqa: E402
 from ..recording import Recording  # noqa: E402
 from . import transform as T  # noqa: E402
 
-__all__ = ["plot_residuals", "plot_disturbance", "plot_fit", "diagnosis_figures", "identified_rate"]
+__all__ = ["plot_residuals", "plot_disturbance", "plot_fit", "diagnosis_figures", "identified_rate",
+           "identified_output"]
 
 
 def _shade(ax, windows, t_val):
@@ -102,16 +103,25 @@ def diagnosis_figures(out, nominal, rec, eps, loc, before, after, t_val) -> list
 
 def identified_rate(nominal: Model, after, rec: Recording, eq: str) -> np.ndarray:
     """Corrected minus nominal rate of ``eq`` along the corrected filter's trajectory."""
+    diff = _along(nominal, after, rec, lambda m: m.rhs[eq])
+    return diff / after.run.filter.aug.model.dt if after.run.filter.aug.model.discretization == "discrete" else diff
+
+
+def identified_output(nominal: Model, after, rec: Recording, y: str) -> np.ndarray:
+    """Corrected minus nominal expression of output ``y`` (a clipped sensor) along the corrected
+    filter's trajectory, in the output's unit."""
+    return _along(nominal, after, rec, lambda m: next(v.sym for v in m.outputs if v.name == y))
+
+
+def _along(nominal: Model, after, rec: Recording, expr) -> np.ndarray:
+    """expr(corrected) − expr(nominal) (``expr``: model → SX) along the corrected filter's trajectory."""
     corrected, nominal = T.constants(after.run.filter.aug.model), T.constants(nominal)
     xs = ca.vertcat(*[v.sym for v in corrected.states])
     u = ca.vertcat(*[v.sym for v in corrected.inputs])
     mem = ca.vertcat(*[m.sym for m in corrected.memory]) if corrected.memory else ca.SX(0, 1)
     by_name = T.symbols(corrected)
     old = T.symbols(nominal)
-    base = ca.substitute(nominal.rhs[eq], ca.vertcat(*old.values()), ca.vertcat(*[by_name[n] for n in old]))
-    diff = corrected.rhs[eq] - base
-    if corrected.discretization == "discrete":
-        diff = diff / corrected.dt
-    f = ca.Function("d", [xs, u, mem], [diff]).map(len(rec.t))
+    base = ca.substitute(ca.SX(expr(nominal)), ca.vertcat(*old.values()), ca.vertcat(*[by_name[n] for n in old]))
+    f = ca.Function("d", [xs, u, mem], [ca.SX(expr(corrected)) - base]).map(len(rec.t))
     return np.asarray(f(after.run.mean[:, :len(corrected.states)].T, rec.inputs.T,
                         T.memory_values(corrected, rec).T)).ravel()

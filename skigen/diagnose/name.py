@@ -15,6 +15,7 @@ each part of the recording is scored on.
 3. a proposal passes if 2·(cross-validated gain) exceeds the χ² quantile
    1 − α/(number of candidates) for its number of parameters and, after the
    first round, adds at least 1 % of the gain so far. The best two that pass
+   (the second only when its gain is at least half the first's: a close rival)
    are each adopted under the noise recalibrated with them (the nominal's
    calibration absorbed the missing physics as process noise, which blurs the
    difference between close candidates such as a delay and a lag) and the one
@@ -46,6 +47,7 @@ from . import transform as T
 from .catalog import Additive, Structural, _num
 from ..runtime import RunResult, run
 from .cv import Folds, fit_without, fold_loglik, loglik
+from .errors import DiagnosisError
 
 __all__ = ["Correction", "Proposal", "name_terms", "refit", "basis_rms", "distinct", "start_trace",
            "focus_window", "recalibrated", "significant"]
@@ -54,6 +56,7 @@ MAX_ROUNDS = 3
 FINALISTS = 2      # proposals scored again, each under the noise calibrated with it
 MIN_SHARE = 0.01   # a further change must add ≥ 1 % of the gain so far: below that it only
                    # absorbs the first one's approximation (grid resolution, smoothing)
+RIVAL_SHARE = 0.5  # a finalist below half the best's gain is no close rival: it is not re-scored
 
 
 @dataclass
@@ -323,8 +326,9 @@ def _profile(total, s: Structural, evaluated) -> tuple[float, float, float]:
             v = float(_num(back(x)))
             seen[v] = total(v)
             return -seen[v]
-        minimize_scalar(f, bounds=(to(xs[j - 1]), to(xs[j + 1])), method="bounded",
-                        options={"xatol": 2e-3 * (1 if s.log else abs(xs[j]))})
+        with np.errstate(invalid="ignore"):      # a refused value (−inf) is a golden-section step
+            minimize_scalar(f, bounds=(to(xs[j - 1]), to(xs[j + 1])), method="bounded",
+                            options={"xatol": 2e-3 * (1 if s.log else abs(xs[j]))})
         xs, ys, j = bracket()
     std = np.nan
     if 0 < j < len(xs) - 1 and np.all(np.isfinite(ys[j - 1:j + 2])):
@@ -428,34 +432,45 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
                 p = None
             if p is not None:
                 proposals.append(p)
-        done = {(s[0].effect, s[0].input) for s in corr.structural}
+        done = {s[0].key for s in corr.structural}
         base = corr.build(nominal)
         for s in structural:
-            if (s.effect, s.input) in done:
+            if s.key in done:
                 continue
-            tick(f"{s.effect} of {s.input}")
+            label = _label(s)
+            tick(label)
             value, std, cv = _structural(base, s, rec, folds)
-            proposals.append(Proposal("structural", 0.0, 1, Correction(corr.additive, corr.structural + [(s, value, std)]),
-                                      f"{s.effect} of {s.input}", cv))
+            proposals.append(Proposal("structural", 0.0, s.params,
+                                      Correction(corr.additive, corr.structural + [(s, value, std)]), label, cv))
         if not proposals:
             break
         for p in proposals:
             p.gain = float(np.sum(p.folds) - np.sum(current))
         ranked = sorted(proposals, key=lambda p: -p.gain)
         passing = [p for p in ranked[:FINALISTS] if 2 * p.gain > stats.chi2.ppf(1 - alpha / n_cands, p.params)
-                   and not (history and p.gain < MIN_SHARE * sum(h.gain for h in history))]
+                   and not (history and p.gain < MIN_SHARE * sum(h.gain for h in history))
+                   and p.gain >= RIVAL_SHARE * ranked[0].gain]
         history.append(ranked[0])
         adopted = []
         for p in passing:                  # each finalist under the noise it leaves, then the best
             tick(f"recalibrating the noise under {p.label}")
-            got = _adopt(nominal, corr, p, rec, rms, size, alpha)
+            try:
+                got = _adopt(nominal, corr, p, rec, rms, size, alpha)
+            except DiagnosisError:         # no noise calibrates under it: not adopted
+                got = None
             if got is not None:
                 adopted.append(got + (cv_loglik(got[1], got[0], rec, folds, rms, size), p))
         if not adopted:
             break
         corr, nominal, current, chosen = max(adopted, key=lambda a: np.sum(a[2]))
+        if chosen.kind == "structural" and _label(corr.structural[-1][0]) != chosen.label:
+            chosen.label += f", adopted as {_label(corr.structural[-1][0])}"   # a fractional delay, whole
         history[-1] = chosen
     return corr, history, rms, size, nominal
+
+
+def _label(s: Structural) -> str:
+    return f"{s.effect} of {s.target}" + (f" ({s.side})" if s.side else "")
 
 
 def _adopt(nominal: Model, corr: Correction, p: Proposal, rec: Recording, rms: dict, size: dict,
@@ -470,11 +485,26 @@ def _adopt(nominal: Model, corr: Correction, p: Proposal, rec: Recording, rms: d
                 rec, rms, size)
     nominal = recalibrated(nominal, new, rec)
     if p.kind == "structural":             # its parameter again, under the noise it leaves
-        before = new.structural[-1][1]
-        new = reprofiled(nominal, new, rec)
-        if not np.isclose(new.structural[-1][1], before, rtol=1e-3):
+        before = new.structural[-1][:2]
+        new = coarsened(nominal, reprofiled(nominal, new, rec), rec, alpha)
+        if new.structural[-1][0] is not before[0] or not np.isclose(new.structural[-1][1], before[1], rtol=1e-3):
             nominal = recalibrated(nominal, new, rec)
     return refit(nominal, new, rec, rms, size), nominal
+
+
+def coarsened(nominal: Model, corr: Correction, rec: Recording, alpha: float) -> Correction:
+    """The last structural change replaced by its coarser form at the rounded value (a fractional
+    delay by the whole delay) unless it is significantly better on the whole recording:
+    2·(log-likelihood gain) > the χ² quantile 1 − α for the one number it adds."""
+    s, value, _ = corr.structural[-1]
+    whole = float(round(value))
+    if s.coarser is None or whole not in s.coarser.grid:
+        return corr
+    base = Correction(corr.additive, corr.structural[:-1]).build(nominal)
+    gain = loglik(s.build(base, value), rec) - loglik(s.coarser.build(base, whole), rec)
+    if 2 * gain > stats.chi2.ppf(1 - alpha, s.params - s.coarser.params):
+        return corr
+    return reprofiled(nominal, Correction(corr.additive, corr.structural[:-1] + [(s.coarser, whole, np.nan)]), rec)
 
 
 def reprofiled(nominal: Model, corr: Correction, rec: Recording) -> Correction:

@@ -18,7 +18,8 @@ from ..derive.augment import memory_values as input_history
 from ..model import Model, Variable
 
 __all__ = ["copy_model", "constants", "symbols", "formula", "rate", "add_term", "add_state", "replace_input",
-           "input_delay", "actuator_lag", "input_saturation", "dead_zone", "smooth_dead_zone",
+           "input_delay", "fractional_delay", "actuator_lag", "input_saturation", "dead_zone", "smooth_dead_zone",
+           "backlash", "output_saturation",
            "with_disturbance", "memory_values", "load_model_file"]
 
 
@@ -146,6 +147,19 @@ def input_delay(model: Model, u: str, samples: int) -> Model:
     return replace_input(m, u, delayed)
 
 
+def fractional_delay(model: Model, u: str, samples: float) -> Model:
+    """The plant sees u delayed by ``samples`` = n + a (n whole, 0 ≤ a < 1):
+    (1 − a)·u[k − n] + a·u[k − n − 1], the sample average of the held u delayed by (n + a)·dt."""
+    if not samples > 0:
+        raise ValueError(f"a delay of input '{u}' needs a positive number of samples, got {samples}")
+    n = int(np.floor(samples))
+    a = float(samples) - n
+    m = copy_model(model)
+    sym = _input(m, u)
+    past = [sym] + m.input_history(sym, n + 1 if a > 0 else n)
+    return replace_input(m, u, past[n] if a == 0 else (1 - a) * past[n] + a * past[n + 1])
+
+
 def actuator_lag(model: Model, u: str, tau: float, initial: float = 0.0, std: float = 1.0) -> Model:
     """The plant sees a first-order lag of u with time constant tau (seconds): a new state
     ``<u>_act`` with d/dt u_act = (u − u_act)/tau, starting at ``initial``."""
@@ -181,6 +195,39 @@ def dead_zone(model: Model, u: str, width: float, smooth: float | None = None) -
     """The plant sees nothing of u inside ±width and u ∓ width outside (smoothed over width/10)."""
     sym = _input(model, u)
     return replace_input(model, u, smooth_dead_zone(sym, width, smooth or width / 10))
+
+
+def backlash(model: Model, u: str, width: float, initial: float = 0.0) -> Model:
+    """The plant sees u through a play of ±width (same unit as u; gear backlash, a hysteresis):
+    clip(p, u − width, u + width), p a new state ``<u>_play``, the play's last position, which
+    follows that output: at once in a discrete or Euler model, with a time constant of half an
+    integration step in an RK4 one. The output is exact while p has caught up (within a sample:
+    RK4 closes two thirds of the gap per step); the band is not smoothed (a smoothed one would let
+    the play creep while it rests)."""
+    if not width > 0:
+        raise ValueError(f"a backlash on input '{u}' needs a positive width, got {width}")
+    sym = ca.SX.sym(_unique(model, f"{u}_play"))
+    x, a = _input(model, u), float(width)
+    seen = ca.fmin(ca.fmax(sym, x - a), x + a)
+    m = replace_input(model, u, seen)
+    h = m.dt / m.substeps
+    rhs = {"discrete": seen, "euler": (seen - sym) / h}.get(m.discretization, (seen - sym) / (0.5 * h))
+    m, _ = add_state(m, sym.name(), rhs, unit=_unit(m, u), initial=initial, std=a, sym=sym)
+    return m
+
+
+def output_saturation(model: Model, y: str, bound: float, side: str) -> Model:
+    """The sensor of output ``y`` reads no more than ``bound`` (side "upper") or no less ("lower"),
+    in the output's unit: its expression clipped, the quantity itself unbounded."""
+    if side not in ("upper", "lower"):
+        raise ValueError(f"output '{y}': a saturation side is 'upper' or 'lower', got {side!r}")
+    m = copy_model(model)
+    i = next((j for j, v in enumerate(m.outputs) if v.name == y), None)
+    if i is None:
+        raise ValueError(f"model '{model.name}' has no output '{y}' (outputs: {', '.join(m.output_names)})")
+    clip = ca.fmin if side == "upper" else ca.fmax
+    m.outputs[i] = dataclasses.replace(m.outputs[i], sym=clip(ca.SX(m.outputs[i].sym), float(bound)))
+    return m
 
 
 def _unit(model: Model, u: str) -> str:
