@@ -6,8 +6,9 @@
 Fits, each by `skigen.fit` (output error, multiple shooting over 200-sample
 intervals: the pendulum's free run over 700 s is too sensitive for one
 simulation; the shooting nodes start from the model's EKF): the grey box of
-models/unbalanced_disk_greybox.py (ω0, γ, Fc, Ku) and the same with Fc held at
-0 (the viscous-only pendulum). The held-out segment's initial state is
+models/unbalanced_disk_greybox.py (ω0, γ, Fc, Ku), the same with Fc held at
+0 (the viscous-only pendulum), and the same with what `skigen diagnose` names beside
+the friction (the motor one sample late, a constant torque). The held-out segment's initial state is
 estimated from its first 50 samples, then the model runs free over the rest.
 Writes DIR/results.json and the fit reports, and prints the README table.
 """
@@ -40,11 +41,13 @@ def main(argv=None) -> dict:
     n = int(G.TRAIN_FRACTION * len(rec.t))
     train, test = rec.slice(0, n), rec.slice(n, None)
     results = {}
-    for label, estimate in (("with Coulomb friction", None), ("viscous only (fc = 0)", ["omega0", "gamma", "ku"])):
-        model = G.build()
+    variants = (("with Coulomb friction", None, {}), ("viscous only (fc = 0)", ["omega0", "gamma", "ku"], {}),
+                ("Coulomb, delay and bias (as diagnosed)", None, dict(diagnosed=True)))
+    for label, estimate, kw in variants:
+        model = G.build(**kw)
         r = fit(model, [train], estimate=estimate, shooting=SHOOTING)
         check = validate(r, [test])
-        write_outputs(r, Path(args.out) / ("coulomb" if estimate is None else "viscous"), [train],
+        write_outputs(r, Path(args.out) / ("viscous" if estimate else "diagnosed" if kw else "coulomb"), [train],
                       validation=check, validation_recordings=[test])
         results[label] = dict(parameters={k: [v["value"], v["std"]] for k, v in r.parameters.items()},
                               seconds=r.seconds, iterations=r.iterations, train_rad=r.recordings[0]["rmse"]["th"],
