@@ -185,26 +185,31 @@ def refit_jointly(nominal: Model, calibrated: Model, corr: Correction, rec, equa
             info["note"] = "not refitted (refit=False): coefficients from the cross-validated search"
             return model, names, notes, info
         try:
-            res = fit(model, blocks(rec), method="filter-error", show_progress=False)
+            res = fit(model, pieces, method="filter-error", show_progress=False)
         except FitError as exc:
             info["note"] += f"joint refit with {len(attempt)} lifted corrections failed: {exc}. "
             continue
         info.update(parameters=res.parameters, noise=res.noise.get("scales"), converged=res.converged,
                     seconds=res.seconds, iterations=res.iterations,
                     lifted=[dict(effect=e, equation=q, formula=f) for e, q, f in attempt])
-        fitted = res.model
-        if len(pieces) > 1:
-            fitted, info["output_error"] = polish_for_simulation(fitted, rec, pieces)
-            if info["output_error"].get("adopted"):
-                info["parameters"] = info["output_error"]["parameters"]
-        return fitted, names, notes, info
+        return _polished(res.model, rec, pieces, names, notes, info)
     info["note"] += "coefficients from the cross-validated search"
     model, names, notes = parametrised(calibrated, corr, [])
-    return model, names, notes, info
+    return _polished(model, rec, pieces, names, notes, info)
+
+
+def _polished(fitted: Model, rec, pieces, names, notes, info):
+    """refit_jointly's result, with the output-error polish on a long recording."""
+    if len(pieces) > 1:
+        fitted, info["output_error"] = polish_for_simulation(fitted, rec, pieces)
+        if info["output_error"].get("adopted"):
+            info["parameters"] = info["output_error"]["parameters"]
+    return fitted, names, notes, info
 
 
 def polish_for_simulation(fitted: Model, rec, pieces) -> tuple[Model, dict]:
-    """The filter-error refit polished by output error for simulation, when that simulates better.
+    """The joint refit (or the cross-validated coefficients, when it failed) polished by output error
+    for simulation, when that simulates better.
 
     Filter error gives the parameters of the best one-step predictor; when the model is only
     approximate (a real circuit, a real disc), its process noise absorbs part of the dynamics and
