@@ -19,7 +19,7 @@ import pytest
 from benchmarks.scenarios import make, overlap
 from models import motor_pendulum as arm, two_tanks as tanks
 from skigen import derive
-from skigen.diagnose import diagnose
+from tests.scenario_cache import diagnosis_cache
 from skigen.modelfile import load_model
 from skigen.runtime import run
 
@@ -51,22 +51,7 @@ def _nominal_run(sc):
 
 @pytest.fixture(scope="module")
 def diagnosed(tmp_path_factory):
-    cache = {}
-
-    def get(name):
-        if name not in cache:
-            sc = make(name, seed=SEED)
-            d = tmp_path_factory.mktemp(name)
-            csv = sc.write_csv(d / f"{name}.csv")
-            try:
-                rep = diagnose(sc.model_file, csv, d / "out", show_progress=False, figures=False, emit=False)
-                cache[name] = dict(scenario=sc, data=rep.data)
-            except Exception as exc:          # a diagnosis that fails fails every test of it, once
-                cache[name] = exc
-        if isinstance(cache[name], Exception):
-            raise cache[name]
-        return cache[name]
-    return get
+    return diagnosis_cache(tmp_path_factory, SEED)
 
 
 # ------------------------------------------------------------------ the scenarios are sound
