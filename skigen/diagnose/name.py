@@ -43,9 +43,9 @@ from ..derive import FilterOptions, derive
 from ..library import term
 from ..model import Model
 from ..recording import Recording
+from ..runtime import RunResult, run
 from . import transform as T
 from .catalog import Additive, Structural, _num
-from ..runtime import RunResult, run
 from .cv import Folds, fit_without, fold_loglik, loglik
 from .errors import DiagnosisError
 
