@@ -1,7 +1,7 @@
 """Silverbox: diagnose the linear nominal on the standard training range, then score the corrected
 model by free-run simulation on the three standard test sets.
 
-    python examples/diagnose_silverbox.py [DATA_DIR] [--out out/diagnose_silverbox] [--samples N]
+    python examples/diagnose_silverbox.py [DATA_DIR] [--out out/diagnose_silverbox] [--samples N | --whole-file]
 
 The nominal is the linear oscillator with first-order input hold and its constants declared as
 parameters (`models/silverbox_greybox.py:linear`); the circuit is a Duffing oscillator. The
@@ -34,13 +34,14 @@ def main(argv=None) -> dict:
     p.add_argument("data", nargs="?", default=str(ROOT.parent / "shared" / "data"))
     p.add_argument("--out", default=str(ROOT / "out" / "diagnose_silverbox"))
     p.add_argument("--samples", type=int, default=None, help="first N samples of the training range only")
+    p.add_argument("--whole-file", action="store_true", help="the whole SNLS80mV file as given (131 072 samples)")
     args = p.parse_args(argv)
     path = Path(args.data) / "silverbox_snls80mv.csv"
     if not path.is_file():
         sys.exit(f"{path} not found: pass the folder holding the Silverbox recordings")
     rec = read_recording(path, ["V1"], ["V2"])
     a, b = G.TRAIN
-    train = rec.slice(a, b if args.samples is None else a + args.samples)
+    train = rec if args.whole_file else rec.slice(a, b if args.samples is None else a + args.samples)
     rep = diagnose(G.linear, train, args.out)
     print(f"diagnosis: {rep.seconds:.1f} s; findings: "
           + "; ".join(f"{f['effect']} on {f['equation']} {f['coefficient']:.6g} ± {f['std']:.2g}" for f in rep.findings))
