@@ -204,6 +204,7 @@ def _polished(fitted: Model, rec, pieces, names, notes, info):
         fitted, info["output_error"] = polish_for_simulation(fitted, rec, pieces)
         if info["output_error"].get("adopted"):
             info["parameters"] = info["output_error"]["parameters"]
+            info["method"] += ", polished by output-error"
     return fitted, names, notes, info
 
 
