@@ -269,9 +269,7 @@ def windows_where_it_acts(nominal: Model, after, rec, equations, states) -> tupl
     for r in map(np.abs, changes):
         if np.isfinite(r).all() and r.max() > 0:
             active |= r > 0.2 * np.percentile(r, 99)
-    duration = rec.t[-1] - rec.t[0]
-    windows = windows_of(rec.t, active, merge=max(0.5, 0.01 * duration), shortest=max(0.2, 10 * nominal.dt))
-    return windows, regime_stump(features(nominal, rec, states), active)
+    return windows_of(rec.t, active, nominal.dt), regime_stump(features(nominal, rec, states), active)
 
 
 def _update_findings(findings: list[dict], names: dict, fitted: dict) -> None:

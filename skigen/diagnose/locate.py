@@ -95,8 +95,10 @@ def _best_step(nominal: Model, eqs, scales, fit: Recording, ll0: float) -> tuple
     return [best_f * scales[e] for e in eqs], best - ll0
 
 
-def windows_of(t: np.ndarray, active: np.ndarray, merge: float, shortest: float) -> list[tuple[float, float]]:
-    """Runs of True in ``active`` as [t0, t1], gaps under ``merge`` s closed, runs under ``shortest`` s dropped."""
+def windows_of(t: np.ndarray, active: np.ndarray, dt: float) -> list[tuple[float, float]]:
+    """Runs of True in ``active`` as [t0, t1]: gaps under max(0.5 s, 1 % of the recording) closed,
+    runs under max(0.2 s, 10 samples of ``dt``) dropped."""
+    merge, shortest = max(0.5, 0.01 * (t[-1] - t[0])), max(0.2, 10 * dt)
     runs, start = [], None
     for k, a in enumerate(active):
         if a and start is None:
@@ -221,8 +223,7 @@ def locate(nominal: Model, rec: Recording, nominal_run, cons: Consistency, alpha
         active |= np.abs(d) > Z_WINDOW * np.maximum(s, 1e-300)
     significant = active.copy()
     active |= _local_gain(sm.run.loglik - nominal_run.loglik, nominal.dt, alpha)
-    duration = rec.t[-1] - rec.t[0]
-    windows = windows_of(rec.t, active, merge=max(0.5, 0.01 * duration), shortest=max(0.2, 10 * nominal.dt))
+    windows = windows_of(rec.t, active, nominal.dt)
     regime = regime_stump(features(nominal, rec, sm.mean[:, :nx]),
                           significant if significant.mean() > 0.02 else active)
     return Location(_outputs(nominal_run, nominal.output_names, alpha, cons.lags), chosen, gains, steps,

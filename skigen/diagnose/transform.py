@@ -142,9 +142,7 @@ def input_delay(model: Model, u: str, samples: int) -> Model:
     """The plant sees u[k − samples] (exact memory carried by the filter)."""
     if int(samples) < 1:
         raise ValueError("an input delay needs at least one sample")
-    m = copy_model(model)
-    delayed = m.input_history(_input(m, u), int(samples))[-1]
-    return replace_input(m, u, delayed)
+    return fractional_delay(model, u, int(samples))
 
 
 def fractional_delay(model: Model, u: str, samples: float) -> Model:
