@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["RecordingError", "Recording", "load_recording", "stream_recording", "read_recording", "write_recording",
+__all__ = ["RecordingError", "Recording", "resolution", "load_recording", "stream_recording", "read_recording", "write_recording",
            "write_table", "TableWriter"]
 
 
@@ -60,6 +60,20 @@ class Recording:
         """The samples with index in ``range(start, stop)`` (Python slice rules)."""
         s = slice(start, stop)
         return dataclasses.replace(self, t=self.t[s], inputs=self.inputs[s], outputs=self.outputs[s])
+
+
+def resolution(values) -> float:
+    """The step of a quantised signal (an encoder's count, an ADC's least significant bit), or 0
+    when it is not quantised: the smallest gap between distinct values, when values repeat (fewer
+    distinct values than half the samples) and every gap is a whole multiple of it."""
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)]
+    levels = np.unique(v)
+    if len(levels) < 3 or len(levels) > len(v) / 2:
+        return 0.0
+    gaps = np.diff(levels)
+    k = gaps / gaps.min()
+    return float(gaps.min()) if np.all(np.abs(k - np.round(k)) < 0.01) else 0.0
 
 
 def load_recording(source, model, *, time=None, time_unit: str = "s", columns=None, max_gap: float = 1.0,

@@ -194,7 +194,8 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     corr, history, rms, size, calibrated = name_terms(calibrated, rec, cv, loc.equations, loc.states, size, additive,
                                           structural, alpha, progress=lambda s: stage(f"naming: {s}"),
                                                       focus=focus_window(sum((d / np.maximum(sd, 1e-300)) ** 2
-                                                                             for d, sd in loc.disturbance.values())))
+                                                                             for d, sd in loc.disturbance.values())),
+                                                      parameters=C.parameter_terms(declared, rate_eqs))
     stage("searching the shapes")
     variants = {}
     for c in additive:
@@ -221,7 +222,8 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         base = T.copy_model(declared)         # the user's parameters, the noise recalibrated while naming
         base.covariances(Q=calibrated.process_noise(), R=calibrated.measurement_noise(),
                          P0=declared.initial_covariance())
-        corrected, names, notes, refit_info = refit_jointly(nominal, base, corr, rec, loc.equations, refit)
+        corrected, names, notes, refit_info = refit_jointly(nominal, base, corr.without_parameters(), rec,
+                                                            loc.equations, refit)
         data["refit"] = refit_info
         _update_findings(data["findings"], names, refit_info.get("parameters", {}))
         path = out / "corrected_model.py"
@@ -309,7 +311,7 @@ def _fit_note(folds: int) -> str:
 
 def _findings(nominal: Model, corr: Correction, ev: dict, shapes: dict) -> list[dict]:
     out = []
-    for c, coef, std in corr.additive:
+    for c, coef, std in corr.found:
         f = {"effect": c.effect, "equation": c.equation, "expression": c.formula,
              "coefficient": coef, "std": std, "evidence": ev[c], "kind": "additive",
              "reading": c.reading + (f" ({c.variant})" if c.variant else "")}

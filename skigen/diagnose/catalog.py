@@ -70,6 +70,7 @@ class Additive:
     expr: ca.SX | None = field(default=None, compare=False, repr=False)   # when not a formula
     shape: tuple = ()         # the variant's shape parameters, (("width", 0.01),) …
     sign: int = 0             # +1: only a positive coefficient is physical (friction, drag, a limit)
+    parameter: str = ""       # a declared parameter's correction (∂rate/∂p), never a finding
 
     @property
     def group(self) -> tuple:
@@ -232,6 +233,26 @@ def declared_candidates(model: Model) -> list[Additive]:
             if t.expr.shape == (1, 1):
                 out += [Additive(t.name, eq, t.name, "a term the model declares as possibly missing", expr=t.expr)
                         for eq in b.equations]
+    return out
+
+
+def parameter_terms(model: Model, equations) -> list[Additive]:
+    """∂(rate)/∂p at the declared values, for each declared parameter p of ``model`` that enters
+    one of ``equations``: the linearised correction of p. It is estimated with every candidate, so
+    that a constant that compensated for the missing physics (a stiffness that absorbed a hardening
+    spring) can move back while the candidate is fitted and scored; it is never a finding."""
+    if not model.parameters:
+        return []
+    syms = ca.vertcat(*[p.sym for p in model.parameters])
+    values = ca.DM([p.value for p in model.parameters])
+    out = []
+    for eq in equations:
+        for p in model.parameters:
+            d = ca.substitute(ca.jacobian(model.rhs[eq], p.sym), syms, values)
+            d = d / model.dt if model.discretization == "discrete" else d          # a rate (see T.rate)
+            if not (d.is_constant() and float(ca.evalf(d)) == 0.0):
+                out.append(Additive("parameter", eq, f"d{eq}/d{p.name}", f"correction of the declared {p.name}",
+                                    expr=d, parameter=p.name))
     return out
 
 

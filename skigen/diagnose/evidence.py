@@ -29,7 +29,7 @@ def weigh(nominal: Model, corr: Correction, rec: Recording, folds: Folds, alpha:
     """(the kept correction, {candidate: evidence}, its per-fold cross-validated log-likelihood)."""
     threshold = 0.5 * stats.chi2.isf(alpha, 1)
     while True:
-        items = [a[0] for a in corr.additive] + [s[0] for s in corr.structural]
+        items = [a[0] for a in corr.found] + [s[0] for s in corr.structural]
         full = cv_loglik(nominal, corr, rec, folds, rms, size)
         if not items:
             return corr, {}, full

@@ -89,8 +89,16 @@ class Correction:
                           [s for s in self.structural if s[0] is not which])
 
     @property
+    def found(self) -> list[tuple[Additive, float, float]]:
+        """The additive terms that are findings (not a declared parameter's correction)."""
+        return [a for a in self.additive if not a[0].parameter]
+
+    def without_parameters(self) -> "Correction":
+        return Correction(self.found, self.structural)
+
+    @property
     def empty(self) -> bool:
-        return not (self.additive or self.structural)
+        return not (self.found or self.structural)
 
 
 @dataclass
@@ -404,21 +412,22 @@ def shape_search(nominal: Model, corr: Correction, variants: dict, rec: Recordin
 
 def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str], states: np.ndarray,
                disturbance_rms: dict[str, float], additive: list[Additive], structural: list[Structural],
-               alpha: float = 0.01, progress=None, focus: tuple[int, int] | None = None
-               ) -> tuple[Correction, list[Proposal], dict, dict, Model]:
+               alpha: float = 0.01, progress=None, focus: tuple[int, int] | None = None,
+               parameters: list[Additive] = ()) -> tuple[Correction, list[Proposal], dict, dict, Model]:
     """See the module docstring. ``states``: smoothed nominal states (for candidate scales);
     ``disturbance_rms``: RMS of the located disturbance per equation (the missing rate's size);
-    ``focus``: the samples [a, b) SKI selects on (all of them by default).
+    ``focus``: the samples [a, b) SKI selects on (all of them by default); ``parameters``: the
+    declared parameters' corrections (:func:`catalog.parameter_terms`), refitted with every candidate.
     Returns (correction, proposals accepted or not, candidate RMS, per-equation sizes, ``nominal``
     with the noise recalibrated under the correction)."""
     tick = progress or (lambda label: None)
-    size = {eq: disturbance_rms.get(eq, 1.0) for eq in {c.equation for c in additive}}
+    size = {eq: disturbance_rms.get(eq, 1.0) for eq in {c.equation for c in [*additive, *parameters]}}
     additive = representatives(distinct(nominal, rec, states, additive)) if additive else []
-    rms_arr = basis_rms(nominal, rec, states, additive) if additive else np.zeros(0)
-    rms = {c: r for c, r in zip(additive, rms_arr)}
+    every = additive + list(parameters)
+    rms = dict(zip(every, basis_rms(nominal, rec, states, every))) if every else {}
     n_cands = max(1, len(additive) + len(structural))
-    corr = Correction()
-    current = fold_loglik(nominal, rec, folds)
+    corr = refit(nominal, Correction([(c, 0.0, 0.0) for c in parameters]), rec, rms, size)
+    current = cv_loglik(nominal, corr, rec, folds, rms, size)
     history = []
     for _ in range(MAX_ROUNDS):
         proposals = []

@@ -51,7 +51,9 @@ def screen(model: Model, corr: Correction, states: np.ndarray, rec: Recording,
     kept, comp, lost = [], [], []
     for c, coef, std in corr.additive:
         item = {"effect": c.effect, "equation": c.equation, "expression": c.formula, "coefficient": coef, "std": std}
-        if not significant(coef, std, alpha):
+        if c.parameter:                  # a declared parameter's correction: not judged
+            kept.append((c, coef, std))
+        elif not significant(coef, std, alpha):
             sig = _signals(c.formula, model) or [c.equation]
             lost.append(dict(item, note=f"not identifiable from this recording (|coefficient| < {z:.2f} std): "
                                         f"excite {', '.join(sig)} over a wider range or for longer"))

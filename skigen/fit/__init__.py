@@ -21,8 +21,8 @@ import numpy as np
 
 from ..model import Model, ModelError
 from ..progress import note
-from ..recording import Recording, load_recording
-from .problem import METHODS, Problem, build_problem, data_matrix
+from ..recording import Recording, load_recording, resolution
+from .problem import LOG_SCALE_BOUND, METHODS, Problem, build_problem, data_matrix
 from .uncertainty import covariance, unidentified
 
 __all__ = ["FitError", "FitResult", "fit", "METHODS"]
@@ -228,7 +228,8 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     if lost:
         raise FitError(f"the recordings cannot identify every quantity of '{model.name}': " + "; ".join(lost)
                        + ". Fix these (estimate=...), give them a prior std, or record richer excitation")
-    inputs = dict(prob.solver_inputs, x0=theta0 / scale, lbx=prob.solver_inputs["lbx"] / scale,
+    lower = _resolution_floor(model, V, recs, prob.solver_inputs["lbx"])
+    inputs = dict(prob.solver_inputs, x0=np.maximum(theta0, lower) / scale, lbx=lower / scale,
                   ubx=prob.solver_inputs["ubx"] / scale, p=p)
     if show_progress:
         note(f"fitting '{model.name}' by {method}: {len(V)} unknowns, {sum(lengths)} samples")
@@ -364,6 +365,19 @@ def _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_
 
 def _num(x: float):
     return None if not np.isfinite(x) else float(x)
+
+
+def _resolution_floor(model, V, recs, lower) -> np.ndarray:
+    """``lower`` with each output's R scale bounded below by its sensor's resolution: the
+    measurement noise variance stays at least q²/12 (the error of rounding to a step q)."""
+    lower = np.array(lower, float)
+    R0 = np.diag(model.measurement_noise())
+    for j, name in enumerate(model.output_names):
+        q = min(resolution(rec.outputs[:, j]) for rec in recs)
+        if f"R_scale_{name}" in V.names and q > 0 and R0[j] > 0:
+            i = V.names.index(f"R_scale_{name}")
+            lower[i] = min(max(lower[i], np.log(q ** 2 / 12 / R0[j])), LOG_SCALE_BOUND)
+    return lower
 
 
 def _noise(model, V, value, std, Y, recs, method) -> dict:
