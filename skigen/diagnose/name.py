@@ -426,7 +426,10 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
     every = additive + list(parameters)
     rms = dict(zip(every, basis_rms(nominal, rec, states, every))) if every else {}
     n_cands = max(1, len(additive) + len(structural))
-    corr = refit(nominal, Correction([(c, 0.0, 0.0) for c in parameters]), rec, rms, size)
+    try:
+        corr = refit(nominal, Correction([(c, 0.0, 0.0) for c in parameters]), rec, rms, size)
+    except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):
+        corr = Correction()        # their corrections make the filter diverge: held as calibrated
     current = cv_loglik(nominal, corr, rec, folds, rms, size)
     history = []
     for _ in range(MAX_ROUNDS):
