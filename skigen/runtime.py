@@ -9,7 +9,7 @@ physical states restart from the measurement. A run never stops on bad data:
 its summary reports these events.
 
 The ``casadi`` backend (:class:`CasadiStepper`) chains the same derived step over
-a part of the recording in one CasADi call (``mapaccum``): about 15× faster than
+the recording by CasADi (``mapaccum``, 1024 samples a call): about 15× faster than
 ``python`` and without ``c``'s compile time. It runs the step *without* the
 policy — no gate, no stuck-sensor test, no restart after rejections or a gap, no
 bound on the prior std — so its innovations are the filter's own (what the
@@ -369,70 +369,76 @@ def _step_python(stepper: PythonStepper, inputs, outputs, trace: bool = False) -
 
 
 class CasadiStepper:
-    """The derived step chained over a part of a recording in one CasADi call (``mapaccum``),
-    behind :meth:`CFilter.run_many`'s interface, *without* the guard policy (see the module
+    """The derived step chained over a part of a recording by CasADi (``mapaccum``, :data:`PIECE`
+    samples a call), behind :meth:`CFilter.run_many`'s interface, *without* the guard policy (see the module
     docstring). A part whose chain gives a non-finite number is redone by a :class:`PythonStepper`
     with the default :class:`Guard` from the same state, or, when ``strict``, raises
-    FloatingPointError. Holds the filter state (z, C, s, mem) and the last posterior C_post."""
+    FloatingPointError. Holds the filter state (z, C, s, mem) and the last posterior C_post.
+
+    The chain takes the step's numeric constants (Q, R, the model's coefficients) as an input, so
+    filters whose steps differ only in those numbers share one chain, built once (:data:`_CHAINS`)."""
 
     def __init__(self, filt: DerivedFilter, strict: bool = False, trace: bool = False):
         self.filt, self.strict, self.trace = filt, strict, trace
         st = filt.initial()
         self.z, self.C, self.mem, self.s = st["z"], st["C"], st["mem"], st.get("s")
         self.C_post = self.C
-        self._chains = {}
+        self._structure = None
 
-    def _chain(self, N: int):
-        """The step chained over at least N samples, as a mapaccum of B fully unrolled steps repeated
-        ⌈N/B⌉ times (B ≈ √N: built ~10× faster than one long mapaccum); returns it and its length."""
-        B = max(1, int(np.ceil(np.sqrt(N))))
-        blocks = int(np.ceil(N / B))
-        if (B, blocks) not in self._chains:
-            import casadi as ca
-            filt, ski = self.filt, self.filt.has_ard
-            d = filt.aug.shapes
-            z, C = ca.MX.sym("z", d["n"]), ca.MX.sym("C", d["n"], d["n"])
-            s, mem = ca.MX.sym("s", d["nw"]), ca.MX.sym("mem", d["nmem"])
-            u, y, valid = ca.MX.sym("u", d["nu"]), ca.MX.sym("y", d["ny"]), ca.MX.sym("valid", d["ny"])
-            out = dict(zip(filt.names_out, filt.step(*([z, C] + ([s] if ski else []) + [u, mem, y, valid]))))
-            acc_in = [z, C] + ([s] if ski else []) + [mem]
-            acc_out = [out["z_next"], out["C_next"]] + ([out["s_next"]] if ski else []) + [out["mem_next"]]
-            g = ca.Function("chain_step", acc_in + [u, y, valid], acc_out + [
-                out["z_post"], out["C_post"], out["e"], ca.diag(out["Pyy"]), out["nis"], out["loglik"], mem])
-            inner = g.mapaccum("block", B, len(acc_in), {"base": -1})
-            self._chains[B, blocks] = inner.mapaccum("chain", blocks, len(acc_in), {"base": -1})
-        return self._chains[B, blocks], B * blocks
+    def _chain(self):
+        """The chain of this step's structure over :data:`PIECE` samples, and the step's constants."""
+        if self._structure is None:
+            self._structure = structure(self.filt.step)
+        shape, consts = self._structure
+        key = (self.filt.kind, shape)
+        if key not in _CHAINS:
+            if len(_CHAINS) >= MAX_CHAINS:
+                del _CHAINS[next(iter(_CHAINS))]
+            _CHAINS[key] = _build_chain(self.filt, with_constants(self.filt.step), *PIECE_BLOCKS)
+        return _CHAINS[key], consts
 
     def run_many(self, inputs, outputs) -> dict[str, np.ndarray]:
-        filt, ski = self.filt, self.filt.has_ard
-        n, N = filt.aug.n, len(inputs)
+        N = len(inputs)
         U, Y = np.asarray(inputs, float).reshape(N, -1), np.asarray(outputs, float).reshape(N, -1)
+        start = self.z, self.C, self.s, self.mem, self.C_post
+        raws = [self._piece(U[a:a + PIECE], Y[a:a + PIECE]) for a in range(0, N, PIECE)] \
+            if np.all(np.isfinite(U)) else [None]
+        if any(r is None for r in raws):
+            self.z, self.C, self.s, self.mem, self.C_post = start
+            return self._fallback(U, Y)
+        return {k: np.concatenate([r[k] for r in raws]) for k in raws[0]}
+
+    def _piece(self, U, Y) -> dict[str, np.ndarray] | None:
+        """At most PIECE samples by one chain call (the rest of the chain predicts on); None where a
+        number is not finite."""
+        filt, ski = self.filt, self.filt.has_ard
+        n, N, M = filt.aug.n, len(U), PIECE
         valid = np.isfinite(Y)
-        chain, M = self._chain(N)
+        chain, consts = self._chain()
         pad = lambda a: np.vstack([a, np.repeat(a[-1:], M - N, axis=0)]).T    # prediction-only steps after N
         V = pad(np.zeros_like(Y))
         V[:, :N] = valid.T
         state = [self.z, self.C] + ([self.s] if ski else []) + [self.mem]
         with np.errstate(all="ignore"):
-            out = [np.asarray(o)[:, :N * (o.shape[1] // M)] for o in chain(*state, pad(U), pad(np.where(valid, Y, 0.0)), V)]
-        acc, (z_post, C_post, e, pyy, nis, ll, mem) = out[:len(state)], out[len(state):]
-        if not (np.all(np.isfinite(U)) and all(np.all(np.isfinite(a)) for a in out)):
-            return self._fallback(U, Y)
-        blocks = lambda a: a.reshape(n, N, n).transpose(1, 0, 2)    # (n, n·N) side by side → (N, n, n)
-        Cp = blocks(C_post)
-        nmem = len(self.mem)
-        mem = mem if nmem else np.zeros((0, N))
-        self.z, self.C, self.mem = acc[0][:, -1], acc[1][:, -n:], acc[-1][:, -1] if nmem else self.mem
+            res = chain(*state, pad(U), pad(np.where(valid, Y, 0.0)), V, consts)
+        acc, (z_post, C_post, std, e, pyy, nis, ll, mem, check) = res[:len(state)], res[len(state):]
+        # only what is used leaves CasADi (a DM's conversion is slow): the sum of the rest checks it is finite
+        part = lambda a, k=1: np.asarray(a[:, :k * N])
+        out = [part(a) for a in (z_post, std, e, pyy, nis, ll, check)]
+        if not all(np.all(np.isfinite(a)) for a in out):
+            return None
+        z_post, std, e, pyy, nis, ll, _ = out
+        at = lambda a, w: np.asarray(a[:, (N - 1) * w:N * w])     # the columns after the last sample
+        self.z, self.C, self.mem = at(acc[0], 1).ravel(), at(acc[1], n), at(acc[-1], 1).ravel()
+        self.C_post = at(C_post, n)
+        s = part(acc[2]) if ski else np.zeros((0, N))
         if ski:
-            self.s = acc[2][:, -1]
-        self.C_post = Cp[-1]
-        std = np.sqrt(np.einsum("kij,kij->ki", Cp, Cp)) if filt.square_root else \
-            np.sqrt(np.clip(np.einsum("kii->ki", Cp), 0, None))
-        raw = dict(z_post=z_post.T, std=std, e=e.T, pyy=pyy.T, nis=nis.ravel(), loglik=ll.ravel(),
-                   s=acc[2].T if ski else np.zeros((N, 0)), used=valid.astype(float),
-                   code=np.where(valid.all(axis=1), Status.OK, Status.MEASUREMENT_SKIPPED))
+            self.s = s[:, -1]
+        raw = dict(z_post=z_post.T, std=std.T, e=e.T, pyy=pyy.T, nis=nis.ravel(), loglik=ll.ravel(), s=s.T,
+                   used=valid.astype(float), code=np.where(valid.all(axis=1), Status.OK, Status.MEASUREMENT_SKIPPED))
         if self.trace:       # acc holds the accumulated values *after* each step: the prior for k + 1
-            raw.update(C_post=Cp, z_next=acc[0].T, C_next=blocks(acc[1]), mem=mem.T)
+            blocks = lambda a: part(a, n).reshape(n, N, n).transpose(1, 0, 2)    # (n, n·N) side by side → (N, n, n)
+            raw.update(C_post=blocks(C_post), z_next=part(acc[0]).T, C_next=blocks(acc[1]), mem=part(mem).T)
         return raw
 
     def _fallback(self, U, Y) -> dict[str, np.ndarray]:
@@ -445,6 +451,78 @@ class CasadiStepper:
         raw = _step_python(py, U, Y, self.trace)
         self.z, self.C, self.mem, self.s, self.C_post = py.z, py.C, py.mem, py.s, py.C_post
         return raw
+
+
+PIECE_BLOCKS = (32, 32)     # a chain: 32 blocks of 32 unrolled steps, called once per PIECE samples
+PIECE = PIECE_BLOCKS[0] * PIECE_BLOCKS[1]
+_CHAINS: dict = {}          # (kind, step structure) → chain, shared by the filters of that structure
+MAX_CHAINS = 64
+
+
+def _build_chain(filt: DerivedFilter, step, B: int, blocks: int):
+    """``step`` (the derived step with its constants as a last input c) chained over B·blocks samples:
+    (z, C, [s], mem, U, Y, valid, c) → (per step: z_next, C_next, [s_next], mem_next, z_post, C_post,
+    std, e, diag Pyy, nis, loglik, mem, and the sum of everything not listed before std)."""
+    import casadi as ca
+    ski, d = filt.has_ard, filt.aug.shapes
+    z, C = ca.MX.sym("z", d["n"]), ca.MX.sym("C", d["n"], d["n"])
+    s, mem = ca.MX.sym("s", d["nw"]), ca.MX.sym("mem", d["nmem"])
+    u, y, valid = ca.MX.sym("u", d["nu"]), ca.MX.sym("y", d["ny"]), ca.MX.sym("valid", d["ny"])
+    c = ca.MX.sym("c", step.size_in(step.n_in() - 1))
+    out = dict(zip(filt.names_out, step(*([z, C] + ([s] if ski else []) + [u, mem, y, valid, c]))))
+    acc_in = [z, C] + ([s] if ski else []) + [mem]
+    acc_out = [out["z_next"], out["C_next"]] + ([out["s_next"]] if ski else []) + [out["mem_next"]]
+    Cp = out["C_post"]
+    std = ca.sqrt(ca.sum2(Cp * Cp)) if filt.square_root else ca.sqrt(ca.fmax(ca.diag(Cp), 0))
+    check = sum(ca.sum1(ca.vec(a)) for a in acc_out + [Cp])
+    g = ca.Function("chain_step", acc_in + [u, y, valid, c], acc_out + [
+        out["z_post"], Cp, std, out["e"], ca.diag(out["Pyy"]), out["nis"], out["loglik"], mem, check])
+    n_acc = len(acc_in)
+    inner = g.mapaccum("block", B, n_acc, {"base": -1})
+    ins = acc_in + [ca.MX.sym(v.name(), v.size1(), B) for v in (u, y, valid)] + [c]
+    block = ca.Function("block", ins, inner(*ins[:-1], ca.repmat(c, 1, B)))
+    chain = block.mapaccum("chain", blocks, n_acc, {"base": -1})
+    ins = acc_in + [ca.MX.sym(v.name(), v.size1(), B * blocks) for v in (u, y, valid)] + [c]
+    return ca.Function("chain", ins, chain(*ins[:-1], ca.repmat(c, 1, blocks)))
+
+
+def structure(f) -> tuple[tuple, np.ndarray]:
+    """An SX Function's algorithm without its numeric constants (hashable: equal for Functions that
+    differ only in them) and the constants, in the order of :func:`with_constants`'s input."""
+    import casadi as ca
+    key, consts = [tuple(f.size_in(i)) for i in range(f.n_in())], []
+    for k in range(f.n_instructions()):
+        op = f.instruction_id(k)
+        key += [op, *f.instruction_input(k), -1, *f.instruction_output(k)]
+        if op == ca.OP_CONST:
+            consts.append(f.instruction_constant(k))
+    return tuple(key), np.array(consts)
+
+
+def with_constants(f):
+    """The SX Function ``f`` with its numeric constants as a last input ``c``: the same operations in
+    the same order, so it returns f's values to the bit given :func:`structure`'s constants."""
+    import casadi as ca
+    ins = [ca.SX.sym(f.name_in(i), f.sparsity_in(i)) for i in range(f.n_in())]
+    n = f.n_instructions()
+    c = ca.SX.sym("c", sum(f.instruction_id(k) == ca.OP_CONST for k in range(n)))
+    outs = [[None] * f.nnz_out(i) for i in range(f.n_out())]
+    work, j = {}, 0
+    for k in range(n):
+        op, a, r = f.instruction_id(k), f.instruction_input(k), f.instruction_output(k)
+        if op == ca.OP_CONST:
+            work[r[0]], j = c[j], j + 1
+        elif op == ca.OP_INPUT:
+            work[r[0]] = ins[a[0]].nz[a[1]]
+        elif op == ca.OP_OUTPUT:
+            outs[r[0]][r[1]] = work[a[0]]
+        elif len(a) == 1:
+            work[r[0]] = ca.SX.unary(op, work[a[0]])
+        else:
+            work[r[0]] = ca.SX.binary(op, work[a[0]], work[a[1]])
+    return ca.Function(f.name(), ins + [c], [ca.SX(f.sparsity_out(i), ca.vertcat(*o) if o else ca.SX(0, 1))
+                                                  for i, o in enumerate(outs)],
+                       [f.name_in(i) for i in range(f.n_in())] + ["c"], f.name_out())
 
 
 def _start(stepper, init: dict) -> None:
