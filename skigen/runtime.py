@@ -412,7 +412,8 @@ class CasadiStepper:
         """At most PIECE samples by one chain call (the rest of the chain predicts on); None where a
         number is not finite."""
         filt, ski = self.filt, self.filt.has_ard
-        n, N, M = filt.aug.n, len(U), PIECE
+        d, N, M = filt.aug.shapes, len(U), PIECE
+        n = d["n"]
         valid = np.isfinite(Y)
         chain, consts = self._chain()
         pad = lambda a: np.vstack([a, np.repeat(a[-1:], M - N, axis=0)]).T    # prediction-only steps after N
@@ -420,25 +421,21 @@ class CasadiStepper:
         V[:, :N] = valid.T
         state = [self.z, self.C] + ([self.s] if ski else []) + [self.mem]
         with np.errstate(all="ignore"):
-            res = chain(*state, pad(U), pad(np.where(valid, Y, 0.0)), V, consts)
-        acc, (z_post, C_post, std, e, pyy, nis, ll, mem, check) = res[:len(state)], res[len(state):]
-        # only what is used leaves CasADi (a DM's conversion is slow): the sum of the rest checks it is finite
-        part = lambda a, k=1: np.asarray(a[:, :k * N])
-        out = [part(a) for a in (z_post, std, e, pyy, nis, ll, check)]
-        if not all(np.all(np.isfinite(a)) for a in out):
+            rec, C_post, C_next, mem = chain(*state, pad(U), pad(np.where(valid, Y, 0.0)), V, consts)
+        rec = np.asarray(rec[:, :N])       # one conversion (a DM's is slow); the covariances stay in CasADi
+        if not np.all(np.isfinite(rec)):
             return None
-        z_post, std, e, pyy, nis, ll, _ = out
-        at = lambda a, w: np.asarray(a[:, (N - 1) * w:N * w])     # the columns after the last sample
-        self.z, self.C, self.mem = at(acc[0], 1).ravel(), at(acc[1], n), at(acc[-1], 1).ravel()
-        self.C_post = at(C_post, n)
-        s = part(acc[2]) if ski else np.zeros((0, N))
+        sizes = [n, n, d["ny"], d["ny"], 1, 1, d["nw"] if ski else 0, n, d["nmem"]]
+        z_post, std, e, pyy, nis, ll, s, z_next, mem_next = np.split(rec, np.cumsum(sizes))[:-1]
+        at = lambda a: np.asarray(a[:, (N - 1) * n:N * n])      # the matrix after the last sample
+        self.z, self.C, self.mem, self.C_post = z_next[:, -1], at(C_next), mem_next[:, -1], at(C_post)
         if ski:
             self.s = s[:, -1]
         raw = dict(z_post=z_post.T, std=std.T, e=e.T, pyy=pyy.T, nis=nis.ravel(), loglik=ll.ravel(), s=s.T,
                    used=valid.astype(float), code=np.where(valid.all(axis=1), Status.OK, Status.MEASUREMENT_SKIPPED))
-        if self.trace:       # acc holds the accumulated values *after* each step: the prior for k + 1
-            blocks = lambda a: part(a, n).reshape(n, N, n).transpose(1, 0, 2)    # (n, n·N) side by side → (N, n, n)
-            raw.update(C_post=blocks(C_post), z_next=part(acc[0]).T, C_next=blocks(acc[1]), mem=part(mem).T)
+        if self.trace:       # the prior for k + 1 and the input memory used at k
+            blocks = lambda a: np.asarray(a[:, :n * N]).reshape(n, N, n).transpose(1, 0, 2)   # (n, n·N) → (N, n, n)
+            raw.update(C_post=blocks(C_post), z_next=z_next.T, C_next=blocks(C_next), mem=np.asarray(mem[:, :N]).T)
         return raw
 
     def _fallback(self, U, Y) -> dict[str, np.ndarray]:
@@ -461,29 +458,31 @@ MAX_CHAINS = 64
 
 def _build_chain(filt: DerivedFilter, step, B: int, blocks: int):
     """``step`` (the derived step with its constants as a last input c) chained over B·blocks samples:
-    (z, C, [s], mem, U, Y, valid, c) → (per step: z_next, C_next, [s_next], mem_next, z_post, C_post,
-    std, e, diag Pyy, nis, loglik, mem, and the sum of everything not listed before std)."""
+    B steps called from one SX Function (never inlined: no simplification across steps, so each
+    step's numbers are its own), its blocks carried on by a mapaccum.
+    (z, C, [s], mem, U, Y, valid, c) → per step: [z_post; std; e; diag Pyy; nis; loglik; [s_next];
+    z_next; mem_next; the sum of C_post and C_next (finite or not)], C_post, C_next, mem."""
     import casadi as ca
     ski, d = filt.has_ard, filt.aug.shapes
-    z, C = ca.MX.sym("z", d["n"]), ca.MX.sym("C", d["n"], d["n"])
-    s, mem = ca.MX.sym("s", d["nw"]), ca.MX.sym("mem", d["nmem"])
-    u, y, valid = ca.MX.sym("u", d["nu"]), ca.MX.sym("y", d["ny"]), ca.MX.sym("valid", d["ny"])
-    c = ca.MX.sym("c", step.size_in(step.n_in() - 1))
-    out = dict(zip(filt.names_out, step(*([z, C] + ([s] if ski else []) + [u, mem, y, valid, c]))))
-    acc_in = [z, C] + ([s] if ski else []) + [mem]
-    acc_out = [out["z_next"], out["C_next"]] + ([out["s_next"]] if ski else []) + [out["mem_next"]]
-    Cp = out["C_post"]
-    std = ca.sqrt(ca.sum2(Cp * Cp)) if filt.square_root else ca.sqrt(ca.fmax(ca.diag(Cp), 0))
-    check = sum(ca.sum1(ca.vec(a)) for a in acc_out + [Cp])
-    g = ca.Function("chain_step", acc_in + [u, y, valid, c], acc_out + [
-        out["z_post"], Cp, std, out["e"], ca.diag(out["Pyy"]), out["nis"], out["loglik"], mem, check])
-    n_acc = len(acc_in)
-    inner = g.mapaccum("block", B, n_acc, {"base": -1})
-    ins = acc_in + [ca.MX.sym(v.name(), v.size1(), B) for v in (u, y, valid)] + [c]
-    block = ca.Function("block", ins, inner(*ins[:-1], ca.repmat(c, 1, B)))
-    chain = block.mapaccum("chain", blocks, n_acc, {"base": -1})
-    ins = acc_in + [ca.MX.sym(v.name(), v.size1(), B * blocks) for v in (u, y, valid)] + [c]
-    return ca.Function("chain", ins, chain(*ins[:-1], ca.repmat(c, 1, blocks)))
+    acc = [ca.SX.sym("z", d["n"]), ca.SX.sym("C", d["n"], d["n"])] + ([ca.SX.sym("s", d["nw"])] if ski else []) \
+        + [ca.SX.sym("mem", d["nmem"])]
+    U, Y, V = ca.SX.sym("u", d["nu"], B), ca.SX.sym("y", d["ny"], B), ca.SX.sym("valid", d["ny"], B)
+    c = ca.SX.sym("c", step.size_in(step.n_in() - 1))
+    cur, cols = acc, []
+    for k in range(B):
+        z, C, *s, mem = cur
+        out = dict(zip(filt.names_out, step.call([z, C, *s, U[:, k], mem, Y[:, k], V[:, k], c], False, True)))
+        Cp, Cn, sn = out["C_post"], out["C_next"], [out["s_next"]] if ski else []
+        std = ca.sqrt(ca.sum2(Cp * Cp)) if filt.square_root else ca.sqrt(ca.fmax(ca.diag(Cp), 0))
+        rec = ca.vertcat(out["z_post"], std, out["e"], ca.diag(out["Pyy"]), out["nis"], out["loglik"], *sn,
+                         out["z_next"], out["mem_next"], ca.sum1(ca.vec(Cp)) + ca.sum1(ca.vec(Cn)))
+        cols.append([rec, Cp, Cn, mem])
+        cur = [out["z_next"], Cn] + sn + [out["mem_next"]]
+    block = ca.Function("block", acc + [U, Y, V, c], cur + [ca.horzcat(*col) for col in zip(*cols)])
+    chain = block.mapaccum("chain", blocks, len(acc), {"base": -1})
+    ins = [ca.MX.sym("acc", a.sparsity()) for a in acc] + \
+        [ca.MX.sym("in", v.size1(), B * blocks) for v in (U, Y, V)] + [ca.MX.sym("c", c.sparsity())]
+    return ca.Function("chain", ins, chain(*ins[:-1], ca.repmat(ins[-1], 1, blocks))[len(acc):])
 
 
 def structure(f) -> tuple[tuple, np.ndarray]:
@@ -625,17 +624,18 @@ def _stepper(filt, backend, real, show_progress, cache_dir, guard=None, init=Non
 
 def iter_run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", real: str = "double",
              show_progress: bool = True, label: str | None = None, cache_dir=None, chunk: int | None = None,
-             guard: Guard | None = None, init: dict | None = None, strict: bool = False, trace: bool = False):
+             guard: Guard | None = None, init: dict | None = None, strict: bool = False, trace: bool = False,
+             cuts=()):
     """:func:`run` part by part: yields a RunResult per ``chunk`` samples, so that a long
     recording can be written as it is filtered. Each part's ``final_cov`` is the posterior
-    covariance at its end (the last part's is the run's)."""
+    covariance at its end (the last part's is the run's). cuts: further samples where a part ends."""
     model = filt.aug.model
     check_columns(model, rec)
     stepper = _stepper(filt, backend, real, show_progress, cache_dir, guard, init, strict, trace)
     inputs, N = step_inputs(model, rec.inputs), len(rec.t)
     chunk = chunk or CHUNK[backend]
     again = set(restarts(rec, model.dt))
-    bounds = sorted(set(range(0, N, chunk)) | again) + [N]
+    bounds = sorted(set(range(0, N, chunk)) | again | {k for k in cuts if 0 < k < N}) + [N]
     label = label or f"{model.name} {filt.kind} ({backend})"
     parts = list(zip(bounds[:-1], bounds[1:]))
     pieces = ((a, rec.t[a:b], inputs[a:b], rec.outputs[a:b]) for a, b in
