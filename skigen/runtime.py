@@ -416,26 +416,28 @@ class CasadiStepper:
         n = d["n"]
         valid = np.isfinite(Y)
         chain, consts = self._chain()
-        pad = lambda a: np.vstack([a, np.repeat(a[-1:], M - N, axis=0)]).T    # prediction-only steps after N
-        V = pad(np.zeros_like(Y))
-        V[:, :N] = valid.T
-        state = [self.z, self.C] + ([self.s] if ski else []) + [self.mem]
+        pad = lambda a: np.concatenate([a, np.repeat(a[-1:], M - N, axis=0)])   # prediction-only steps after N
+        V = np.zeros((M, d["ny"]))
+        V[:N] = valid
+        sizes = [n, n, d["ny"], d["ny"], 1, 1, d["nw"] if ski else 0, n, d["nmem"]]
+        # CasADi reads and writes column-major matrices: a C-ordered array of the transposed shape
+        args = [self.z, self.C.T] + ([self.s] if ski else []) + [self.mem, pad(U), pad(np.where(valid, Y, 0.0)), V, consts]
+        rec, C_post, C_next, mem = (np.empty((M, sum(sizes) + 1)), np.empty((M, n, n)), np.empty((M, n, n)),
+                                    np.empty((M, d["nmem"])))
         with np.errstate(all="ignore"):
-            rec, C_post, C_next, mem = chain(*state, pad(U), pad(np.where(valid, Y, 0.0)), V, consts)
-        rec = np.asarray(rec[:, :N])       # one conversion (a DM's is slow); the covariances stay in CasADi
+            _call(chain, args, [rec, C_post, C_next, mem])
+        rec = rec[:N].T
         if not np.all(np.isfinite(rec)):
             return None
-        sizes = [n, n, d["ny"], d["ny"], 1, 1, d["nw"] if ski else 0, n, d["nmem"]]
         z_post, std, e, pyy, nis, ll, s, z_next, mem_next = np.split(rec, np.cumsum(sizes))[:-1]
-        at = lambda a: np.asarray(a[:, (N - 1) * n:N * n])      # the matrix after the last sample
-        self.z, self.C, self.mem, self.C_post = z_next[:, -1], at(C_next), mem_next[:, -1], at(C_post)
+        self.z, self.C, self.mem, self.C_post = z_next[:, -1], C_next[N - 1].T, mem_next[:, -1], C_post[N - 1].T
         if ski:
             self.s = s[:, -1]
         raw = dict(z_post=z_post.T, std=std.T, e=e.T, pyy=pyy.T, nis=nis.ravel(), loglik=ll.ravel(), s=s.T,
                    used=valid.astype(float), code=np.where(valid.all(axis=1), Status.OK, Status.MEASUREMENT_SKIPPED))
         if self.trace:       # the prior for k + 1 and the input memory used at k
-            blocks = lambda a: np.asarray(a[:, :n * N]).reshape(n, N, n).transpose(1, 0, 2)   # (n, n·N) → (N, n, n)
-            raw.update(C_post=blocks(C_post), z_next=z_next.T, C_next=blocks(C_next), mem=np.asarray(mem[:, :N]).T)
+            raw.update(C_post=C_post[:N].transpose(0, 2, 1), z_next=z_next.T, C_next=C_next[:N].transpose(0, 2, 1),
+                       mem=mem[:N])
         return raw
 
     def _fallback(self, U, Y) -> dict[str, np.ndarray]:
@@ -454,6 +456,17 @@ PIECE_BLOCKS = (32, 32)     # a chain: 32 blocks of 32 unrolled steps, called on
 PIECE = PIECE_BLOCKS[0] * PIECE_BLOCKS[1]
 _CHAINS: dict = {}          # (kind, step structure) → chain, shared by the filters of that structure
 MAX_CHAINS = 64
+
+
+def _call(f, args: list, outs: list[np.ndarray]) -> None:
+    """Evaluate the CasADi Function ``f`` on NumPy arrays (no conversion), its results into ``outs``."""
+    buf, evaluate = f.buffer()
+    args = [np.ascontiguousarray(a, float) for a in args]        # alive until evaluated
+    for i, a in enumerate(args):
+        buf.set_arg(i, memoryview(a))
+    for i, r in enumerate(outs):
+        buf.set_res(i, memoryview(r))
+    evaluate()
 
 
 def _build_chain(filt: DerivedFilter, step, B: int, blocks: int):
