@@ -384,19 +384,19 @@ class CasadiStepper:
         st = filt.initial()
         self.z, self.C, self.mem, self.s = st["z"], st["C"], st["mem"], st.get("s")
         self.C_post = self.C
-        self._structure = None
+        self._key = self._chained = None
 
     def _chain(self):
         """The chain of this step's structure over :data:`PIECE` samples, and the step's constants."""
-        if self._structure is None:
-            self._structure = structure(self.filt.step)
-        shape, consts = self._structure
-        key = (self.filt.kind, shape)
-        if key not in _CHAINS:
-            if len(_CHAINS) >= MAX_CHAINS:
-                del _CHAINS[next(iter(_CHAINS))]
-            _CHAINS[key] = _build_chain(self.filt, with_constants(self.filt.step), *PIECE_BLOCKS)
-        return _CHAINS[key], consts
+        if self._chained is None:
+            shape, consts = structure(self.filt.step)
+            self._key = (self.filt.kind, shape)
+            if self._key not in _CHAINS:
+                if len(_CHAINS) >= MAX_CHAINS:
+                    del _CHAINS[next(iter(_CHAINS))]
+                _CHAINS[self._key] = _build_chain(self.filt, with_constants(self.filt.step), *PIECE_BLOCKS)
+            self._chained = _CHAINS[self._key], consts
+        return self._chained
 
     def run_many(self, inputs, outputs) -> dict[str, np.ndarray]:
         N = len(inputs)
@@ -419,11 +419,10 @@ class CasadiStepper:
 
     def _run_key(self, U, Y) -> tuple:
         """What a chained run's results depend on: the step's structure and constants, the state, the data."""
-        self._chain()
         digest = hashlib.sha1()
-        for a in (self._structure[1], self.z, self.C, self.mem, U, Y) + ((self.s,) if self.filt.has_ard else ()):
+        for a in (self._chain()[1], self.z, self.C, self.mem, U, Y) + ((self.s,) if self.filt.has_ard else ()):
             digest.update(np.ascontiguousarray(a, float).tobytes())
-        return self.filt.kind, self._structure[0], self.trace, U.shape, Y.shape, digest.digest()
+        return self._key, self.trace, U.shape, Y.shape, digest.digest()
 
     def _piece(self, U, Y) -> dict[str, np.ndarray] | None:
         """At most PIECE samples by one chain call (the rest of the chain predicts on); None where a
