@@ -153,36 +153,6 @@ def _filter_error_step(model, aug, x, theta, lam_q, lam_r, q_rows):
                        [ca.vertcat(x_next, ca.vec(P_next)), e, ca.vec(Pyy), -loglik, y_hat, x_post])
 
 
-BLOCK = 100      # filter steps expanded into one SX Function
-
-
-def _chained(step: ca.Function, n: int) -> ca.Function:
-    """``step`` (s, d, θ, λ) → (s_next, …) over n samples, s carried and d one column per sample, as
-    ``step.mapaccum`` returns it: blocks of :data:`BLOCK` steps expanded into one SX Function (a few
-    times faster to evaluate and differentiate than a mapaccum of single steps), carried by a mapaccum."""
-    def block(k: int) -> ca.Function:
-        s, d = ca.SX.sym("s", step.sparsity_in(0)), ca.SX.sym("d", step.size1_in(1), k)
-        rest = [ca.SX.sym(f"a{i}", step.sparsity_in(i)) for i in range(2, step.n_in())]
-        cur, cols = s, []
-        for j in range(k):
-            out = step(cur, d[:, j], *rest)
-            cur = out[0]
-            cols.append(out)
-        return ca.Function(f"block{k}", [s, d] + rest, [cur] + [ca.horzcat(*c) for c in zip(*cols)])
-    q, r = divmod(n, BLOCK)
-    ins = [ca.MX.sym("s", step.sparsity_in(0)), ca.MX.sym("d", step.size1_in(1), n)] + \
-        [ca.MX.sym(f"a{i}", step.sparsity_in(i)) for i in range(2, step.n_in())]
-    parts, s = [], ins[0]
-    if q:
-        _, *outs = block(BLOCK).mapaccum("blocks", q, [0], [0])(s, ins[1][:, :q * BLOCK], *ins[2:])
-        parts.append(outs)
-        s = outs[0][:, -1]
-    if r:
-        _, *outs = block(r)(s, ins[1][:, q * BLOCK:], *ins[2:])
-        parts.append(outs)
-    return ca.Function("filter", ins, [ca.horzcat(*o) for o in zip(*parts)])
-
-
 def _pseudo_residuals(ny: int) -> ca.Function:
     """(e, vec S, vec L̄) → [L̄⁻¹ e; vec(L̄⁻¹ S L̄⁻ᵀ)/√2]: their Gram matrix is the Fisher information."""
     e, S, L = ca.SX.sym("e", ny), ca.SX.sym("S", ny * ny), ca.SX.sym("L", ny * ny)
@@ -220,7 +190,7 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
     s0 = ca.DM(np.r_[model.x0, np.ravel(model.initial_covariance(), order="F")])
     th_sym = ca.MX.sym("theta", n_theta)
     filtered = ca.Function("filtered", [th_sym, *data], [ca.horzcat(*[
-        _chained(ekf, n)(s0, d, th_sym, 0)[5] for n, d in zip(lengths, data)])])
+        ekf.mapaccum("filter", n, [0], [0])(s0, d, th_sym, 0)[5] for n, d in zip(lengths, data)])])
     if method == "output-error":
         step = _output_error_step(aug, x, theta)
         M = shooting or max(lengths)
@@ -256,7 +226,7 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
         lam = xi[n_theta:] * sc[n_theta:]
         rho_fn, chol_fn = _pseudo_residuals(ny), _chol_function(ny)
         for r, n in enumerate(lengths):
-            _, e, S, nll, y_hat, _ = _chained(ekf, n)(s0, data[r], th, lam)
+            _, e, S, nll, y_hat, _ = ekf.mapaccum("filter", n, [0], [0])(s0, data[r], th, lam)
             L = ca.stop_diff(chol_fn.map(n)(S), 1)
             rho_all.append(rho_fn.map(n)(e, S, L))
             nll_all.append(nll)
