@@ -435,25 +435,27 @@ class CasadiStepper:
         pad = lambda a: np.concatenate([a, np.repeat(a[-1:], M - N, axis=0)])   # prediction-only steps after N
         V = np.zeros((M, d["ny"]))
         V[:N] = valid
-        sizes = [n, n, d["ny"], d["ny"], 1, 1, d["nw"] if ski else 0, n, d["nmem"]]
+        sizes = [n, d["ny"], d["ny"], 1, 1, d["nw"] if ski else 0, n, d["nmem"]]
         # CasADi reads and writes column-major matrices: a C-ordered array of the transposed shape
         args = [self.z, self.C.T] + ([self.s] if ski else []) + [self.mem, pad(U), pad(np.where(valid, Y, 0.0)), V, consts]
-        rec, C_post, C_next, mem = (np.empty((M, sum(sizes) + 1)), np.empty((M, n, n)), np.empty((M, n, n)),
-                                    np.empty((M, d["nmem"])))
+        rec, C_post, C_next, mem = np.empty((M, sum(sizes))), np.empty((M, n, n)), np.empty((M, n, n)), \
+            np.empty((M, d["nmem"]))
         with np.errstate(all="ignore"):
             _call(chain, args, [rec, C_post, C_next, mem])
         rec = rec[:N].T
-        if not np.all(np.isfinite(rec)):
+        Cp, Cn = (np.ascontiguousarray(a[:N].transpose(0, 2, 1)) for a in (C_post, C_next))    # (N, n, n)
+        if not (np.all(np.isfinite(rec)) and np.all(np.isfinite(Cp)) and np.all(np.isfinite(Cn))):
             return None
-        z_post, std, e, pyy, nis, ll, s, z_next, mem_next = np.split(rec, np.cumsum(sizes))[:-1]
-        self.z, self.C, self.mem, self.C_post = z_next[:, -1], C_next[N - 1].T, mem_next[:, -1], C_post[N - 1].T
+        z_post, e, pyy, nis, ll, s, z_next, mem_next = np.split(rec, np.cumsum(sizes))[:-1]
+        self.z, self.C, self.mem, self.C_post = z_next[:, -1], Cn[-1], mem_next[:, -1], Cp[-1]
+        std = np.sqrt(np.einsum("kij,kij->ki", Cp, Cp)) if filt.square_root else \
+            np.sqrt(np.clip(np.einsum("kii->ki", Cp), 0, None))
         if ski:
             self.s = s[:, -1]
-        raw = dict(z_post=z_post.T, std=std.T, e=e.T, pyy=pyy.T, nis=nis.ravel(), loglik=ll.ravel(), s=s.T,
+        raw = dict(z_post=z_post.T, std=std, e=e.T, pyy=pyy.T, nis=nis.ravel(), loglik=ll.ravel(), s=s.T,
                    used=valid.astype(float), code=np.where(valid.all(axis=1), Status.OK, Status.MEASUREMENT_SKIPPED))
         if self.trace:       # the prior for k + 1 and the input memory used at k
-            raw.update(C_post=C_post[:N].transpose(0, 2, 1), z_next=z_next.T, C_next=C_next[:N].transpose(0, 2, 1),
-                       mem=mem[:N])
+            raw.update(C_post=Cp, z_next=z_next.T, C_next=Cn, mem=mem[:N])
         return raw
 
     def _fallback(self, U, Y) -> dict[str, np.ndarray]:
@@ -491,8 +493,8 @@ def _build_chain(filt: DerivedFilter, step, B: int, blocks: int):
     """``step`` (the derived step with its constants as a last input c) chained over B·blocks samples:
     B steps called from one SX Function (never inlined: no simplification across steps, so each
     step's numbers are its own), its blocks carried on by a mapaccum.
-    (z, C, [s], mem, U, Y, valid, c) → per step: [z_post; std; e; diag Pyy; nis; loglik; [s_next];
-    z_next; mem_next; the sum of C_post and C_next (finite or not)], C_post, C_next, mem."""
+    (z, C, [s], mem, U, Y, valid, c) → per step: [z_post; e; diag Pyy; nis; loglik; [s_next]; z_next;
+    mem_next], C_post, C_next, mem."""
     import casadi as ca
     ski, d = filt.has_ard, filt.aug.shapes
     acc = [ca.SX.sym("z", d["n"]), ca.SX.sym("C", d["n"], d["n"])] + ([ca.SX.sym("s", d["nw"])] if ski else []) \
@@ -504,9 +506,8 @@ def _build_chain(filt: DerivedFilter, step, B: int, blocks: int):
         z, C, *s, mem = cur
         out = dict(zip(filt.names_out, step.call([z, C, *s, U[:, k], mem, Y[:, k], V[:, k], c], False, True)))
         Cp, Cn, sn = out["C_post"], out["C_next"], [out["s_next"]] if ski else []
-        std = ca.sqrt(ca.sum2(Cp * Cp)) if filt.square_root else ca.sqrt(ca.fmax(ca.diag(Cp), 0))
-        rec = ca.vertcat(out["z_post"], std, out["e"], ca.diag(out["Pyy"]), out["nis"], out["loglik"], *sn,
-                         out["z_next"], out["mem_next"], ca.sum1(ca.vec(Cp)) + ca.sum1(ca.vec(Cn)))
+        rec = ca.vertcat(out["z_post"], out["e"], ca.diag(out["Pyy"]), out["nis"], out["loglik"], *sn,
+                         out["z_next"], out["mem_next"])
         cols.append([rec, Cp, Cn, mem])
         cur = [out["z_next"], Cn] + sn + [out["mem_next"]]
     block = ca.Function("block", acc + [U, Y, V, c], cur + [ca.horzcat(*col) for col in zip(*cols)])
