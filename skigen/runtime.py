@@ -412,9 +412,10 @@ class CasadiStepper:
             self.z, self.C, self.s, self.mem, self.C_post = start
             return self._fallback(U, Y)
         raw = {k: np.concatenate([r[k] for r in raws]) for k in raws[0]}
-        if len(_RUNS) >= MAX_RUNS:
-            del _RUNS[next(iter(_RUNS))]
-        _RUNS[key] = {k: v.copy() for k, v in raw.items()}, (self.z, self.C, self.s, self.mem, self.C_post)
+        if sum(v.nbytes for v in raw.values()) <= MAX_RUN_BYTES:
+            if len(_RUNS) >= MAX_RUNS:
+                del _RUNS[next(iter(_RUNS))]
+            _RUNS[key] = {k: v.copy() for k, v in raw.items()}, (self.z, self.C, self.s, self.mem, self.C_post)
         return raw
 
     def _run_key(self, U, Y) -> tuple:
@@ -475,7 +476,7 @@ PIECE = PIECE_BLOCKS[0] * PIECE_BLOCKS[1]
 _CHAINS: dict = {}          # (kind, step structure) → chain, shared by the filters of that structure
 MAX_CHAINS = 64
 _RUNS: dict = {}            # the last chained runs: key → (records, end state), see CasadiStepper._run_key
-MAX_RUNS = 16
+MAX_RUNS, MAX_RUN_BYTES = 16, 1 << 25     # runs kept, and the largest kept (32 MB)
 
 
 def _call(f, args: list, outs: list[np.ndarray]) -> None:
