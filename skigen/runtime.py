@@ -9,7 +9,7 @@ physical states restart from the measurement. A run never stops on bad data:
 its summary reports these events.
 
 The ``casadi`` backend (:class:`CasadiStepper`) chains the same derived step over
-a part of the recording in one CasADi call (``mapaccum``): about 15× faster than
+the recording by CasADi (``mapaccum``, 1024 samples a call): about 15× faster than
 ``python`` and without ``c``'s compile time. It runs the step *without* the
 policy — no gate, no stuck-sensor test, no restart after rejections or a gap, no
 bound on the prior std — so its innovations are the filter's own (what the
@@ -21,6 +21,7 @@ other backends.
 """
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -369,70 +370,93 @@ def _step_python(stepper: PythonStepper, inputs, outputs, trace: bool = False) -
 
 
 class CasadiStepper:
-    """The derived step chained over a part of a recording in one CasADi call (``mapaccum``),
-    behind :meth:`CFilter.run_many`'s interface, *without* the guard policy (see the module
+    """The derived step chained over a part of a recording by CasADi (``mapaccum``, :data:`PIECE`
+    samples a call), behind :meth:`CFilter.run_many`'s interface, *without* the guard policy (see the module
     docstring). A part whose chain gives a non-finite number is redone by a :class:`PythonStepper`
     with the default :class:`Guard` from the same state, or, when ``strict``, raises
-    FloatingPointError. Holds the filter state (z, C, s, mem) and the last posterior C_post."""
+    FloatingPointError. Holds the filter state (z, C, s, mem) and the last posterior C_post.
+
+    The chain takes the step's numeric constants (Q, R, the model's coefficients) as an input, so
+    filters whose steps differ only in those numbers share one chain, built once (:data:`_CHAINS`)."""
 
     def __init__(self, filt: DerivedFilter, strict: bool = False, trace: bool = False):
         self.filt, self.strict, self.trace = filt, strict, trace
         st = filt.initial()
         self.z, self.C, self.mem, self.s = st["z"], st["C"], st["mem"], st.get("s")
         self.C_post = self.C
-        self._chains = {}
+        self._key = self._chained = None
 
-    def _chain(self, N: int):
-        """The step chained over at least N samples, as a mapaccum of B fully unrolled steps repeated
-        ⌈N/B⌉ times (B ≈ √N: built ~10× faster than one long mapaccum); returns it and its length."""
-        B = max(1, int(np.ceil(np.sqrt(N))))
-        blocks = int(np.ceil(N / B))
-        if (B, blocks) not in self._chains:
-            import casadi as ca
-            filt, ski = self.filt, self.filt.has_ard
-            d = filt.aug.shapes
-            z, C = ca.MX.sym("z", d["n"]), ca.MX.sym("C", d["n"], d["n"])
-            s, mem = ca.MX.sym("s", d["nw"]), ca.MX.sym("mem", d["nmem"])
-            u, y, valid = ca.MX.sym("u", d["nu"]), ca.MX.sym("y", d["ny"]), ca.MX.sym("valid", d["ny"])
-            out = dict(zip(filt.names_out, filt.step(*([z, C] + ([s] if ski else []) + [u, mem, y, valid]))))
-            acc_in = [z, C] + ([s] if ski else []) + [mem]
-            acc_out = [out["z_next"], out["C_next"]] + ([out["s_next"]] if ski else []) + [out["mem_next"]]
-            g = ca.Function("chain_step", acc_in + [u, y, valid], acc_out + [
-                out["z_post"], out["C_post"], out["e"], ca.diag(out["Pyy"]), out["nis"], out["loglik"], mem])
-            inner = g.mapaccum("block", B, len(acc_in), {"base": -1})
-            self._chains[B, blocks] = inner.mapaccum("chain", blocks, len(acc_in), {"base": -1})
-        return self._chains[B, blocks], B * blocks
+    def _chain(self):
+        """The chain of this step's structure over :data:`PIECE` samples, and the step's constants."""
+        if self._chained is None:
+            shape, consts = structure(self.filt.step)
+            self._key = (self.filt.kind, shape)
+            if self._key not in _CHAINS:
+                if len(_CHAINS) >= MAX_CHAINS:
+                    del _CHAINS[next(iter(_CHAINS))]
+                _CHAINS[self._key] = _build_chain(self.filt, with_constants(self.filt.step), *PIECE_BLOCKS)
+            self._chained = _CHAINS[self._key], consts
+        return self._chained
 
     def run_many(self, inputs, outputs) -> dict[str, np.ndarray]:
-        filt, ski = self.filt, self.filt.has_ard
-        n, N = filt.aug.n, len(inputs)
+        N = len(inputs)
         U, Y = np.asarray(inputs, float).reshape(N, -1), np.asarray(outputs, float).reshape(N, -1)
-        valid = np.isfinite(Y)
-        chain, M = self._chain(N)
-        pad = lambda a: np.vstack([a, np.repeat(a[-1:], M - N, axis=0)]).T    # prediction-only steps after N
-        V = pad(np.zeros_like(Y))
-        V[:, :N] = valid.T
-        state = [self.z, self.C] + ([self.s] if ski else []) + [self.mem]
-        with np.errstate(all="ignore"):
-            out = [np.asarray(o)[:, :N * (o.shape[1] // M)] for o in chain(*state, pad(U), pad(np.where(valid, Y, 0.0)), V)]
-        acc, (z_post, C_post, e, pyy, nis, ll, mem) = out[:len(state)], out[len(state):]
-        if not (np.all(np.isfinite(U)) and all(np.all(np.isfinite(a)) for a in out)):
+        start = self.z, self.C, self.s, self.mem, self.C_post
+        key = self._run_key(U, Y)
+        if key in _RUNS:              # this very run was done before: its records and end state
+            raw, (self.z, self.C, self.s, self.mem, self.C_post) = _RUNS[key]
+            return {k: v.copy() for k, v in raw.items()}
+        raws = [self._piece(U[a:a + PIECE], Y[a:a + PIECE]) for a in range(0, N, PIECE)] \
+            if np.all(np.isfinite(U)) else [None]
+        if any(r is None for r in raws):
+            self.z, self.C, self.s, self.mem, self.C_post = start
             return self._fallback(U, Y)
-        blocks = lambda a: a.reshape(n, N, n).transpose(1, 0, 2)    # (n, n·N) side by side → (N, n, n)
-        Cp = blocks(C_post)
-        nmem = len(self.mem)
-        mem = mem if nmem else np.zeros((0, N))
-        self.z, self.C, self.mem = acc[0][:, -1], acc[1][:, -n:], acc[-1][:, -1] if nmem else self.mem
-        if ski:
-            self.s = acc[2][:, -1]
-        self.C_post = Cp[-1]
+        raw = {k: np.concatenate([r[k] for r in raws]) for k in raws[0]}
+        if sum(v.nbytes for v in raw.values()) <= MAX_RUN_BYTES:
+            if len(_RUNS) >= MAX_RUNS:
+                del _RUNS[next(iter(_RUNS))]
+            _RUNS[key] = {k: v.copy() for k, v in raw.items()}, (self.z, self.C, self.s, self.mem, self.C_post)
+        return raw
+
+    def _run_key(self, U, Y) -> tuple:
+        """What a chained run's results depend on: the step's structure and constants, the state, the data."""
+        digest = hashlib.sha1()
+        for a in (self._chain()[1], self.z, self.C, self.mem, U, Y) + ((self.s,) if self.filt.has_ard else ()):
+            digest.update(np.ascontiguousarray(a, float).tobytes())
+        return self._key, self.trace, U.shape, Y.shape, digest.digest()
+
+    def _piece(self, U, Y) -> dict[str, np.ndarray] | None:
+        """At most PIECE samples by one chain call (the rest of the chain predicts on); None where a
+        number is not finite."""
+        filt, ski = self.filt, self.filt.has_ard
+        d, N, M = filt.aug.shapes, len(U), PIECE
+        n = d["n"]
+        valid = np.isfinite(Y)
+        chain, consts = self._chain()
+        pad = lambda a: np.concatenate([a, np.repeat(a[-1:], M - N, axis=0)])   # prediction-only steps after N
+        V = np.zeros((M, d["ny"]))
+        V[:N] = valid
+        sizes = [n, d["ny"], d["ny"], 1, 1, d["nw"] if ski else 0, n, d["nmem"]]
+        # CasADi reads and writes column-major matrices: a C-ordered array of the transposed shape
+        args = [self.z, self.C.T] + ([self.s] if ski else []) + [self.mem, pad(U), pad(np.where(valid, Y, 0.0)), V, consts]
+        rec, C_post, C_next, mem = np.empty((M, sum(sizes))), np.empty((M, n, n)), np.empty((M, n, n)), \
+            np.empty((M, d["nmem"]))
+        with np.errstate(all="ignore"):
+            _call(chain, args, [rec, C_post, C_next, mem])
+        rec = rec[:N].T
+        Cp, Cn = (np.ascontiguousarray(a[:N].transpose(0, 2, 1)) for a in (C_post, C_next))    # (N, n, n)
+        if not (np.all(np.isfinite(rec)) and np.all(np.isfinite(Cp)) and np.all(np.isfinite(Cn))):
+            return None
+        z_post, e, pyy, nis, ll, s, z_next, mem_next = np.split(rec, np.cumsum(sizes))[:-1]
+        self.z, self.C, self.mem, self.C_post = z_next[:, -1], Cn[-1], mem_next[:, -1], Cp[-1]
         std = np.sqrt(np.einsum("kij,kij->ki", Cp, Cp)) if filt.square_root else \
             np.sqrt(np.clip(np.einsum("kii->ki", Cp), 0, None))
-        raw = dict(z_post=z_post.T, std=std, e=e.T, pyy=pyy.T, nis=nis.ravel(), loglik=ll.ravel(),
-                   s=acc[2].T if ski else np.zeros((N, 0)), used=valid.astype(float),
-                   code=np.where(valid.all(axis=1), Status.OK, Status.MEASUREMENT_SKIPPED))
-        if self.trace:       # acc holds the accumulated values *after* each step: the prior for k + 1
-            raw.update(C_post=Cp, z_next=acc[0].T, C_next=blocks(acc[1]), mem=mem.T)
+        if ski:
+            self.s = s[:, -1]
+        raw = dict(z_post=z_post.T, std=std, e=e.T, pyy=pyy.T, nis=nis.ravel(), loglik=ll.ravel(), s=s.T,
+                   used=valid.astype(float), code=np.where(valid.all(axis=1), Status.OK, Status.MEASUREMENT_SKIPPED))
+        if self.trace:       # the prior for k + 1 and the input memory used at k
+            raw.update(C_post=Cp, z_next=z_next.T, C_next=Cn, mem=mem[:N])
         return raw
 
     def _fallback(self, U, Y) -> dict[str, np.ndarray]:
@@ -445,6 +469,92 @@ class CasadiStepper:
         raw = _step_python(py, U, Y, self.trace)
         self.z, self.C, self.mem, self.s, self.C_post = py.z, py.C, py.mem, py.s, py.C_post
         return raw
+
+
+PIECE_BLOCKS = (32, 32)     # a chain: 32 blocks of 32 unrolled steps, called once per PIECE samples
+PIECE = PIECE_BLOCKS[0] * PIECE_BLOCKS[1]
+_CHAINS: dict = {}          # (kind, step structure) → chain, shared by the filters of that structure
+MAX_CHAINS = 64
+_RUNS: dict = {}            # the last chained runs: key → (records, end state), see CasadiStepper._run_key
+MAX_RUNS, MAX_RUN_BYTES = 16, 1 << 25     # runs kept, and the largest kept (32 MB)
+
+
+def _call(f, args: list, outs: list[np.ndarray]) -> None:
+    """Evaluate the CasADi Function ``f`` on NumPy arrays (no conversion), its results into ``outs``."""
+    buf, evaluate = f.buffer()
+    args = [np.ascontiguousarray(a, float) for a in args]        # alive until evaluated
+    for i, a in enumerate(args):
+        buf.set_arg(i, memoryview(a))
+    for i, r in enumerate(outs):
+        buf.set_res(i, memoryview(r))
+    evaluate()
+
+
+def _build_chain(filt: DerivedFilter, step, B: int, blocks: int):
+    """``step`` (the derived step with its constants as a last input c) chained over B·blocks samples:
+    B steps called from one SX Function (never inlined: no simplification across steps, so each
+    step's numbers are its own), its blocks carried on by a mapaccum.
+    (z, C, [s], mem, U, Y, valid, c) → per step: [z_post; e; diag Pyy; nis; loglik; [s_next]; z_next;
+    mem_next], C_post, C_next, mem."""
+    import casadi as ca
+    ski, d = filt.has_ard, filt.aug.shapes
+    acc = [ca.SX.sym("z", d["n"]), ca.SX.sym("C", d["n"], d["n"])] + ([ca.SX.sym("s", d["nw"])] if ski else []) \
+        + [ca.SX.sym("mem", d["nmem"])]
+    U, Y, V = ca.SX.sym("u", d["nu"], B), ca.SX.sym("y", d["ny"], B), ca.SX.sym("valid", d["ny"], B)
+    c = ca.SX.sym("c", step.size_in(step.n_in() - 1))
+    cur, cols = acc, []
+    for k in range(B):
+        z, C, *s, mem = cur
+        out = dict(zip(filt.names_out, step.call([z, C, *s, U[:, k], mem, Y[:, k], V[:, k], c], False, True)))
+        Cp, Cn, sn = out["C_post"], out["C_next"], [out["s_next"]] if ski else []
+        rec = ca.vertcat(out["z_post"], out["e"], ca.diag(out["Pyy"]), out["nis"], out["loglik"], *sn,
+                         out["z_next"], out["mem_next"])
+        cols.append([rec, Cp, Cn, mem])
+        cur = [out["z_next"], Cn] + sn + [out["mem_next"]]
+    block = ca.Function("block", acc + [U, Y, V, c], cur + [ca.horzcat(*col) for col in zip(*cols)])
+    chain = block.mapaccum("chain", blocks, len(acc), {"base": -1})
+    ins = [ca.MX.sym("acc", a.sparsity()) for a in acc] + \
+        [ca.MX.sym("in", v.size1(), B * blocks) for v in (U, Y, V)] + [ca.MX.sym("c", c.sparsity())]
+    return ca.Function("chain", ins, chain(*ins[:-1], ca.repmat(ins[-1], 1, blocks))[len(acc):])
+
+
+def structure(f) -> tuple[tuple, np.ndarray]:
+    """An SX Function's algorithm without its numeric constants (hashable: equal for Functions that
+    differ only in them) and the constants, in the order of :func:`with_constants`'s input."""
+    import casadi as ca
+    key, consts = [tuple(f.size_in(i)) for i in range(f.n_in())], []
+    for k in range(f.n_instructions()):
+        op = f.instruction_id(k)
+        key += [op, *f.instruction_input(k), -1, *f.instruction_output(k)]
+        if op == ca.OP_CONST:
+            consts.append(f.instruction_constant(k))
+    return tuple(key), np.array(consts)
+
+
+def with_constants(f):
+    """The SX Function ``f`` with its numeric constants as a last input ``c``: the same operations in
+    the same order, so it returns f's values to the bit given :func:`structure`'s constants."""
+    import casadi as ca
+    ins = [ca.SX.sym(f.name_in(i), f.sparsity_in(i)) for i in range(f.n_in())]
+    n = f.n_instructions()
+    c = ca.SX.sym("c", sum(f.instruction_id(k) == ca.OP_CONST for k in range(n)))
+    outs = [[None] * f.nnz_out(i) for i in range(f.n_out())]
+    work, j = {}, 0
+    for k in range(n):
+        op, a, r = f.instruction_id(k), f.instruction_input(k), f.instruction_output(k)
+        if op == ca.OP_CONST:
+            work[r[0]], j = c[j], j + 1
+        elif op == ca.OP_INPUT:
+            work[r[0]] = ins[a[0]].nz[a[1]]
+        elif op == ca.OP_OUTPUT:
+            outs[r[0]][r[1]] = work[a[0]]
+        elif len(a) == 1:
+            work[r[0]] = ca.SX.unary(op, work[a[0]])
+        else:
+            work[r[0]] = ca.SX.binary(op, work[a[0]], work[a[1]])
+    return ca.Function(f.name(), ins + [c], [ca.SX(f.sparsity_out(i), ca.vertcat(*o) if o else ca.SX(0, 1))
+                                                  for i, o in enumerate(outs)],
+                       [f.name_in(i) for i in range(f.n_in())] + ["c"], f.name_out())
 
 
 def _start(stepper, init: dict) -> None:
@@ -547,17 +657,18 @@ def _stepper(filt, backend, real, show_progress, cache_dir, guard=None, init=Non
 
 def iter_run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", real: str = "double",
              show_progress: bool = True, label: str | None = None, cache_dir=None, chunk: int | None = None,
-             guard: Guard | None = None, init: dict | None = None, strict: bool = False, trace: bool = False):
+             guard: Guard | None = None, init: dict | None = None, strict: bool = False, trace: bool = False,
+             cuts=()):
     """:func:`run` part by part: yields a RunResult per ``chunk`` samples, so that a long
     recording can be written as it is filtered. Each part's ``final_cov`` is the posterior
-    covariance at its end (the last part's is the run's)."""
+    covariance at its end (the last part's is the run's). cuts: further samples where a part ends."""
     model = filt.aug.model
     check_columns(model, rec)
     stepper = _stepper(filt, backend, real, show_progress, cache_dir, guard, init, strict, trace)
     inputs, N = step_inputs(model, rec.inputs), len(rec.t)
     chunk = chunk or CHUNK[backend]
     again = set(restarts(rec, model.dt))
-    bounds = sorted(set(range(0, N, chunk)) | again) + [N]
+    bounds = sorted(set(range(0, N, chunk)) | again | {k for k in cuts if 0 < k < N}) + [N]
     label = label or f"{model.name} {filt.kind} ({backend})"
     parts = list(zip(bounds[:-1], bounds[1:]))
     pieces = ((a, rec.t[a:b], inputs[a:b], rec.outputs[a:b]) for a, b in

@@ -23,9 +23,9 @@ from ..derive import FilterOptions, derive
 from ..derive.augment import memory_values
 from ..model import Model
 from ..recording import Recording
-from ..runtime import RunResult, run
+from ..runtime import RunResult, iter_run, run
 
-__all__ = ["Folds", "fold_loglik", "loglik", "fit_without"]
+__all__ = ["Folds", "fold_loglik", "loglik", "fit_without", "fits_without"]
 
 DEFAULT_FOLDS = 5
 MIN_SEGMENT = 20          # samples: a shorter piece of a split is skipped when fitting
@@ -105,12 +105,59 @@ def fit_without(model: Model, kind: str, rec: Recording, folds: Folds, f: int | 
     from every fold but f (f = None: the whole recording). ``start``: the current model's EKF run with its trace,
     where each piece after a gap restarts; ``options``: the filter's (default FilterOptions()).
     Raises FloatingPointError if the filter diverges."""
-    filt = derive(model, kind, options)
-    idx = filt.aug.w_index
+    return _fit(derive(model, kind, options), rec, folds.outside(f), start)
+
+
+def fits_without(model: Model, kind: str, rec: Recording, folds: Folds, start: RunResult) -> list:
+    """:func:`fit_without` for every fold: per fold (weights, std), or the exception its fit raised.
+    The filter's runs from the start of the recording to each fold are one run, stopped at each fold
+    (the filter is causal: the same numbers)."""
+    filt = derive(model, kind)
+    ends = sorted({b for f in range(len(folds)) for a, b in folds.outside(f) if a == 0})
+    ahead = _ahead(filt, rec, ends) if ends else None
+    out = []
+    for f in range(len(folds)):
+        try:
+            out.append(_fit(filt, rec, folds.outside(f), start, ahead))
+        except (FloatingPointError, RuntimeError, np.linalg.LinAlgError) as exc:
+            out.append(exc)
+    return out
+
+
+def _fit(filt, rec: Recording, pieces, start: RunResult, ahead=None) -> tuple[np.ndarray, np.ndarray]:
+    """The weights' posterior after the filter has run over ``pieces`` in turn, each after the first
+    restarting from ``start`` (see :func:`_restart`); ``ahead(b)``: the carried values of the run over [0, b)."""
     w = Pw = s = None
-    for a, b in folds.outside(f):
+    for a, b in pieces:
+        if a == 0 and ahead is not None:
+            w, Pw, s = ahead(b)
+            continue
         init = _restart(filt, start, rec, a, w, Pw, s) if (a > 0 or w is not None) else None
-        res = run(filt, rec.slice(a, b), backend="casadi", init=init, strict=True, show_progress=False)
-        w, Pw = res.mean[-1, idx], res.final_cov[np.ix_(idx, idx)]
-        s = res.prior_var[-1] if res.prior_var.size else None
+        w, Pw, s = _carried(filt, run(filt, rec.slice(a, b), backend="casadi", init=init, strict=True,
+                                      show_progress=False))
     return w, np.sqrt(np.clip(np.diag(Pw), 0, None))
+
+
+def _carried(filt, res: RunResult) -> tuple:
+    """What a fit carries across a gap: the weights' posterior mean and covariance, the ARD variances."""
+    idx = filt.aug.w_index
+    return res.mean[-1, idx], res.final_cov[np.ix_(idx, idx)], res.prior_var[-1] if res.prior_var.size else None
+
+
+def _ahead(filt, rec: Recording, ends: list[int]):
+    """b → :func:`_carried` of the strict run over [0, b), for b in ``ends``: one run, cut at each;
+    raises what that run raised before b."""
+    got, k, failed = {}, 0, None
+    try:
+        for part in iter_run(filt, rec.slice(0, ends[-1]), backend="casadi", strict=True,
+                             show_progress=False, cuts=ends):
+            k += len(part.t)
+            got[k] = _carried(filt, part)
+    except (FloatingPointError, RuntimeError) as exc:
+        failed = exc
+
+    def at(b: int) -> tuple:
+        if b not in got:
+            raise failed
+        return got[b]
+    return at

@@ -46,7 +46,7 @@ from ..recording import Recording
 from ..runtime import RunResult, run
 from . import transform as T
 from .catalog import Additive, Structural, _num
-from .cv import Folds, fit_without, fold_loglik, loglik
+from .cv import Folds, fit_without, fits_without, fold_loglik, loglik
 from .errors import DiagnosisError
 
 __all__ = ["Correction", "Proposal", "name_terms", "refit", "basis_rms", "distinct", "start_trace",
@@ -228,12 +228,11 @@ def cv_loglik(nominal: Model, corr: Correction, rec: Recording, folds: Folds, rm
     m = base.build(nominal, unknown=cands, prior_variance=_prior(cands, rms, size))
     start = start_trace(base.build(nominal), rec)
     out = np.empty(len(folds))
-    for f in range(len(folds)):
-        try:
-            w, sd = fit_without(m, "ekf", rec, folds, f, start)
-        except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):
+    for f, fitted in enumerate(fits_without(m, "ekf", rec, folds, start)):
+        if isinstance(fitted, Exception):        # diverged
             out[f] = -np.inf
             continue
+        w, sd = fitted
         fold_corr = Correction([(c, float(wi), float(si)) for c, wi, si in zip(cands, w, sd)], corr.structural)
         out[f] = fold_loglik(fold_corr.build(nominal), rec, folds)[f]
     return out
