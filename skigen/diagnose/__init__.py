@@ -27,15 +27,13 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from .. import runtime
-from ..derive import derive
 from ..model import Model, ModelError
 from ..recording import RecordingError
 from . import catalog as C
 from . import transform as T
 from .calibrate import calibrate
 from .correct import emit_filter, header_lines, refit_jointly, write_model_file
-from .cv import DEFAULT_FOLDS, Folds, fold_loglik
+from .cv import DEFAULT_FOLDS, Folds, ekf_run, fold_loglik
 from .detect import Consistency, consistency, judge, normalised_innovations, remaining
 from .errors import DiagnosisError
 from .evidence import weigh
@@ -143,11 +141,11 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     cv = Folds.of(N, folds)
 
     stage("calibrating the noise")
-    declared_run = runtime.run(derive(T.constants(nominal), "ekf"), rec, backend="casadi", show_progress=False)
+    declared_run = ekf_run(T.constants(nominal), rec)
     declared, noise = calibrate(nominal, [rec])
     calibrated = T.constants(declared)          # parameters at their values, for every test below
     stage("testing the calibrated model")
-    nominal_run = runtime.run(derive(calibrated, "ekf"), rec, backend="casadi", show_progress=False)
+    nominal_run = ekf_run(calibrated, rec)
     eqs = list(equations) if equations else C.rate_equations(nominal)
     verdict = judge(calibrated, rec, nominal_run, eqs, alpha)
     cons = verdict.consistency
@@ -296,7 +294,7 @@ def detect(model, recording, *, alpha: float = 0.01, equations=None, **read) -> 
     nominal = T.copy_model(user, unknowns=False)
     declared, noise = calibrate(nominal, [rec])
     calibrated = T.constants(declared)
-    run = runtime.run(derive(calibrated, "ekf"), rec, backend="casadi", show_progress=False)
+    run = ekf_run(calibrated, rec)
     v = judge(calibrated, rec, run, list(equations) if equations else C.rate_equations(nominal), alpha)
     return {"mismatch_detected": v.mismatch, "noise": noise.asdict(),
             "consistency": dict(v.consistency.asdict(), disturbance_gain=v.gains, disturbance_threshold=v.threshold)}

@@ -25,10 +25,16 @@ from ..model import Model
 from ..recording import Recording
 from ..runtime import RunResult, iter_run, run
 
-__all__ = ["Folds", "fold_loglik", "loglik", "fit_without", "fits_without"]
+__all__ = ["Folds", "ekf_run", "fold_loglik", "loglik", "fit_without", "fits_without"]
 
 DEFAULT_FOLDS = 5
 MIN_SEGMENT = 20          # samples: a shorter piece of a split is skipped when fitting
+
+
+def ekf_run(model: Model, rec: Recording, **options) -> RunResult:
+    """``model``'s EKF over the whole recording, unguarded (the CasADi backend of
+    :func:`skigen.runtime.run`; ``options``: its trace, strict, init)."""
+    return run(derive(model, "ekf"), rec, backend="casadi", show_progress=False, **options)
 
 
 @dataclass(frozen=True)
@@ -63,7 +69,7 @@ class Folds:
 def fold_loglik(model: Model, rec: Recording, folds: Folds) -> np.ndarray:
     """Per-fold summed predictive log-likelihood of ``model``'s EKF over ``rec`` (−inf if it diverges)."""
     try:
-        return folds.sums(run(derive(model, "ekf"), rec, backend="casadi", show_progress=False).loglik)
+        return folds.sums(ekf_run(model, rec).loglik)
     except (FloatingPointError, RuntimeError):
         return np.full(len(folds), -np.inf)
 
@@ -72,7 +78,7 @@ def loglik(model: Model, rec: Recording, start: int = 0) -> float:
     """Summed predictive log-likelihood of the model's EKF over ``rec`` from sample ``start``
     on (the filter runs from the beginning); −inf if it diverges."""
     try:
-        return float(np.sum(run(derive(model, "ekf"), rec, backend="casadi", show_progress=False).loglik[start:]))
+        return float(np.sum(ekf_run(model, rec).loglik[start:]))
     except (FloatingPointError, RuntimeError):
         return -np.inf
 

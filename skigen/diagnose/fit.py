@@ -13,12 +13,12 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from ..derive import augment, derive
+from ..derive import augment
 from ..derive.augment import step_inputs
 from ..model import Model
 from ..recording import Recording
-from .. import runtime
 from ..runtime import RunResult
+from .cv import ekf_run
 from .transform import memory_values
 
 __all__ = ["Fit", "evaluate_fit", "free_run", "settle"]
@@ -61,7 +61,7 @@ def free_run(model: Model, run: RunResult, rec: Recording, k0: int) -> np.ndarra
 
 def evaluate_fit(model: Model, rec: Recording, run: RunResult | None = None) -> Fit:
     """Statistics of ``model`` on ``rec`` (see the module docstring)."""
-    run = run or runtime.run(derive(model, "ekf"), rec, backend="casadi", show_progress=False)
+    run = run or ekf_run(model, rec)
     k0 = settle(len(rec.t))
     free = free_run(model, run, rec, k0)
     err = free - rec.outputs

@@ -39,14 +39,14 @@ import numpy as np
 from scipy import stats
 from scipy.optimize import minimize_scalar
 
-from ..derive import FilterOptions, derive
+from ..derive import FilterOptions
 from ..library import term
 from ..model import Model
 from ..recording import Recording
-from ..runtime import RunResult, run
+from ..runtime import RunResult
 from . import transform as T
 from .catalog import Additive, Structural, _num
-from .cv import Folds, fit_without, fits_without, fold_loglik, loglik
+from .cv import Folds, ekf_run, fit_without, fits_without, fold_loglik, loglik
 from .errors import DiagnosisError
 
 __all__ = ["Correction", "Proposal", "name_terms", "refit", "basis_rms", "distinct", "start_trace",
@@ -169,7 +169,7 @@ def focus_window(strength: np.ndarray, n: int = SKI_MAX_SAMPLES) -> tuple[int, i
 
 def start_trace(model: Model, rec: Recording) -> RunResult:
     """The EKF run of ``model``, with its trace: where a fit without a fold restarts after the gap."""
-    return run(derive(model, "ekf"), rec, backend="casadi", trace=True, strict=True, show_progress=False)
+    return ekf_run(model, rec, trace=True, strict=True)
 
 
 def beyond_parameters(model: Model, rec: Recording, states: np.ndarray, cands: list[Additive]) -> list[Additive]:
