@@ -27,7 +27,7 @@ def test_silverbox_names_the_cubic_stiffness_first(tmp_path):
 def test_unbalanced_disc_names_coulomb_friction(tmp_path):
     """The viscous-only disc (constants declared as parameters) on 4000 samples: Coulomb friction
     is named, opposing the motion, and the corrected model simulates the recording better. (It is
-    not the top finding: an input delay of 0.9 samples carries more evidence; see README.)"""
+    not the top finding: a one-sample input delay and a bias carry more evidence; see README.)"""
     from examples.diagnose_real import run as diagnose_case
     rep = diagnose_case("unbalanced_disk", tmp_path, 4000, show_progress=False)
     coulomb = [f for f in rep.findings if f["effect"] == "coulomb_friction"]
