@@ -87,3 +87,18 @@ def test_calibrated_measurement_noise_stops_at_the_sensor_resolution(sweep):
     std = lambda rec: fit(nominal, [rec], method="filter-error", estimate=[]).noise["calibrated"]["measurement_std"]["pos"]
     assert std(exact) < 0.97 * q / np.sqrt(12)
     assert std(rounded) == pytest.approx(q / np.sqrt(12), rel=1e-6)
+
+
+def test_a_finding_the_joint_refit_no_longer_needs_is_flagged():
+    """The Silverbox training range's limit: 5797 ± 107 in cross-validation, 225 ± 188 after the
+    joint refit (the refitted stiffness takes it over); the cubic spring stays significant."""
+    from types import SimpleNamespace
+
+    from skigen.diagnose import _update_findings
+    limit, cubic = (SimpleNamespace(effect=e, equation="v") for e in ("physical_limit", "cubic_stiffness"))
+    findings = [dict(effect="physical_limit", equation="v", kind="additive", coefficient=5797.0, std=107.0),
+                dict(effect="cubic_stiffness", equation="v", kind="additive", coefficient=6.08e5, std=3.4e3)]
+    fitted = {"physical_limit_v": dict(value=224.9, std=187.8), "cubic_stiffness_v": dict(value=7.371e5, std=2.8e3)}
+    _update_findings(findings, {"physical_limit_v": limit, "cubic_stiffness_v": cubic}, fitted, alpha=0.01)
+    assert findings[0]["coefficient"] == 224.9 and "within 2.58 std of zero" in findings[0]["note"]
+    assert findings[1]["coefficient"] == 7.371e5 and "note" not in findings[1]

@@ -26,6 +26,7 @@ from pathlib import Path
 
 import casadi as ca
 import numpy as np
+from scipy import stats
 
 from ..model import Model, ModelError
 from ..recording import RecordingError
@@ -41,7 +42,7 @@ from .figures import diagnosis_figures, plot_residuals
 from .fit import evaluate_fit
 from .inputs import MIN_SAMPLES, check, load
 from .locate import Location, locate
-from .name import Correction, basis_rms, beyond_parameters, focus_window, name_terms, shape_search
+from .name import Correction, basis_rms, beyond_parameters, focus_window, name_terms, shape_search, significant
 from .name import refit as refit_terms
 from .plausible import screen
 from .report import write_json, write_markdown
@@ -223,7 +224,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         corrected, names, notes, refit_info = refit_jointly(nominal, base, corr.without_parameters(), rec,
                                                             loc.equations, refit)
         data["refit"] = refit_info
-        _update_findings(data["findings"], names, refit_info.get("parameters", {}))
+        _update_findings(data["findings"], names, refit_info.get("parameters", {}), alpha)
         path = out / "corrected_model.py"
         head = header_lines(user.name, spec or "a model given in Python", rec.path, data["findings"])
         corrected = write_model_file(path, T.copy_model(corrected, f"{nominal.name}_corrected"), notes, header=head)
@@ -272,8 +273,9 @@ def windows_where_it_acts(nominal: Model, after, rec, equations, states) -> tupl
     return windows_of(rec.t, active, nominal.dt), regime_stump(features(nominal, rec, states), active)
 
 
-def _update_findings(findings: list[dict], names: dict, fitted: dict) -> None:
-    """The refitted values in the findings; the std keeps the shape search's share."""
+def _update_findings(findings: list[dict], names: dict, fitted: dict, alpha: float) -> None:
+    """The refitted values in the findings; the std keeps the shape search's share. A finding whose
+    refitted coefficient is no longer significant gets a note saying so."""
     by_effect = {(c.effect, c.equation): n for n, c in names.items() if c is not None}
     for f in findings:
         n = by_effect.get((f["effect"], f["equation"]))
@@ -285,6 +287,10 @@ def _update_findings(findings: list[dict], names: dict, fitted: dict) -> None:
         std = fitted[n]["std"]
         f["std"] = float(np.hypot(std, spread)) if std is not None and np.isfinite(std) else std
         f["parameter"] = n
+        if f["std"] is not None and not significant(f["coefficient"], f["std"], alpha):
+            f["note"] = (f"after the joint refit its coefficient is within {stats.norm.isf(alpha / 2):.2f} std "
+                         f"of zero (cross-validated: {f['cv_coefficient']:.4g} ± {f['cv_std']:.2g}): "
+                         f"the refitted constants take over most of what it explained")
 
 
 def detect(model, recording, *, alpha: float = 0.01, equations=None, **read) -> dict:

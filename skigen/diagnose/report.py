@@ -111,7 +111,7 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
                          f"{f['evidence']:+.1f} |")
             L.append("")
             for f in data["findings"]:
-                L.append(f"- **{f['effect']}**: {f['reading']}.")
+                L.append(f"- **{f['effect']}**: {f['reading']}." + (f" *Note: {f['note']}.*" if f.get("note") else ""))
             L.append("")
         else:
             L += ["No catalog or user candidate explains the mismatch significantly.", ""]
