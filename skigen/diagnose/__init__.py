@@ -42,9 +42,9 @@ from .figures import diagnosis_figures, plot_residuals
 from .fit import evaluate_fit
 from .inputs import MIN_SAMPLES, check, load
 from .locate import Location, locate
-from .name import Correction, basis_rms, beyond_parameters, focus_window, name_terms, shape_search, significant
+from .name import Correction, basis_rms, beyond_parameters, focus_window, name_terms, shape_search
+from .plausible import screen, significant
 from .name import refit as refit_terms
-from .plausible import screen
 from .report import write_json, write_markdown
 
 __all__ = ["diagnose", "detect", "Report", "DiagnosisError", "MIN_SAMPLES"]
@@ -208,9 +208,13 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     corr, ev, cv_after = weigh(calibrated, corr, rec, cv, alpha, rms, size)
     report.correction = corr
     meta["proposals"] = [f"round {i + 1}: best proposal {p.label} ({p.kind}), cross-validated log-likelihood "
-                         f"gain {p.gain:+.1f}" for i, p in enumerate(history)]
+                         f"gain {p.gain:+.1f}" + "".join(f"; {a['effect']} on {a['equation']} set aside as compensating"
+                                                          for a in p.set_aside)
+                          + (f"; {p.note}" if p.note else "") for i, p in enumerate(history)]
     data["findings"] = _findings(nominal, corr, ev, shapes)
-    data["compensating"], data["not_identifiable"] = rejected["compensating"], rejected["not_identifiable"]
+    set_aside = [item for p in history for item in p.set_aside]
+    data["compensating"] = set_aside + rejected["compensating"]
+    data["not_identifiable"] = rejected["not_identifiable"]
     cv_before = fold_loglik(calibrated, rec, cv)
     data["fit"]["folds"] = [{"span": list(cv.span(f, rec.t)), "loglik_before": float(cv_before[f]),
                              "loglik_after": float(cv_after[f])} for f in range(len(cv))]

@@ -14,12 +14,11 @@ refitted and weighed again.
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
 
 from ..model import Model
 from ..recording import Recording
 from .cv import Folds
-from .name import MIN_SHARE, Correction, cv_loglik, refit
+from .name import MIN_SHARE, Correction, cv_loglik, evidence_threshold, refit
 
 __all__ = ["weigh", "cv_loglik"]
 
@@ -27,7 +26,7 @@ __all__ = ["weigh", "cv_loglik"]
 def weigh(nominal: Model, corr: Correction, rec: Recording, folds: Folds, alpha: float, rms: dict,
           size: dict) -> tuple[Correction, dict, np.ndarray]:
     """(the kept correction, {candidate: evidence}, its per-fold cross-validated log-likelihood)."""
-    threshold = 0.5 * stats.chi2.isf(alpha, 1)
+    threshold = evidence_threshold(alpha)
     while True:
         items = [a[0] for a in corr.found] + [s[0] for s in corr.structural]
         full = cv_loglik(nominal, corr, rec, folds, rms, size)

@@ -20,7 +20,12 @@ each part of the recording is scored on.
    calibration absorbed the missing physics as process noise, which blurs the
    difference between close candidates such as a delay and a lag) and the one
    with the higher cross-validated log-likelihood is kept; repeat (three
-   rounds at most).
+   rounds at most). A term whose refitted coefficient has a sign physics
+   forbids (:func:`skigen.diagnose.plausible.compensating`) is not adopted: it
+   is set aside as compensating, and no later round is built on it. A
+   further change is kept only if, under the noise recalibrated with it, it
+   passes the rule :mod:`skigen.diagnose.evidence` applies to every finding
+   (its gain at proposal time was measured under a noise that still absorbed it).
 
 Additive coefficients are then refitted jointly on the whole recording
 (augmented EKF: linearised about the mean, it never evaluates the model at
@@ -48,6 +53,7 @@ from . import transform as T
 from .catalog import Additive, Structural, _num
 from .cv import Folds, ekf_run, fit_without, fits_without, fold_loglik, loglik
 from .errors import DiagnosisError
+from .plausible import compensating, significant
 
 __all__ = ["Correction", "Proposal", "name_terms", "refit", "basis_rms", "distinct", "start_trace",
            "focus_window", "recalibrated", "significant"]
@@ -109,6 +115,8 @@ class Proposal:
     correction: Correction    # coefficients fitted on the whole recording
     label: str
     folds: np.ndarray | None = None     # per-fold cross-validated log-likelihood
+    set_aside: list = field(default_factory=list)   # its terms not adopted as compensating (report items)
+    note: str = ""
 
 
 def basis_values(model: Model, rec: Recording, states: np.ndarray, cands: list[Additive]) -> np.ndarray:
@@ -195,12 +203,6 @@ def beyond_parameters(model: Model, rec: Recording, states: np.ndarray, cands: l
         if not np.any(cos > 0.999):
             keep.append(c)
     return keep
-
-
-def significant(coef: float, std: float, alpha: float) -> bool:
-    """|coef| beyond z·std of 0, z the two-sided (1 − alpha) normal quantile; never with a std
-    that is not finite and positive."""
-    return bool(np.isfinite(std) and std > 0 and abs(coef) > stats.norm.isf(alpha / 2) * std)
 
 
 def _prior(cands, rms, size) -> np.ndarray:
@@ -466,18 +468,39 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
         for p in passing:                  # each finalist under the noise it leaves, then the best
             tick(f"recalibrating the noise under {p.label}")
             try:
-                got = _adopt(nominal, corr, p, rec, rms, size, alpha)
+                got = _adopt(nominal, corr, p, rec, rms, size, alpha, states)
             except DiagnosisError:         # no noise calibrates under it: not adopted
                 got = None
             if got is not None:
                 adopted.append(got + (cv_loglik(got[1], got[0], rec, folds, rms, size), p))
         if not adopted:
             break
-        corr, nominal, current, chosen = max(adopted, key=lambda a: np.sum(a[2]))
+        new, recal, score, chosen = max(adopted, key=lambda a: np.sum(a[2]))
+        history[-1] = chosen
+        if len(history) > 1:               # a further change: weighed as evidence.weigh would weigh it
+            ev, total = _share(recal, corr, new, score, rec, folds, rms, size)
+            if ev < max(evidence_threshold(alpha), MIN_SHARE * total):
+                chosen.note = (f"not adopted: under the noise recalibrated with it, it adds {ev:+.1f} to the "
+                               f"{total:+.1f} the correction gains")
+                break
+        corr, nominal, current = new, recal, score
         if chosen.kind == "structural" and _label(corr.structural[-1][0]) != chosen.label:
             chosen.label += f", adopted as {_label(corr.structural[-1][0])}"   # a fractional delay, whole
-        history[-1] = chosen
     return corr, history, rms, size, nominal
+
+
+def evidence_threshold(alpha: float) -> float:
+    """The least drop-one cross-validated log-likelihood a finding must add: 0.5·χ²₁(1 − α)."""
+    return 0.5 * stats.chi2.isf(alpha, 1)
+
+
+def _share(nominal: Model, before: Correction, after: Correction, score: np.ndarray, rec: Recording,
+           folds: Folds, rms: dict, size: dict) -> tuple[float, float]:
+    """(what ``after`` adds to ``before``, what ``after`` adds to the declared parameters' corrections
+    alone), cross-validated, both under ``nominal``'s noise; ``score`` is ``after``'s per-fold score."""
+    base = Correction([a for a in after.additive if a[0].parameter])
+    ev = float(np.sum(score) - np.sum(cv_loglik(nominal, before, rec, folds, rms, size)))
+    return ev, float(np.sum(score) - np.sum(cv_loglik(nominal, base, rec, folds, rms, size)))
 
 
 def _label(s: Structural) -> str:
@@ -485,11 +508,19 @@ def _label(s: Structural) -> str:
 
 
 def _adopt(nominal: Model, corr: Correction, p: Proposal, rec: Recording, rms: dict, size: dict,
-           alpha: float) -> tuple[Correction, Model] | None:
+           alpha: float, states: np.ndarray) -> tuple[Correction, Model] | None:
     """(the correction with proposal ``p`` adopted, the nominal with the noise recalibrated under it),
-    or None when none of an additive proposal's terms survives an honest (EKF) refit."""
+    or None when none of an additive proposal's terms survives an honest (EKF) refit with a sign
+    physics allows (the others go to ``p.set_aside``)."""
     accepted = refit(nominal, p.correction, rec, rms, size)
-    new_terms = [a for a in accepted.additive[len(corr.additive):] if significant(a[1], a[2], alpha)]
+    new_terms = []
+    for c, coef, std in accepted.additive[len(corr.additive):]:
+        why = compensating(nominal, c, coef, states, rec) if significant(coef, std, alpha) else None
+        if why:
+            p.set_aside.append({"effect": c.effect, "equation": c.equation, "expression": c.formula,
+                                "coefficient": coef, "std": std, "note": why})
+        elif significant(coef, std, alpha):
+            new_terms.append((c, coef, std))
     if p.kind == "additive" and not new_terms:
         return None
     new = refit(nominal, Correction(accepted.additive[:len(corr.additive)] + new_terms, accepted.structural),

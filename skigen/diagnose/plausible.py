@@ -9,6 +9,9 @@ physics allows.
   equation cannot be negative: a term that only helps with the impossible sign is
   compensating for something else (another missing effect, a wrong constant) and is
   reported as such, not as a finding.
+
+The same sign rule is applied when :mod:`name` adopts a proposal
+(:func:`compensating`), so that later rounds are never built on a term physics forbids.
 """
 from __future__ import annotations
 
@@ -20,9 +23,14 @@ from scipy import stats
 
 from ..model import Model
 from ..recording import Recording
-from .name import Correction, significant
 
-__all__ = ["screen", "nominal_damping"]
+__all__ = ["screen", "nominal_damping", "compensating", "significant"]
+
+
+def significant(coef: float, std: float, alpha: float) -> bool:
+    """|coef| beyond z·std of 0, z the two-sided (1 − alpha) normal quantile; never with a std
+    that is not finite and positive."""
+    return bool(np.isfinite(std) and std > 0 and abs(coef) > stats.norm.isf(alpha / 2) * std)
 
 
 def nominal_damping(model: Model, eq: str, states: np.ndarray, rec: Recording) -> float:
@@ -44,8 +52,18 @@ def _signals(formula: str, model: Model) -> list[str]:
     return [n for n in dict.fromkeys(re.findall(r"[A-Za-z_]\w*", formula)) if n in names]
 
 
-def screen(model: Model, corr: Correction, states: np.ndarray, rec: Recording,
-           alpha: float) -> tuple[Correction, dict]:
+def compensating(model: Model, c, coef: float, states: np.ndarray, rec: Recording) -> str | None:
+    """Why additive term ``c`` at ``coef`` is compensating for something else, or None: a sign
+    physics forbids, or a viscous damping that makes the equation's total damping negative."""
+    if c.sign > 0 and coef < 0:
+        return ("fits only with a sign physics forbids (it would push the motion instead of opposing it): "
+                "compensating for something else")
+    if c.effect == "viscous_damping" and coef + nominal_damping(model, c.equation, states, rec) < 0:
+        return "would make the total damping negative: compensating for something else"
+    return None
+
+
+def screen(model: Model, corr, states: np.ndarray, rec: Recording, alpha: float) -> tuple:
     """(the correction without implausible terms, {"compensating": [...], "not_identifiable": [...]})."""
     z = stats.norm.isf(alpha / 2)
     kept, comp, lost = [], [], []
@@ -57,11 +75,8 @@ def screen(model: Model, corr: Correction, states: np.ndarray, rec: Recording,
             sig = _signals(c.formula, model) or [c.equation]
             lost.append(dict(item, note=f"not identifiable from this recording (|coefficient| < {z:.2f} std): "
                                         f"excite {', '.join(sig)} over a wider range or for longer"))
-        elif c.sign > 0 and coef < 0:
-            comp.append(dict(item, note="fits only with a sign physics forbids (it would push the motion "
-                                        "instead of opposing it): compensating for something else"))
-        elif c.effect == "viscous_damping" and coef + nominal_damping(model, c.equation, states, rec) < 0:
-            comp.append(dict(item, note="would make the total damping negative: compensating for something else"))
+        elif (why := compensating(model, c, coef, states, rec)) is not None:
+            comp.append(dict(item, note=why))
         else:
             kept.append((c, coef, std))
-    return Correction(kept, corr.structural), {"compensating": comp, "not_identifiable": lost}
+    return type(corr)(kept, corr.structural), {"compensating": comp, "not_identifiable": lost}
