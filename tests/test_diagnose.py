@@ -353,3 +353,16 @@ def test_focus_window_is_where_the_disturbance_is():
     a, b = focus_window(strength, 20_000)
     assert b - a == 20_000 and a <= 31_000 and b >= 33_000
     assert focus_window(strength[:1000], 20_000) is None
+
+
+def test_a_later_round_is_weighed_under_the_noise_recalibrated_with_it(diagnosed):
+    """The quadrotor's round 2 proposes a negative viscous damping with a drag and a bias, which
+    only absorb the ground effect's approximation: the damping is set aside as compensating when
+    the proposal is adopted, and the rest is not kept, because under the noise recalibrated with
+    it it adds less than 1 % of what the correction gains; no third round is built on it."""
+    r = diagnosed("quad_ground_effect")
+    d, md = r["data"], (r["out"] / "report.md").read_text()
+    assert [f["effect"] for f in d["findings"]] == ["ground_effect"]
+    assert any(c["effect"] == "viscous_damping" and c["coefficient"] < 0 for c in d["compensating"])
+    assert "viscous_damping on vz set aside as compensating" in md
+    assert "not adopted: under the noise recalibrated with it" in md and "round 3" not in md

@@ -118,3 +118,21 @@ def test_sensor_saturation_clips_only_the_output():
     assert np.allclose(y[:, 0], np.minimum(states[:, 0], 1.0)) and states[:, 0].max() > 1.5
     with pytest.raises(ValueError, match="no output 'z'"):
         output_saturation(_echo(), "z", 1.0, "upper")
+
+
+def test_a_width_whose_profile_has_no_maximum_is_not_identifiable():
+    """A structural change's continuous parameter without a likelihood maximum in the searched
+    range (no std) is not identifiable; a delay of whole samples is a choice and needs no std."""
+    from skigen.diagnose import catalog as C, transform as T
+    from skigen.diagnose.name import Correction
+    from skigen.diagnose.plausible import screen
+    sc = make("arm_backlash", 5.0, SEED)
+    model, rec = T.constants(load_model(sc.model_file)), sc.recording()
+    cands = C.structural_candidates(model, C.rate_equations(model), np.asarray(rec.inputs))
+    dead = next(s for s in cands if s.effect == "dead_zone")
+    delay = next(s for s in cands if s.effect == "input_delay")
+    kept, rejected = screen(model, Correction([], [(dead, 0.08, np.nan), (delay, 1.0, np.nan)]), None, rec, 0.01)
+    assert [s.effect for s, *_ in kept.structural] == ["input_delay"]
+    assert [(r["effect"], r["equation"]) for r in rejected["not_identifiable"]] == [("dead_zone", "V")]
+    kept, rejected = screen(model, Correction([], [(dead, 0.08, 0.004)]), None, rec, 0.01)
+    assert len(kept.structural) == 1 and not rejected["not_identifiable"]

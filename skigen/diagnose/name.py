@@ -25,7 +25,7 @@ each part of the recording is scored on.
    is set aside as compensating, and no later round is built on it. A
    further change is kept only if, under the noise recalibrated with it, it
    passes the rule :mod:`skigen.diagnose.evidence` applies to every finding
-   (its gain at proposal time was measured under a noise that still absorbed it).
+   (its gain at proposal time was measured under the noise calibrated before it).
 
 Additive coefficients are then refitted jointly on the whole recording
 (augmented EKF: linearised about the mean, it never evaluates the model at

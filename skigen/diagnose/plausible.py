@@ -3,7 +3,10 @@ physics allows.
 
 - *Not identifiable*: the coefficient's std is not finite, or the coefficient is within
   z·std of zero (z the two-sided normal quantile of α): the recording cannot tell it
-  from nothing; the report says which signal would need more excitation.
+  from nothing; the report says which signal would need more excitation. A structural
+  change's parameter (a dead zone's width, a lag's time constant) is not identifiable
+  when its likelihood profile has no maximum inside the searched range (no std); a
+  delay of whole samples is a choice among them and needs none.
 - *Compensating*: friction, drag and a physical limit only ever oppose the motion
   (a positive coefficient on their restoring form), and the total damping of an
   equation cannot be negative: a term that only helps with the impossible sign is
@@ -79,4 +82,13 @@ def screen(model: Model, corr, states: np.ndarray, rec: Recording, alpha: float)
             comp.append(dict(item, note=why))
         else:
             kept.append((c, coef, std))
-    return type(corr)(kept, corr.structural), {"compensating": comp, "not_identifiable": lost}
+    structural = []
+    for s, value, std in corr.structural:
+        if s.integer or np.isfinite(std):      # a whole number of samples is a choice, not a measurement
+            structural.append((s, value, std))
+            continue
+        lost.append({"effect": s.effect, "equation": s.target, "expression": s.describe(value),
+                     "coefficient": value, "std": std,
+                     "note": f"not identifiable from this recording (the likelihood of its {s.parameter} has "
+                             f"no maximum inside the range searched): excite {s.target} over a wider range"})
+    return type(corr)(kept, structural), {"compensating": comp, "not_identifiable": lost}
