@@ -515,11 +515,12 @@ def _adopt(nominal: Model, corr: Correction, p: Proposal, rec: Recording, rms: d
     accepted = refit(nominal, p.correction, rec, rms, size)
     new_terms = []
     for c, coef, std in accepted.additive[len(corr.additive):]:
-        why = compensating(nominal, c, coef, states, rec) if significant(coef, std, alpha) else None
-        if why:
+        if not significant(coef, std, alpha):
+            continue
+        if why := compensating(nominal, c, coef, states, rec):
             p.set_aside.append({"effect": c.effect, "equation": c.equation, "expression": c.formula,
                                 "coefficient": coef, "std": std, "note": why})
-        elif significant(coef, std, alpha):
+        else:
             new_terms.append((c, coef, std))
     if p.kind == "additive" and not new_terms:
         return None
