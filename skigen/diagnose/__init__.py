@@ -202,7 +202,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     rms.update({c: r for c, r in zip(additive, basis_rms(calibrated, rec, loc.states, additive))})
     corr, shapes = shape_search(calibrated, corr, variants, rec, rms, size)
     stage("weighing the findings (drop-one cross-validation)")
-    corr, rejected = screen(calibrated, corr, loc.states, rec, alpha)
+    corr, rejected = screen(calibrated, corr, loc.states, rec, alpha, shapes)
     if rejected["compensating"] or rejected["not_identifiable"]:
         corr = refit_terms(calibrated, corr, rec, rms, size)
     corr, ev, cv_after = weigh(calibrated, corr, rec, cv, alpha, rms, size)
@@ -291,7 +291,7 @@ def _update_findings(findings: list[dict], names: dict, fitted: dict, alpha: flo
         std = fitted[n]["std"]
         f["std"] = float(np.hypot(std, spread)) if std is not None and np.isfinite(std) else std
         f["parameter"] = n
-        if f["std"] is not None and not significant(f["coefficient"], f["std"], alpha):
+        if std is not None and not significant(f["coefficient"], std, alpha):   # needed at all, in its shape
             f["note"] = (f"after the joint refit its coefficient is within {stats.norm.isf(alpha / 2):.2f} std "
                          f"of zero (cross-validated: {f['cv_coefficient']:.4g} ± {f['cv_std']:.2g}): "
                          f"the refitted constants take over most of what it explained")

@@ -379,7 +379,10 @@ def shape_search(nominal: Model, corr: Correction, variants: dict, rec: Recordin
     """For each additive finding with variants (same effect and equation, another shape), the
     variant with the best whole-recording log-likelihood after a joint refit; the coefficient's
     std gets the spread over the variants weighted by their likelihood (Bayesian model
-    averaging over the shape). Returns the correction and {candidate: shape summary}."""
+    averaging over the shape). Returns the correction and {candidate: shape summary}; the summary's
+    ``p_zero`` is the two-sided probability of a zero coefficient under that average (each shape's
+    normal tail at zero, weighted by its likelihood): whether the term is needed at all, which the
+    spread of its value over the shapes does not say."""
     shapes = {}
     for i, (c, _, _) in enumerate(list(corr.additive)):
         alts = variants.get(c.group, [])
@@ -402,11 +405,15 @@ def shape_search(nominal: Model, corr: Correction, variants: dict, rec: Recordin
         weights /= weights.sum()
         best = fits[int(np.argmax(lls))]
         coefs = np.array([t.additive[i][1] for t in fits])
+        sds = np.array([t.additive[i][2] for t in fits])
         c_best, w_best, s_best = best.additive[i]
         spread = float(np.sqrt(np.sum(weights * (coefs - w_best) ** 2)))
         corr = Correction(corr.additive[:i] + [(c_best, w_best, float(np.hypot(s_best, spread)))]
                           + corr.additive[i + 1:], corr.structural)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tails = np.where(np.isfinite(sds) & (sds > 0), 2 * stats.norm.sf(np.abs(coefs) / sds), 1.0)
         shapes[c_best] = {"variant": c_best.variant, "coefficient_std_from_shape": spread,
+                          "p_zero": float(np.sum(weights * tails)),
                           "tried": {a.variant: float(l) for a, l in zip(alts, lls - lls.max())}}
     return corr, shapes
 

@@ -66,15 +66,17 @@ def compensating(model: Model, c, coef: float, states: np.ndarray, rec: Recordin
     return None
 
 
-def screen(model: Model, corr, states: np.ndarray, rec: Recording, alpha: float) -> tuple:
-    """(the correction without implausible terms, {"compensating": [...], "not_identifiable": [...]})."""
+def screen(model: Model, corr, states: np.ndarray, rec: Recording, alpha: float, shapes: dict | None = None) -> tuple:
+    """(the correction without implausible terms, {"compensating": [...], "not_identifiable": [...]}).
+    ``shapes``: :func:`name.shape_search`'s summaries; a term searched over shapes is identifiable
+    when its probability of a zero coefficient, averaged over the shapes, is below ``alpha``."""
     z = stats.norm.isf(alpha / 2)
     kept, comp, lost = [], [], []
     for c, coef, std in corr.additive:
         item = {"effect": c.effect, "equation": c.equation, "expression": c.formula, "coefficient": coef, "std": std}
         if c.parameter:                  # a declared parameter's correction: not judged
             kept.append((c, coef, std))
-        elif not significant(coef, std, alpha):
+        elif not (shapes[c]["p_zero"] < alpha if c in (shapes or {}) else significant(coef, std, alpha)):
             sig = _signals(c.formula, model) or [c.equation]
             lost.append(dict(item, note=f"not identifiable from this recording (|coefficient| < {z:.2f} std): "
                                         f"excite {', '.join(sig)} over a wider range or for longer"))
