@@ -3,7 +3,10 @@ physics allows.
 
 - *Not identifiable*: the coefficient's std is not finite, or the coefficient is within
   z·std of zero (z the two-sided normal quantile of α): the recording cannot tell it
-  from nothing; the report says which signal would need more excitation. A structural
+  from nothing; the report says which signal would need more excitation. For a term
+  searched over shapes the test is its probability of a zero coefficient averaged over
+  the shapes (below α: identifiable); the spread of its value over the shapes is in its
+  std, but says how large it is, not whether it is there. A structural
   change's parameter (a dead zone's width, a lag's time constant) is not identifiable
   when its likelihood profile has no maximum inside the searched range (no std); a
   delay of whole samples is a choice among them and needs none.
@@ -66,19 +69,21 @@ def compensating(model: Model, c, coef: float, states: np.ndarray, rec: Recordin
     return None
 
 
-def screen(model: Model, corr, states: np.ndarray, rec: Recording, alpha: float, shapes: dict | None = None) -> tuple:
+def screen(model: Model, corr, states: np.ndarray, rec: Recording, alpha: float,
+           shapes: dict | None = None) -> tuple:
     """(the correction without implausible terms, {"compensating": [...], "not_identifiable": [...]}).
-    ``shapes``: :func:`name.shape_search`'s summaries; a term searched over shapes is identifiable
-    when its probability of a zero coefficient, averaged over the shapes, is below ``alpha``."""
-    z = stats.norm.isf(alpha / 2)
+    ``shapes``: :func:`name.shape_search`'s summaries (their ``p_zero``)."""
+    z, shapes = stats.norm.isf(alpha / 2), shapes or {}
     kept, comp, lost = [], [], []
     for c, coef, std in corr.additive:
         item = {"effect": c.effect, "equation": c.equation, "expression": c.formula, "coefficient": coef, "std": std}
         if c.parameter:                  # a declared parameter's correction: not judged
             kept.append((c, coef, std))
-        elif not (shapes[c]["p_zero"] < alpha if c in (shapes or {}) else significant(coef, std, alpha)):
+        elif not (shapes[c]["p_zero"] < alpha if c in shapes else significant(coef, std, alpha)):
             sig = _signals(c.formula, model) or [c.equation]
-            lost.append(dict(item, note=f"not identifiable from this recording (|coefficient| < {z:.2f} std): "
+            why = (f"probability {shapes[c]['p_zero']:.2g} of a zero coefficient over its shapes" if c in shapes
+                   else f"|coefficient| < {z:.2f} std")
+            lost.append(dict(item, note=f"not identifiable from this recording ({why}): "
                                         f"excite {', '.join(sig)} over a wider range or for longer"))
         elif (why := compensating(model, c, coef, states, rec)) is not None:
             comp.append(dict(item, note=why))
