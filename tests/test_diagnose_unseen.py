@@ -244,7 +244,6 @@ def test_pure_noise_names_nothing(diagnosed, name):
     assert d["corrected_model"] is None
 
 
-
 def test_overflow_named_on_another_noise_seed(tmp_path):
     """Seed 2: the shape search prefers the rim at 0.299 m with a soft stiffness (2.2 ± 0.2) to
     the rim at 0.300 m with a hard one; the spread between the two inflates the stiffness's std
