@@ -53,7 +53,7 @@ from . import transform as T
 from .catalog import Additive, Structural, _num
 from .cv import Folds, ekf_run, fit_without, fits_without, fold_loglik, loglik
 from .errors import DiagnosisError
-from .plausible import compensating, significant
+from .plausible import compensating, significant, term_item
 
 __all__ = ["Correction", "Proposal", "name_terms", "refit", "basis_rms", "distinct", "start_trace",
            "focus_window", "recalibrated", "significant"]
@@ -525,8 +525,7 @@ def _adopt(nominal: Model, corr: Correction, p: Proposal, rec: Recording, rms: d
         if not significant(coef, std, alpha):
             continue
         if why := compensating(nominal, c, coef, states, rec):
-            p.set_aside.append({"effect": c.effect, "equation": c.equation, "expression": c.formula,
-                                "coefficient": coef, "std": std, "note": why})
+            p.set_aside.append(term_item(c, coef, std, why))
         else:
             new_terms.append((c, coef, std))
     if p.kind == "additive" and not new_terms:

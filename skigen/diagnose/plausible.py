@@ -30,7 +30,7 @@ from scipy import stats
 from ..model import Model
 from ..recording import Recording
 
-__all__ = ["screen", "nominal_damping", "compensating", "significant"]
+__all__ = ["screen", "nominal_damping", "compensating", "significant", "term_item"]
 
 
 def significant(coef: float, std: float, alpha: float) -> bool:
@@ -58,6 +58,12 @@ def _signals(formula: str, model: Model) -> list[str]:
     return [n for n in dict.fromkeys(re.findall(r"[A-Za-z_]\w*", formula)) if n in names]
 
 
+def term_item(c, coef: float, std: float, note: str) -> dict:
+    """An additive term as report.json lists one that is not a finding (compensating, not identifiable)."""
+    return {"effect": c.effect, "equation": c.equation, "expression": c.formula, "coefficient": coef,
+            "std": std, "note": note}
+
+
 def compensating(model: Model, c, coef: float, states: np.ndarray, rec: Recording) -> str | None:
     """Why additive term ``c`` at ``coef`` is compensating for something else, or None: a sign
     physics forbids, or a viscous damping that makes the equation's total damping negative."""
@@ -76,17 +82,16 @@ def screen(model: Model, corr, states: np.ndarray, rec: Recording, alpha: float,
     z, shapes = stats.norm.isf(alpha / 2), shapes or {}
     kept, comp, lost = [], [], []
     for c, coef, std in corr.additive:
-        item = {"effect": c.effect, "equation": c.equation, "expression": c.formula, "coefficient": coef, "std": std}
         if c.parameter:                  # a declared parameter's correction: not judged
             kept.append((c, coef, std))
         elif not (shapes[c]["p_zero"] < alpha if c in shapes else significant(coef, std, alpha)):
             sig = _signals(c.formula, model) or [c.equation]
             why = (f"probability {shapes[c]['p_zero']:.2g} of a zero coefficient over its shapes" if c in shapes
                    else f"|coefficient| < {z:.2f} std")
-            lost.append(dict(item, note=f"not identifiable from this recording ({why}): "
-                                        f"excite {', '.join(sig)} over a wider range or for longer"))
+            lost.append(term_item(c, coef, std, f"not identifiable from this recording ({why}): "
+                                                f"excite {', '.join(sig)} over a wider range or for longer"))
         elif (why := compensating(model, c, coef, states, rec)) is not None:
-            comp.append(dict(item, note=why))
+            comp.append(term_item(c, coef, std, why))
         else:
             kept.append((c, coef, std))
     structural = []
