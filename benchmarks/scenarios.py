@@ -1,9 +1,9 @@
-"""Recordings in which a missing effect is concealed, on four systems, and clean ones.
+"""Recordings in which a missing effect is concealed, on five systems, and clean ones.
 
 Each scenario flies a truth with one effect the nominal model file leaves out
 (or, for the last rows, none: clean recordings, some diagnosed with mis-declared
 noise, and pure noise) and says how the effect hides. The cart and the quadrotor
-fly closed loops; the tanks and the arm (models/two_tanks.py,
+fly closed loops (and so does the pitch, models/short_period.py); the tanks and the arm (models/two_tanks.py,
 models/motor_pendulum.py) run open loop and are the systems the diagnosis was not
 developed on (tests/test_diagnose_unseen.py).
 
@@ -28,6 +28,8 @@ tanks_overflow      tanks       physical_limit h1   the upper tank spills at its
                                 (upper, 0.30 m)     two pump bursts only (~8 % of the samples)
 tanks_sensor_sat    tanks       sensor_saturation   the upper level sensor's range ends at 0.32 m
                                 h1_meas (upper)     while the level rises on during the pump bursts
+tanks_pump_limit    tanks       input_saturation u  the pump delivers at most 5 V; 30 % of the
+                                (upper)             commands (2.5–6 V) are above it
 arm_backlash        arm         backlash V          a ±0.15 V play between command and motor: only
                                                     felt after each reversal of the voltage
 arm_frac_delay      arm         fractional_delay V  2.5 samples (12.5 ms): half a sample off the
@@ -46,6 +48,11 @@ tanks_r_x2_5        tanks       none                level-sensor noise declared 
 arm_r_half          arm         none                encoder noise declared 2× too small
 arm_noise_only      arm         none                pure noise: the encoder column is white noise
                                                     (0.3 rad) unrelated to the voltage
+pitch_delay         pitch       input_delay de      30 ms; calibration widens the turbulence on q
+                                                    until the innovations look white
+pitch_cubic_grey    pitch       cubic_stiffness q   +80·α³ in the large manoeuvres only; the
+                                                    nominal declares Mα, Mq, Mδ 30 % off
+pitch_clean         pitch       none                the nominal model is right
 ==================  ==========  ==================  =============================================
 
 Lengths (SECONDS): cart and quadrotor 60 s at 100 Hz; arm 30 s at 200 Hz (6000
@@ -68,7 +75,7 @@ from pathlib import Path
 
 import numpy as np
 
-from models import cart, motor_pendulum as arm, two_tanks as tanks
+from models import cart, motor_pendulum as arm, short_period as pitch, two_tanks as tanks
 from skigen.diagnose import diagnose
 from skigen.recording import Recording, write_recording
 
@@ -155,6 +162,10 @@ TANKS_PROCESS_X10 = tanks.build("two_tanks_q_x10", process_scale=10.0)
 TANKS_MEASUREMENT_X2_5 = tanks.build("two_tanks_r_x2_5", measurement_scale=2.5)
 ARM_MEASUREMENT_HALF = arm.build("motor_pendulum_r_half", measurement_scale=0.5)
 TANKS_NOISE = {"process_std": dict(tanks.LEVEL_STD), "measurement_std": dict(tanks.H_NOISE)}
+PITCH_FILE = str(ROOT / "models" / "short_period.py")
+# the pitch grey box: Mα, Mq, Mδ declared as parameters, started 30 % off
+PITCH_GREY = pitch.build("short_period_grey", parameters={"Ma": 0.7 * pitch.MA, "Mq": 1.3 * pitch.MQ,
+                                                          "Mde": 0.7 * pitch.MDE})
 ARM_NOISE = {"process_std": {"theta": 0.0, "omega": arm.RATE_STD}, "measurement_std": {"theta_meas": arm.NOISE_STD}}
 
 
@@ -176,7 +187,7 @@ def _arm(name, effect, voltage, concealment, seconds, seed, *, truth=None, activ
 def _tanks(name, effect, concealment, seconds, seed, *, equation=None, truth=None, bursts=(), levels=(2.5, 6.0),
            side=None, active_of=None, model_file=TANKS_FILE, noise=None, misdeclared=None,
            outside=False) -> Scenario:
-    simulated = {"physical_limit": "overflow"}.get(effect, effect)
+    simulated = {"physical_limit": "overflow", "input_saturation": "pump_limit"}.get(effect, effect)
     pump = tanks.pump_steps(seconds, levels=levels, seed=seed, bursts=bursts)
     run = tanks.simulate(pump, effect=simulated, seed=seed)
     col = ["h1", "h2"].index(equation) if equation else 0
@@ -185,6 +196,14 @@ def _tanks(name, effect, concealment, seconds, seed, *, equation=None, truth=Non
     return Scenario(name, "two_tanks", model_file, effect, equation, truth, concealment, run.t, run.inputs(),
                     run.outputs(), acc, active, run, side=side, noise_truth=noise, misdeclared=misdeclared,
                     outside_catalog=outside)
+
+
+def _pitch(name, effect, concealment, seconds, seed, *, model_file=PITCH_FILE, large=0.15) -> Scenario:
+    run = pitch.simulate(seconds, effect=effect, seed=seed, large=large)
+    found = {"cubic_moment": ("cubic_stiffness", -pitch.EFFECTS["cubic_moment"][0]),
+             "elevator_delay": ("input_delay", pitch.EFFECTS["elevator_delay"][0])}.get(effect, (None, None))
+    return Scenario(name, "short_period", model_file, found[0], "q" if effect else None, found[1], concealment,
+                    run.t, run.inputs(), run.outputs(), run.effect_acc, _strong(run.effect_acc), run)
 
 
 def _arm_noise_only(name, seconds, seed) -> Scenario:
@@ -238,6 +257,11 @@ UNSEEN = {
         "and only the lower tank's faster rise shows it", s, seed, equation="h1",
         truth=tanks.EFFECTS["sensor_saturation"][0], side="upper", bursts=_overflow_bursts(s),
         active_of=lambda r: r.h1 > tanks.EFFECTS["sensor_saturation"][0]),
+    "tanks_pump_limit": lambda s, seed: _tanks(
+        "tanks_pump_limit", "input_saturation",
+        "the pump delivers at most 5 V: commands of 2.5–6 V, above it 30 % of the time, and the "
+        "upper level settles lower than the nominal model says", s, seed, equation="h1",
+        truth=tanks.EFFECTS["pump_limit"][0], side="upper"),
     "arm_backlash": lambda s, seed: _arm(
         "arm_backlash", "backlash", _arm_multisine(1.2),
         "a ±0.15 V play between command and motor (gear backlash as a hysteresis on the voltage): "
@@ -262,6 +286,17 @@ UNSEEN = {
         misdeclared="measurement_std"),
     "tanks_clean": lambda s, seed: _tanks("tanks_clean", None, "the nominal model is right", s, seed),
     "arm_clean": lambda s, seed: _arm("arm_clean", None, _arm_multisine(1.2), "the nominal model is right", s, seed),
+    "pitch_delay": lambda s, seed: _pitch(
+        "pitch_delay", "elevator_delay",
+        "the elevator acts 30 ms late, the pilot's inputs at most 0.1 rad; the noise calibration widens "
+        "the turbulence on q until the innovations look white, but they still follow the elevator",
+        s, seed, large=0.1),
+    "pitch_cubic_grey": lambda s, seed: _pitch(
+        "pitch_cubic_grey", "cubic_moment",
+        "a pitch break +80·α³ felt only in the large manoeuvres of the second half; the nominal "
+        "declares Mα, Mq, Mδ 30 % off, and the calibration bends Mα to absorb the break", s, seed,
+        model_file="benchmarks.scenarios:PITCH_GREY"),
+    "pitch_clean": lambda s, seed: _pitch("pitch_clean", None, "the nominal model is right", s, seed),
 }
 
 

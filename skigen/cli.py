@@ -149,7 +149,8 @@ def _diagnose(args) -> int:
     print("calibrated noise: " + ", ".join(f"{k} {v:.3g}" for kind in ("process_std", "measurement_std")
                                              for k, v in cal[kind].items() if v))
     print(f"{'mismatch detected' if d['mismatch_detected'] else 'no significant mismatch'}: "
-          f"whiteness p = {c['whiteness_pvalue']:.3g}, slowly varying disturbance gain "
+          f"whiteness p = {c['whiteness_pvalue']:.3g}, independence of the past p = "
+          f"{c.get('independence_pvalue', 1.0):.3g}, slowly varying disturbance gain "
           + ", ".join(f"{k} {v:+.1f}" for k, v in c["disturbance_gain"].items())
           + f" (threshold {c['disturbance_threshold']:.1f})")
     if d["mismatch_detected"]:

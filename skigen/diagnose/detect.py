@@ -10,6 +10,15 @@ whiteness (Bonferroni over the outputs). A significant mismatch is an NIS
 above its upper bound or non-white innovations; an NIS *below* its lower bound
 means the stated noise is larger than the data show — reported, but no
 missing physics can be named from it.
+
+On a noise-calibrated model (:func:`judge`) a third property is tested: an innovation is
+uncorrelated with anything known before it (Ljung, *System Identification*, §16.6, the test of
+residuals against past inputs; Billings and Voon's nonlinear correlation tests). Calibration can
+widen the process noise until a missing term's error looks white — a 30 ms delay or a cubic
+moment then hides in Q — but the error still follows the state and the input that cause it.
+:func:`past_regressors` are the catalog's additive shapes of every state's estimate and every
+input one sample back, and each input's increment (a delay, a lag); N·R² of the normalised
+innovations regressed on them is χ² with as many degrees of freedom as independent regressors.
 """
 from __future__ import annotations
 
@@ -20,7 +29,8 @@ from scipy import stats
 
 from ..runtime import RunResult
 
-__all__ = ["Consistency", "consistency", "normalised_innovations", "whiteness", "lags_for"]
+__all__ = ["Consistency", "consistency", "normalised_innovations", "whiteness", "lags_for",
+           "past_regressors", "independence"]
 
 
 @dataclass
@@ -36,6 +46,8 @@ class Consistency:
     mismatch: bool
     outputs: list[dict] = field(default_factory=list)   # per output: name, nis_mean, whiteness_pvalue
     note: str = ""
+    independence_pvalue: float | None = None   # innovations against the past (judge only)
+    regressors: int = 0
 
     def asdict(self) -> dict:
         """The ``consistency`` object of report.json."""
@@ -43,7 +55,9 @@ class Consistency:
                 "whiteness_pvalue": self.whiteness_pvalue,
                 "nis_bounds": list(self.nis_bounds), "nis_pvalue": self.nis_pvalue,
                 "alpha": self.alpha, "lags": self.lags, "samples": self.samples,
-                "outputs": self.outputs, "note": self.note}
+                "outputs": self.outputs, "note": self.note,
+                **({"independence_pvalue": self.independence_pvalue, "regressors": self.regressors}
+                   if self.independence_pvalue is not None else {})}
 
 
 def normalised_innovations(res: RunResult) -> np.ndarray:
@@ -68,6 +82,35 @@ def whiteness(eps: np.ndarray, lags: int) -> float:
     q = n * (n + 2) * np.sum(r ** 2 / (n - np.arange(1, lags + 1)))
     q += n * (x.sum() / n) ** 2 / max(den / n, 1e-300)
     return float(stats.chi2.sf(q, lags + 1))
+
+
+def past_regressors(model, run: RunResult, inputs: np.ndarray) -> np.ndarray:
+    """(N, p) functions of what the filter knew before sample k, row k: for s, each state's
+    posterior mean at k − 1 and each input at k − 1 (standardised over the recording), the
+    catalog's additive shapes s, s·|s|, s³ and tanh(3s) (linear, drag, cubic, Coulomb); and each
+    input's increment u[k−1] − u[k−2]. Row 0 is NaN."""
+    cols = []
+    signals = [run.mean[:, i] for i in range(len(model.states))] + list(inputs.T)
+    for s in signals:
+        s = (s - np.nanmean(s)) / (np.nanstd(s) or 1.0)
+        cols += [s, s * np.abs(s), s ** 3, np.tanh(3 * s)]
+    cols += [np.r_[0.0, np.diff(u)] for u in inputs.T]
+    Z = np.column_stack(cols)
+    return np.vstack([np.full(Z.shape[1], np.nan), Z[:-1]])
+
+
+def independence(eps: np.ndarray, Z: np.ndarray) -> tuple[float, int]:
+    """(p-value, degrees of freedom) of N·R² of one output's normalised innovations regressed on
+    ``Z`` (columns centred, about zero mean), χ²(rank Z), where both are finite."""
+    ok = np.isfinite(eps) & np.all(np.isfinite(Z), axis=1)
+    e, z = eps[ok], Z[ok] - Z[ok].mean(axis=0)
+    if len(e) <= 2 * Z.shape[1]:
+        return 1.0, 0
+    q, r = np.linalg.qr(z)
+    d = np.abs(np.diag(r))
+    q = q[:, d > 1e-8 * max(d.max(), 1e-300)]
+    stat = len(e) * float(np.sum((q.T @ e) ** 2)) / max(float(np.dot(e, e)), 1e-300)
+    return float(stats.chi2.sf(stat, q.shape[1])), q.shape[1]
 
 
 def consistency(res: RunResult, output_names, alpha: float = 0.01) -> Consistency:
@@ -97,6 +140,9 @@ def consistency(res: RunResult, output_names, alpha: float = 0.01) -> Consistenc
     return Consistency(nis_sum / N, dof / N, (lo / N, hi / N), p_nis, p_white, lags, alpha, N, mismatch, per, note)
 
 
+TESTS = 3     # whiteness, independence of the past, slowly varying disturbance: α/3 each
+
+
 @dataclass
 class Verdict:
     """The decision on a calibrated model: its consistency, the disturbance test, the verdict."""
@@ -109,19 +155,26 @@ class Verdict:
 
 
 def judge(model, rec, run: RunResult, equations, alpha: float = 0.01) -> Verdict:
-    """Mismatch on a noise-calibrated model: its innovations are not white (α/2, Bonferroni over
-    the outputs), or a slowly varying disturbance on some equation buys significant likelihood
-    (α/2, Bonferroni over the equations). The NIS is reported but not tested: calibration makes
-    its mean match by construction."""
+    """Mismatch on a noise-calibrated model, α split in three: its innovations are not white
+    (Bonferroni over the outputs), they follow the past (:func:`independence`, Bonferroni over the
+    outputs), or a slowly varying disturbance on some equation buys significant likelihood
+    (Bonferroni over the equations). The NIS is reported but not tested: calibration makes its
+    mean match by construction."""
     from .locate import disturbance_gains, disturbance_threshold
     cons = consistency(run, model.output_names, alpha)
+    eps, Z = normalised_innovations(run), past_regressors(model, run, rec.inputs)
+    for i, o in enumerate(cons.outputs):
+        o["independence_pvalue"], cons.regressors = independence(eps[:, i], Z)
+    cons.independence_pvalue = float(min(1.0, len(cons.outputs) * min(o["independence_pvalue"] for o in cons.outputs)))
     tested = disturbance_gains(model, rec, run, equations)
-    threshold = disturbance_threshold(alpha / 2, len(equations))
-    white = cons.whiteness_pvalue >= alpha / 2
+    threshold = disturbance_threshold(alpha / TESTS, len(equations))
+    white = cons.whiteness_pvalue >= alpha / TESTS
+    free = cons.independence_pvalue >= alpha / TESTS
     drift = max(tested[0].values(), default=-np.inf) > threshold
-    cons.mismatch = bool(not white or drift)
+    cons.mismatch = bool(not white or not free or drift)
     cons.note = ("judged on the calibrated model: "
                  + ("innovations not white" if not white else "innovations white")
+                 + ("; they follow the state or input before them" if not free else "; uncorrelated with the past")
                  + ("; a slowly varying disturbance is significant" if drift else "; no significant slowly varying disturbance"))
     return Verdict(cons, {k: float(v) for k, v in tested[0].items()}, float(threshold), tested, cons.mismatch)
 

@@ -163,16 +163,17 @@ def features(model: Model, rec: Recording, states: np.ndarray) -> dict:
     return out
 
 
-def _outputs(nominal_run, names, alpha: float, lags: int) -> list[str]:
-    """Outputs whose own NIS or whiteness test rejects at α/(2·ny) (two-sided NIS)."""
+def _outputs(nominal_run, names, alpha: float, cons: Consistency) -> list[str]:
+    """Outputs whose own NIS, whiteness or independence test rejects at α/(3·ny) (two-sided NIS)."""
     eps = normalised_innovations(nominal_run)
     ny, flagged, pvals = len(names), [], []
     for i, name in enumerate(names):
         e = eps[:, i][np.isfinite(eps[:, i])]
         sf = stats.chi2.sf(np.sum(e ** 2), len(e))
-        p = min(2 * min(sf, 1 - sf), whiteness(eps[:, i], lags))
+        p = min(2 * min(sf, 1 - sf), whiteness(eps[:, i], cons.lags),
+                cons.outputs[i].get("independence_pvalue", 1.0) if i < len(cons.outputs) else 1.0)
         pvals.append(p)
-        if p < alpha / (2 * ny):
+        if p < alpha / (3 * ny):
             flagged.append(name)
     return flagged or [names[int(np.argmin(pvals))]]
 
@@ -226,5 +227,5 @@ def locate(nominal: Model, rec: Recording, nominal_run, cons: Consistency, alpha
     windows = windows_of(rec.t, active, nominal.dt)
     regime = regime_stump(features(nominal, rec, sm.mean[:, :nx]),
                           significant if significant.mean() > 0.02 else active)
-    return Location(_outputs(nominal_run, nominal.output_names, alpha, cons.lags), chosen, gains, steps,
+    return Location(_outputs(nominal_run, nominal.output_names, alpha, cons), chosen, gains, steps,
                     windows, regime, dist, sm.mean[:, :nx], active, scales)

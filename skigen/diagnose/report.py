@@ -76,11 +76,15 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
               f"and the whiteness p-value {dn['whiteness_pvalue']:.3g}: the noise guess alone decides nothing "
               f"below.", ""]
     L += ["## 2. Detect (on the calibrated model)", "",
-          f"False-alarm rate α = {c['alpha']:g}: α/2 for whiteness (Bonferroni over outputs), α/2 for a slowly "
-          f"varying disturbance (Bonferroni over equations).", "",
+          f"False-alarm rate α = {c['alpha']:g}: α/3 for whiteness (Bonferroni over outputs), α/3 for "
+          f"innovations that follow the state or input before them (Bonferroni over outputs), α/3 for a "
+          f"slowly varying disturbance (Bonferroni over equations).", "",
           "| test | value | threshold | verdict |", "|---|---|---|---|",
           f"| whiteness (mean + Ljung–Box, {c['lags']} lags), p-value | {c['whiteness_pvalue']:.3g} | "
-          f"≥ {c['alpha'] / 2:g} | {'not white' if c['whiteness_pvalue'] < c['alpha'] / 2 else 'ok'} |"]
+          f"≥ {c['alpha'] / 3:.3g} | {'not white' if c['whiteness_pvalue'] < c['alpha'] / 3 else 'ok'} |",
+          f"| independence of the past (N·R² on {c.get('regressors', 0)} functions of the states and inputs "
+          f"one sample back), p-value | {c.get('independence_pvalue', 1.0):.3g} | ≥ {c['alpha'] / 3:.3g} | "
+          f"{'follows the past' if c.get('independence_pvalue', 1.0) < c['alpha'] / 3 else 'ok'} |"]
     for eq, g in c.get("disturbance_gain", {}).items():
         L.append(f"| random-walk disturbance on `{eq}`, log-likelihood gain | {g:+.1f} | "
                  f"{c['disturbance_threshold']:.1f} | {'significant' if g > c['disturbance_threshold'] else 'ok'} |")
