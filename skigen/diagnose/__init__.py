@@ -222,7 +222,10 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     corrected = None
     if not corr.empty:
         stage("refitting the corrected model jointly (skigen fit)")
-        base = T.copy_model(declared)         # the user's parameters, the noise recalibrated while naming
+        # The user's parameters from their calibrated values, with the user's own prior std (the
+        # calibration's std came from this recording: as a prior it would count the data twice and
+        # hold the refit at the compromise the calibration made), and the noise recalibrated while naming.
+        base = T.copy_model(declared).set_parameters({}, std={p.name: p.std for p in nominal.parameters})
         base.covariances(Q=calibrated.process_noise(), R=calibrated.measurement_noise(),
                          P0=declared.initial_covariance())
         corrected, names, notes, refit_info = refit_jointly(nominal, base, corr.without_parameters(), rec,
