@@ -43,6 +43,7 @@ INITIAL = (0.10, 0.07)             # m: levels at start (near equilibrium for u 
 EFFECTS = {   # name: (default parameter, what it means)
     "overflow": (0.30, "rim height H (m) of the upper tank: h₁ ≤ H, the excess spills to the sump"),
     "sensor_saturation": (0.32, "range end B (m) of the upper level sensor: it reads min(h₁, B) + noise"),
+    "pump_limit": (5.0, "the pump delivers at most this command L (V): the plant sees min(u, L)"),
     "float_valve": (4e-5, "mains inflow q_v (m³/s) into the lower tank while a float valve is open: it "
                           "opens when h₂ < 0.08 m and closes when h₂ > 0.11 m; not in the catalog"),
 }
@@ -142,11 +143,11 @@ def simulate(pump, *, effect: str | None = None, parameter=None, seed: int = 0, 
     missing = np.empty((n, 2))
     h = DT / substeps
     for k in range(n):
-        u = u_all[k]
+        u = min(u_all[k], par) if effect == "pump_limit" else u_all[k]
         if effect == "float_valve":
             valve = (x[1] < VALVE_LEVELS[0]) or (valve and x[1] <= VALVE_LEVELS[1])
         out["h1"][k], out["h2"][k], out["valve"][k] = x[0], x[1], valve
-        missing[k] = rates(x, u, valve) - nominal_rates(x[0], x[1], u)
+        missing[k] = rates(x, u, valve) - nominal_rates(x[0], x[1], u_all[k])
         for _ in range(substeps):
             k1 = rates(x, u, valve)
             k2 = rates(x + h / 2 * k1, u, valve)

@@ -3,7 +3,10 @@ terms, on the systems the diagnosis was not developed on (scenarios in benchmark
 
 - tanks_sensor_sat: the upper level sensor's range ends (sensor_saturation, in the output equation);
 - arm_backlash: a play between the commanded and the applied voltage (backlash);
-- arm_frac_delay: a delay of 2.5 samples (fractional_delay: whole and fractional part searched).
+- arm_frac_delay: a delay of 2.5 samples (fractional_delay: whole and fractional part searched);
+- tanks_pump_limit: a pump that delivers at most 5 V, on an input that is never negative (the
+  saturation's upper end alone: a limit symmetric about the input's median also clipped its low
+  commands).
 
 Each is asserted from report.json (named first, on its equation, its parameter near the truth,
 nothing remaining) and from corrected_model.py: the file loads, states the effect where it acts
@@ -26,6 +29,7 @@ TOLERANCE = {
     "tanks_sensor_sat": 3 * tanks.H_NOISE["h1_meas"],      # m: three noise std of one sample
     "arm_backlash": 0.015,                                  # V: about 3 std, a tenth of the play
     "arm_frac_delay": 0.25,                                 # samples: about 3 std, half the fraction
+    "tanks_pump_limit": 0.15,                               # V: about 3 std (measured 4.97 ± 0.04)
 }
 
 
@@ -46,6 +50,26 @@ def test_named_first_with_its_parameter(diagnosed, name):
     assert d["remaining"]["mismatch"] is False, d["remaining"]
 
 
+def test_pump_limit_is_its_upper_end_alone(diagnosed):
+    top = diagnosed("tanks_pump_limit")["data"]["findings"][0]
+    assert top["expression"].startswith("min(u, "), top
+
+
+def test_a_one_sided_input_saturates_at_one_end():
+    from skigen.diagnose.catalog import structural_candidates
+    from skigen.diagnose.transform import input_saturation
+    heater = np.random.default_rng(2).uniform(0.0, 15.0, 500)
+    sides = {c.side: c for c in structural_candidates(_echo(), ["x"], heater[:, None])
+             if c.effect == "input_saturation"}
+    assert set(sides) == {"upper", "lower"}
+    assert min(sides["upper"].grid) < np.median(heater) < max(sides["upper"].grid)
+    _, y = free_run(input_saturation(_echo(), "u", None, 11.0), heater)
+    assert np.allclose(y[1:, 0], np.minimum(heater, 11.0)[:-1])
+    both = np.random.default_rng(3).normal(size=500)
+    assert [c.side for c in structural_candidates(_echo(), ["x"], both[:, None])
+            if c.effect == "input_saturation"] == [""]
+
+
 def test_sensor_saturation_side_and_output(diagnosed):
     top = diagnosed("tanks_sensor_sat")["data"]["findings"][0]
     assert top["output"] == "h1_meas" and top["shape"]["side"] == "upper", top
@@ -54,6 +78,8 @@ def test_sensor_saturation_side_and_output(diagnosed):
 def _noiseless(sc) -> np.ndarray:
     """The true output without noise: the tanks' levels clipped by the sensor, the arm's angle
     simulated again on the same voltage without process noise."""
+    if sc.effect == "input_saturation":
+        return sc.run.h1                 # the true level (with its process noise)
     if sc.system == "two_tanks":
         return np.minimum(sc.run.h1, sc.truth)
     quiet = arm.simulate(sc.run.V, effect=sc.effect, parameter=sc.truth, seed=SEED, noise=False)
@@ -67,7 +93,7 @@ def test_corrected_model_file_states_and_reproduces_it(diagnosed, name):
     corrected = load_model(d["corrected_model"])
     text = open(d["corrected_model"]).read()
     expected = {"sensor_saturation": "ca.fmin(h1", "backlash": "model.state('V_play'",
-                "fractional_delay": "model.input_history(V, 3)"}[sc.effect]
+                "fractional_delay": "model.input_history(V, 3)", "input_saturation": "ca.fmin(u, "}[sc.effect]
     assert expected in text, text
     nominal = load_model(sc.model_file)
     truth = _noiseless(sc)

@@ -256,6 +256,27 @@ def parameter_terms(model: Model, equations) -> list[Additive]:
     return out
 
 
+def _saturations(u: str, unit: str, x: np.ndarray, both: bool) -> list[Structural]:
+    """An input's saturation: symmetric about zero for an input of both signs (an elevator, a motor
+    voltage), the limit searched over |u|'s upper quantiles; otherwise (a heater, a pump, a thrust,
+    whose range has one end at rest) the upper or the lower end alone, searched over u's quantiles."""
+    def grid(values, qs):
+        return tuple(float(q) for q in np.unique(np.quantile(values, qs)))
+    if both:
+        limits = tuple(a for a in grid(np.abs(x), [0.6, 0.8, 0.9, 0.95, 0.99]) if a > 0)
+        return [Structural("input_saturation", u, "limit", unit, limits, False, True,
+                           lambda m, a, u=u: T.input_saturation(m, u, -a, a),
+                           lambda a, u=u: f"clip({u}, {_num(-a)}, {_num(a)})", READINGS["input_saturation"])
+                ] if limits else []
+    upper, lower = grid(x, [0.25, 0.5, 0.75, 0.9, 0.97]), grid(x, [0.03, 0.1, 0.25, 0.5, 0.75])
+    return [Structural("input_saturation", u, "limit", unit, upper, False, False,
+                       lambda m, a, u=u: T.input_saturation(m, u, None, a),
+                       lambda a, u=u: f"min({u}, {_num(a)})", READINGS["input_saturation"], side="upper"),
+            Structural("input_saturation", u, "limit", unit, lower, False, False,
+                       lambda m, a, u=u: T.input_saturation(m, u, a, None),
+                       lambda a, u=u: f"max({u}, {_num(a)})", READINGS["input_saturation"], side="lower")]
+
+
 def structural_candidates(model: Model, equations, inputs: np.ndarray) -> list[Structural]:
     """Delay, lag, saturation and dead zone of every input that drives a listed equation.
     ``inputs``: the recorded inputs (N, nu), for the grids of limits and widths."""
@@ -280,13 +301,7 @@ def structural_candidates(model: Model, equations, inputs: np.ndarray) -> list[S
             lambda m, tau, u=u, first=first, s=float(np.std(x)) + 1e-9:
                 T.actuator_lag(m, u, tau, initial=first, std=0.1 * s),
             lambda tau, u=u: f"{u} through 1/({_num(tau)} s·s + 1)", READINGS["actuator_lag"]))
-        limits = tuple(float(q) for q in np.unique(np.quantile(dev, [0.6, 0.8, 0.9, 0.95, 0.99])) if q > 0)
-        if limits:
-            out.append(Structural(
-                "input_saturation", u, "limit", unit, limits, False, True,
-                lambda m, a, u=u, c=centre: T.input_saturation(m, u, c - a, c + a),
-                lambda a, u=u, c=centre: f"clip({u}, {_num(c - a)}, {_num(c + a)})",
-                READINGS["input_saturation"]))
+        out += _saturations(u, unit, x, both)
         widths = tuple(float(q) for q in np.unique(np.quantile(dev, [0.05, 0.1, 0.2, 0.3, 0.45])) if q > 0)
         if both and widths:
             out.append(Structural(

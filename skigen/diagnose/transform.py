@@ -175,10 +175,11 @@ def actuator_lag(model: Model, u: str, tau: float, initial: float = 0.0, std: fl
     return m
 
 
-def input_saturation(model: Model, u: str, low: float, high: float) -> Model:
-    """The plant sees clip(u, low, high)."""
-    sym = _input(model, u)
-    return replace_input(model, u, ca.fmin(ca.fmax(sym, float(low)), float(high)))
+def input_saturation(model: Model, u: str, low: float | None, high: float | None) -> Model:
+    """The plant sees clip(u, low, high); a side given as None is not limited."""
+    seen = _input(model, u)
+    seen = seen if low is None else ca.fmax(seen, float(low))
+    return replace_input(model, u, seen if high is None else ca.fmin(seen, float(high)))
 
 
 def smooth_dead_zone(x, width: float, smooth: float):
