@@ -56,6 +56,17 @@ class Recording:
         """Median sample interval in seconds (NaN with fewer than 2 samples)."""
         return float(np.median(np.diff(self.t))) if len(self.t) > 1 else float("nan")
 
+    def stuck_output(self) -> str | None:
+        """A sentence naming the first output that reads the same value in every sample where it
+        is measured (a stuck or disconnected sensor: nothing to fit or judge), or None."""
+        for name, y in zip(self.output_names, self.outputs.T):
+            y = y[np.isfinite(y)]
+            if len(y) > 1 and np.all(y == y[0]):
+                return (f"{self.path}: output '{name}' reads {y[0]:g} in all {len(y)} samples where it is "
+                        f"measured: a stuck or disconnected sensor carries nothing to fit (drop the output "
+                        f"from the model, or read another column with --map {name}=COLUMN)")
+        return None
+
     def slice(self, start: int | None, stop: int | None) -> Recording:
         """The samples with index in ``range(start, stop)`` (Python slice rules)."""
         s = slice(start, stop)

@@ -14,6 +14,7 @@ Measured on the development machine (fixed seeds below):
 
 Whole file: about 3 minutes on one core (the 1500-sample filter-error Duffing runs take 100 s).
 """
+import dataclasses
 import json
 import shutil
 
@@ -404,6 +405,17 @@ def test_unidentifiable_parameters_are_named(method):
     m.output("pos", y, noise_std=0.01)
     with pytest.raises(FitError, match="'c' has no effect on the likelihood"):
         fit(m, [_excited(m)], method=method, show_progress=False)
+
+
+def test_a_stuck_output_is_named_not_fitted():
+    m, y, v, u = _linear("stuck")
+    k = m.parameter("k", 4.0)
+    m.dynamics({y: v, v: -k * y - 0.5 * v + u})
+    m.output("pos", y, noise_std=0.01)
+    rec = _excited(m, N=400)
+    stuck = dataclasses.replace(rec, outputs=np.where(np.isfinite(rec.outputs), 0.0, np.nan))
+    with pytest.raises(FitError, match=r"output 'pos' reads 0 in all \d+ samples .* stuck or disconnected"):
+        fit(m, [stuck], show_progress=False)
 
 
 def test_diverging_simulation_names_the_time():

@@ -59,6 +59,8 @@ def check(model: Model, rec: Recording, folds: int):
     if not np.isfinite(rec.inputs).all():
         k = int(np.argwhere(~np.isfinite(rec.inputs))[0, 0])
         raise DiagnosisError(f"{rec.path}: input missing at t = {rec.t[k]:g} s; the diagnosis needs every input")
+    if stuck := rec.stuck_output():
+        raise DiagnosisError(stuck)
     measured = np.isfinite(rec.outputs).sum(axis=0)
     if measured.min() < 0.5 * need:
         name = model.output_names[int(np.argmin(measured))]

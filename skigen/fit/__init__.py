@@ -121,6 +121,8 @@ def _check_recording(model: Model, rec: Recording):
         raise FitError(f"{rec.path}: input missing at t = {rec.t[i]:g} s; a fit needs every input")
     if not np.isfinite(rec.outputs).any():
         raise FitError(f"{rec.path}: no output is measured")
+    if stuck := rec.stuck_output():
+        raise FitError(stuck)
 
 
 def _first_bad(values: np.ndarray, lengths: list[int], recs) -> str | None:
