@@ -225,11 +225,14 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         # The user's parameters from their calibrated values, with the user's own prior std (the
         # calibration's std came from this recording: as a prior it would count the data twice and
         # hold the refit at the compromise the calibration made), and the noise recalibrated while naming.
-        base = T.copy_model(declared).set_parameters({}, std={p.name: p.std for p in nominal.parameters})
-        base.covariances(Q=calibrated.process_noise(), R=calibrated.measurement_noise(),
-                         P0=declared.initial_covariance())
+        noise = dict(Q=calibrated.process_noise(), R=calibrated.measurement_noise(), P0=declared.initial_covariance())
+        base, anchored = T.copy_model(declared), T.copy_model(declared) if nominal.parameters else None
+        base.set_parameters({}, std={p.name: p.std for p in nominal.parameters})
+        for m in (base, anchored):
+            if m is not None:
+                m.covariances(**noise)
         corrected, names, notes, refit_info = refit_jointly(nominal, base, corr.without_parameters(), rec,
-                                                            loc.equations, refit)
+                                                            loc.equations, refit, anchored)
         data["refit"] = refit_info
         _update_findings(data["findings"], names, refit_info.get("parameters", {}), alpha)
         path = out / "corrected_model.py"

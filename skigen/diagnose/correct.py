@@ -169,26 +169,34 @@ def liftable(nominal: Model, corr: Correction, equations) -> list[tuple[str, str
 
 
 def refit_jointly(nominal: Model, calibrated: Model, corr: Correction, rec, equations,
-                  enabled: bool = True) -> tuple[Model, dict, dict, dict]:
+                  enabled: bool = True, anchored: Model | None = None) -> tuple[Model, dict, dict, dict]:
     """The corrected model refitted by `skigen fit` (filter error): the nominal's declared
     parameters, the found coefficients, the lifted linear corrections and the noise, jointly.
+    ``anchored``: ``calibrated`` with the calibration's std as the parameters' prior, tried when
+    the refit without it does not converge (the prior comes from the same recording: it steadies
+    a rough likelihood, and its error bars count the data twice, which the note says).
     Returns (fitted model, {parameter: candidate}, comments per equation, what the refit did)."""
     from ..fit import FitError, fit
     lift = liftable(nominal, corr, equations)
-    tries = [lift, []] if lift else [[]]
+    tries = [(calibrated, a) for a in ([lift, []] if lift else [[]])] + ([(anchored, [])] if anchored else [])
     pieces = blocks(rec)
     info = {"method": "filter-error", "lifted": [], "note": "" if len(pieces) == 1 else
             f"on {len(pieces)} blocks of {len(pieces[0].t)} samples spread over the recording. "}
-    for attempt in tries:
-        model, names, notes = parametrised(calibrated, corr, attempt)
+    for start, attempt in tries:
+        model, names, notes = parametrised(start, corr, attempt)
         if not enabled:
             info["note"] = "not refitted (refit=False): coefficients from the cross-validated search"
             return model, names, notes, info
         try:
             res = fit(model, pieces, method="filter-error", show_progress=False)
         except FitError as exc:
-            info["note"] += f"joint refit with {len(attempt)} lifted corrections failed: {exc}. "
+            info["note"] += (f"joint refit with {len(attempt)} lifted corrections"
+                             + (", the calibration's std as prior," if start is anchored else "")
+                             + f" failed: {exc}. ")
             continue
+        if start is anchored:
+            info["note"] += ("refitted with the calibration's std as the declared parameters' prior: their "
+                             "error bars count this recording twice. ")
         info.update(parameters=res.parameters, noise=res.noise.get("scales"), converged=res.converged,
                     seconds=res.seconds, iterations=res.iterations,
                     lifted=[dict(effect=e, equation=q, formula=f) for e, q, f in attempt])
