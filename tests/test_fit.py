@@ -6,10 +6,10 @@ and recording length, so the NLP is built once and only the data change.
 
 Measured on the development machine (fixed seeds below):
 
-- Duffing (FOH, position measured), 50 runs, output error: 2σ coverage k 0.96, d 0.90,
-  k3 0.94, b 0.94 (300 runs: 0.95, 0.93, 0.95, 0.96).
-- Pendulum with viscous and smooth Coulomb friction (ZOH), 50 runs, output error:
-  a 0.98, c 0.96, fc 0.96, b 0.98; filter error: a 0.98, c 0.98, fc 0.96, b 0.96.
+- Duffing (FOH, position measured), 200 runs, output error: 2σ coverage k 0.955, d 0.93,
+  k3 0.935, b 0.97 (300 runs: 0.95, 0.93, 0.95, 0.96).
+- Pendulum with viscous and smooth Coulomb friction (ZOH), output error (200 runs):
+  a 0.975, c 0.98, fc 0.98, b 0.965; filter error (50 runs): a 0.98, c 0.98, fc 0.96, b 0.96.
 - Duffing, filter error, 1500 samples: k 0.96, d 0.92, k3 0.96, b 0.98 (see FE_SAMPLES).
 
 Whole file: about 3 minutes on one core (the 1500-sample filter-error Duffing runs take 100 s).
@@ -31,7 +31,9 @@ from skigen.recording import Recording, write_recording
 from skigen.runtime import PythonStepper, run
 from skigen.simulate import free_run
 
-RUNS = 50            # Monte-Carlo runs per system and method
+RUNS = 50            # Monte-Carlo runs per system, filter error
+OE_RUNS = 200        # output error (a fit takes ~0.1 s): a coverage of 0.93 over 50 runs falls
+                     # below 0.90 one time in eight by chance alone
 COVERAGE = 0.90      # required share of 2σ intervals holding the truth (nominal 0.954)
 # Filter error on the Duffing oscillator needs a longer record for honest error bars: with 500
 # samples (~8 periods) the process-noise scale comes out 0.86 on average (the finite-sample low bias
@@ -114,7 +116,7 @@ SYSTEMS = {
 
 
 def monte_carlo(system, method):
-    """Fit RUNS simulated recordings; returns {parameter: (errors, stds)} and the fits."""
+    """Fit RUNS (OE_RUNS) simulated recordings; returns {parameter: (errors, stds)} and the fits."""
     build, truth, start, N, seed, (width, gain), x0_std, q = SYSTEMS[system]
     N = FE_SAMPLES.get(system, N) if method == "filter-error" else N
     q = q if method == "filter-error" else (0.0, 0.0)
@@ -122,7 +124,8 @@ def monte_carlo(system, method):
     errors = {n: [] for n in truth}
     stds = {n: [] for n in truth}
     fits = []
-    for i in range(RUNS):
+    runs = OE_RUNS if method == "output-error" else RUNS
+    for i in range(runs):
         rng = np.random.default_rng(seed + i)
         U = smooth_noise(rng, N, width, gain)[:, None]
         _, Y = simulate(plant, U, rng.normal(size=2) * x0_std, rng, q_std=q)
@@ -143,14 +146,14 @@ def coverage(stats):
 
 @pytest.mark.parametrize("system", list(SYSTEMS))
 def test_output_error_recovers_parameters_with_honest_error_bars(system):
-    """Measurement noise only. Coverage measured over the 50 seeds: Duffing k 0.96, d 0.90,
-    k3 0.94, b 0.94 (d over 300 runs: 0.93); pendulum a 0.98, c 0.96, fc 0.96, b 0.98."""
+    """Measurement noise only. Coverage measured over the 200 seeds: Duffing k 0.955, d 0.93,
+    k3 0.935, b 0.97; pendulum a 0.975, c 0.98, fc 0.98, b 0.965."""
     stats, _ = monte_carlo(system, "output-error")
     cov = coverage(stats)
     print(system, "output error coverage", cov)
     for n, (e, s) in stats.items():
         # unbiased: the mean error within 3 standard errors of the Monte-Carlo mean
-        assert abs(e.mean()) < 3 * e.std(ddof=1) / np.sqrt(RUNS), (n, e.mean())
+        assert abs(e.mean()) < 3 * e.std(ddof=1) / np.sqrt(len(e)), (n, e.mean())
         assert cov[n] >= COVERAGE, (system, n, cov)
 
 
@@ -162,11 +165,75 @@ def test_filter_error_recovers_parameters_and_noise_with_honest_error_bars(syste
     cov = coverage(stats)
     print(system, "filter error coverage", cov)
     for n, (e, s) in stats.items():
-        assert abs(e.mean()) < 3 * e.std(ddof=1) / np.sqrt(RUNS), (n, e.mean())
+        assert abs(e.mean()) < 3 * e.std(ddof=1) / np.sqrt(len(e)), (n, e.mean())
         assert cov[n] >= COVERAGE, (system, n, cov)
     # the declared noise is the truth: the calibrated measurement noise scale is ~1
     r_scale = np.array([next(v["value"] for k, v in f.noise["scales"].items() if k.startswith("R_")) for f in fits])
     assert abs(r_scale.mean() - 1) < 0.05
+
+
+def slow_plant(a, b, q=0.0, r=0.02):
+    """First-order lag x' = −a x + b u (dt = 1 s), x measured."""
+    m = Model("slow", dt=1.0)
+    x = m.state("x", std=0.1, process_std=q)
+    u = m.input("u")
+    A, B = m.parameter("a", a, bounds=(1e-5, 1)), m.parameter("b", b)
+    m.dynamics({x: -A * x + B * u})
+    m.output("y", x, noise_std=r)
+    return m
+
+
+def test_output_error_error_bars_hold_when_process_noise_drifts_through_a_slow_plant():
+    """Output error on a lag of time constant 100 samples whose state is kicked every sample
+    (stationary std 0.07 against a sensor of 0.02): the simulation residuals drift for
+    hundreds of samples under white sensor noise. 40 runs of 3000 samples, steps every 150 s.
+    Measured: empirical / stated std a 1.19, b 1.19, 2σ coverage 0.875 and 0.975 (with the
+    Newey–West estimate and Andrews' AR(1) bandwidth, which the white part cuts short:
+    1.46 and 1.39, coverage 0.825 and 0.825)."""
+    truth = dict(a=0.01, b=0.01)
+    plant, model = slow_plant(**truth, q=0.01), slow_plant(0.013, 0.008)
+    err, std = [], []
+    for i in range(40):
+        rng = np.random.default_rng(100 + i)
+        U = np.repeat(rng.choice([-1.0, 1.0], size=3000 // 150 + 1), 150)[:3000, None]
+        _, Y = simulate(plant, U, np.zeros(1), rng, q_std=np.array([0.01]))
+        res = fit(model, [recording(model, U, Y)], method="output-error", show_progress=False)
+        err.append([res.parameters[n]["value"] - truth[n] for n in truth])
+        std.append([res.parameters[n]["std"] for n in truth])
+    err, std = np.array(err), np.array(std)
+    ratio, cover = err.std(axis=0) / std.mean(axis=0), (np.abs(err) <= 2 * std).mean(axis=0)
+    print("empirical / stated std", ratio, "coverage", cover)
+    assert (ratio < 1.3).all() and (cover >= 0.85).all()
+    assert "autoregressive" in res.covariance_note
+
+
+def test_scores_covariance_follows_a_slow_drift_under_white_noise():
+    """B = Var(Σ J_kᵀ ρ_k) against its exact value Jᵀ Σ J for residuals that are an AR(1) drift
+    (φ = 0.995) under 10× stronger white noise, 20 realisations of 6000 samples. Measured:
+    estimate / exact 0.70 (sensitivity a sine of period 1500) and 1.10 (a square wave of period
+    700), std 0.21 and 0.23; the white-noise Fisher information is 49 and 17 times too small, and
+    Newey–West with Andrews' bandwidth gave 0.07 and 0.19. White residuals: AR order 0, B = JᵀJ."""
+    from scipy.linalg import toeplitz
+    from scipy.signal import lfilter
+    from skigen.fit.uncertainty import coloured_score_covariance
+    N, phi = 6000, 0.995
+    t = np.arange(N)
+    J = np.c_[np.sin(2 * np.pi * t / 1500), 0.5 * np.sign(np.sin(2 * np.pi * t / 700))][:, None, :]
+    acov = 0.05 ** 2 * phi ** t / (1 - phi ** 2)
+    acov[0] += 1.0
+    exact = np.diag(J[:, 0].T @ toeplitz(acov) @ J[:, 0])
+    ratios = []
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        rho = lfilter([1], [1, -phi], 0.05 * rng.normal(size=N)) + rng.normal(size=N)
+        ratios.append(np.diag(coloured_score_covariance(J, rho[:, None])[0]) / exact)
+    mean = np.mean(ratios, axis=0)
+    print("estimate / exact", mean)
+    assert 0.55 < mean[0] < 0.85 and 0.95 < mean[1] < 1.25
+    white = np.random.default_rng(0).normal(size=(N, 1))
+    B, orders = coloured_score_covariance(J, white)
+    assert orders == [0]
+    np.testing.assert_allclose(B, J[:, 0].T @ J[:, 0] * np.mean(white ** 2), rtol=1e-9)
 
 
 # ------------------------------------------------------------------------- 2. bias
@@ -219,7 +286,9 @@ def test_filter_error_is_unbiased_in_closed_loop_where_output_error_is_not():
 def test_first_order_hold_matches_a_smooth_input_and_recovers_parameters():
     """A linear oscillator driven by a sum of sines below 0.3 Hz, sampled at 10 Hz, against
     solve_ivp of the continuous system. Measured: free-run RMSE ZOH 0.066, FOH 0.0019
-    (ratio 34); fitted ZOH k +11σ, d −8σ, b +4.8σ off; FOH within 1.6σ."""
+    (ratio 34); fitted ZOH k +7.2σ, d −3.9σ, b +1.6σ off; FOH within 1.6σ. (The σ is the
+    sandwich under an AR model of the residuals, which are the hold's model error, coloured;
+    with the Newey–West estimate and Andrews' bandwidth: k +11σ, d −8σ, b +4.8σ.)"""
     truth, dt, N = dict(k=4.0, d=0.4, b=2.0), 0.1, 400
 
     def osc(values, hold):
@@ -250,8 +319,8 @@ def test_first_order_hold_matches_a_smooth_input_and_recovers_parameters():
         res = fit(osc(dict(k=3.0, d=0.6, b=1.5), hold), [rec], show_progress=False)
         z[hold] = {n: (p["value"] - truth[n]) / p["std"] for n, p in res.parameters.items()}
     print("fitted error in std", z)
-    assert max(abs(v) for v in z["zoh"].values()) > 8               # measured 11 (k)
-    assert sum(abs(v) > 3 for v in z["zoh"].values()) == 3           # every parameter biased
+    assert max(abs(v) for v in z["zoh"].values()) > 6               # measured 7.2 (k)
+    assert sum(abs(v) > 3 for v in z["zoh"].values()) == 2           # k and d biased
     assert max(abs(v) for v in z["foh"].values()) < 2.5              # measured 1.6 (d)
 
 

@@ -225,7 +225,7 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
         V = prob.variables
     scale = _scales(prob, theta0, data)
     p = np.r_[scale, data]
-    J0, prior, _ = (np.asarray(ca.DM(v)) for v in prob.fisher(theta0 / scale, p))
+    J0, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(theta0 / scale, p))
     lost = unidentified(J0, prior.ravel(), V.names, _dense(jac_g(theta0 / scale, p)))
     if lost:
         raise FitError(f"the recordings cannot identify every quantity of '{model.name}': " + "; ".join(lost)
@@ -252,11 +252,11 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
                        f"{iterations} iterations)")
     stats = dict(stats, iter_count=iterations)
     xi = np.clip(np.asarray(sol["x"]).ravel(), inputs["lbx"], inputs["ubx"])   # IPOPT may overstep a bound by ~1e-8
-    _, nll = (np.asarray(v) for v in prob.residuals(xi, p))
-    J, prior, scores = (np.asarray(ca.DM(v)) for v in prob.fisher(xi, p))
+    rho, nll = (np.asarray(v) for v in prob.residuals(xi, p))
+    J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(xi, p))
     G = _dense(jac_g(xi, p))
     robust = method == "output-error"      # simulation residuals may be coloured; innovations are white
-    C, info = covariance(J, scores if robust else None, lengths, prior.ravel(), G)
+    C, info = covariance(J, rho if robust else None, lengths, prior.ravel(), G)
     value = xi * scale
     std = np.sqrt(np.clip(np.diag(C), 0, None)) * scale
     C = C * np.outer(scale, scale)
@@ -288,7 +288,7 @@ def _scales(prob: Problem, theta0: np.ndarray, data: np.ndarray) -> np.ndarray:
     error as the Fisher information at the start sees it."""
     V = prob.variables
     nominal = np.array(V.scale)
-    J, prior, _ = (np.asarray(ca.DM(v)) for v in prob.fisher(theta0 / nominal, np.r_[nominal, data]))
+    J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(theta0 / nominal, np.r_[nominal, data]))
     info = np.sum(J * J, axis=0) + prior.ravel()
     scale = nominal.copy()
     for i, kind in enumerate(V.kinds):
@@ -356,9 +356,9 @@ def _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_
                             rmse={o: float(np.sqrt(np.nanmean(e[:, j] ** 2))) for j, o in enumerate(model.output_names)},
                             loglik=float(-np.sum(nll[:, start:start + n]))))
         start += n
-    note_text = ("sandwich covariance: the inverse Fisher information around the Newey-West long-run "
-                 "covariance of the per-sample scores (Bartlett kernel, Andrews bandwidth "
-                 + ", ".join(f"{b:.0f}" for b in info["bandwidth"]) + " samples)"
+    note_text = ("sandwich covariance: the inverse Fisher information around the scores' covariance under "
+                 "an autoregressive model of the simulation residuals (orders by AIC, per recording and output: "
+                 + "; ".join(", ".join(map(str, o)) for o in info["ar_orders"]) + ")"
                  if robust else "inverse Fisher information of the innovations' likelihood")
     return FitResult(method, fitted, params, weights, init, noise,
                      dict(names=[V.names[i] for i in corr_idx], matrix=(sub / np.outer(d, d)).tolist()),

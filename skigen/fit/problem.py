@@ -80,8 +80,7 @@ class Problem:
     solver_inputs: dict            # lbx, ubx, lbg, ubg, x0 (unscaled)
     nlp: dict                      # x (scaled), p = [scale; data], f, g (MX)
     residuals: ca.Function         # (ξ, data) → ρ (pseudo-residuals, one column per sample), nll per sample
-    fisher: ca.Function            # (ξ, data) → J_ρ (rows: samples × residuals), prior precision,
-                                   #   the per-sample scores ∂(−log L_k)/∂ξ (rows: samples)
+    fisher: ca.Function            # (ξ, data) → J_ρ (rows: samples × residuals), prior precision
     predict: ca.Function           # (ξ, data) → predicted outputs, one column per sample
     filtered: ca.Function          # (θ, data per recording) → the EKF's posterior state, one column per
                                    #   sample, recordings one after another
@@ -255,7 +254,7 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
     inputs = dict(lbx=lbx, ubx=ubx, lbg=np.zeros(gg.shape[0]), ubg=np.zeros(gg.shape[0]), x0=np.array(V.initial))
     return Problem(method, V, inputs, dict(x=xi, p=p, f=f, g=gg, hess=hess),
                    ca.Function("residuals", [xi, p], [rho, nll]),
-                   ca.Function("fisher", [xi, p], [J, prior_prec, ca.jacobian(ca.vec(nll), xi)]),
+                   ca.Function("fisher", [xi, p], [J, prior_prec]),
                    ca.Function("predict", [xi, p], [ca.horzcat(*yhat_all)]),
                    filtered, list(lengths), shooting or max(lengths))
 

@@ -5,11 +5,16 @@ Fisher information (the Gram matrix of the whitened pseudo-residuals) is the
 covariance. Output error: the simulation residuals are coloured whenever
 process noise or model error is present, and the Fisher information then
 overstates what the data know. The covariance is the sandwich
-A⁻¹ B A⁻¹ (A the Fisher information, B the long-run covariance of the
-per-sample scores g_k = ∂(−log L_k)/∂θ = J_kᵀ ρ_k), with B estimated by Newey and West's
-Bartlett-weighted sum of score autocovariances and the bandwidth chosen by
-Andrews' (1991) AR(1) plug-in rule, per recording (recordings are
-independent). With white residuals B ≈ A and the two agree.
+A⁻¹ B A⁻¹ (A the Fisher information, B the covariance of the summed scores
+Σ_k J_kᵀ ρ_k), with B from a noise model of the residuals (Ljung, System
+Identification, 2nd ed., §9.3): each output's residual series is fitted by an
+autoregression ρ = w / A(q), order chosen by AIC (Levinson–Durbin), and
+B = Σ_m ψ̃_mᵀ Σ_w ψ̃_m with ψ̃_m = Σ_j h_j J_{m+j}, the sensitivities filtered
+backwards by the impulse response h of 1/A(q), per recording (recordings are
+independent). With white residuals the order is 0, B ≈ A and the two agree.
+The autoregression follows a slow drift (process noise seen through a slow
+plant) that a kernel estimate with a data-chosen bandwidth cuts short when
+fast measurement noise hides it at short lags.
 
 Equality constraints (multiple shooting) are handled in the null space of
 their Jacobian, where the free directions live.
@@ -18,50 +23,62 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.linalg import null_space
+from scipy.signal import lfilter
 
-__all__ = ["covariance", "hac_bandwidth", "long_run_covariance", "unidentified"]
+__all__ = ["covariance", "autoregression", "coloured_score_covariance", "unidentified"]
 
 SINGULAR = 1e-9      # relative eigenvalue of the normalised Fisher information below which a direction is lost
 
 
-def hac_bandwidth(scores: np.ndarray) -> float:
-    """Andrews' AR(1) plug-in bandwidth of the Bartlett kernel for the columns of ``scores`` (N × p)."""
-    g = scores - scores.mean(axis=0)
-    N = len(g)
-    num = den = 0.0
-    for a in g.T:
-        prev, now = a[:-1], a[1:]
-        ss = prev @ prev
-        if ss <= 0:
-            continue
-        rho = float(np.clip(prev @ now / ss, -0.97, 0.97))
-        s2 = float(np.mean((now - rho * prev) ** 2))
-        num += 4 * rho ** 2 * s2 ** 2 / ((1 - rho) ** 6 * (1 + rho) ** 2)
-        den += s2 ** 2 / (1 - rho) ** 4
-    alpha = num / den if den > 0 else 0.0
-    return float(min(1.1447 * (alpha * N) ** (1 / 3), N / 4))
+def autoregression(e: np.ndarray, max_order: int | None = None) -> tuple[np.ndarray, float]:
+    """AR model of a residual series: (a with a[0] = 1, so that a(q) e = w, and var w).
+    Levinson–Durbin on the biased autocovariances; the order minimises AIC, up to
+    ``max_order`` (default min(N/10, 200))."""
+    e = np.asarray(e, float) - np.mean(e)
+    N = len(e)
+    p_max = int(min(N // 10, 200) if max_order is None else max_order)
+    n_fft = 1 << int(np.ceil(np.log2(2 * N)))
+    spec = np.fft.rfft(e, n_fft)
+    r = np.fft.irfft(spec * spec.conj(), n_fft)[:p_max + 1] / N
+    if r[0] <= 0:
+        return np.ones(1), 0.0
+    a, s2 = np.ones(1), r[0]
+    best = (N * np.log(s2), a, s2)
+    for p in range(1, p_max + 1):
+        k = -(r[p] + a[1:] @ r[p - 1:0:-1]) / s2
+        a = np.r_[a, 0.0] + k * np.r_[a, 0.0][::-1]
+        s2 *= 1 - k * k
+        if s2 <= 0:
+            break
+        aic = N * np.log(s2) + 2 * p
+        if aic < best[0]:
+            best = (aic, a.copy(), s2)
+    return best[1], best[2]
 
 
-def long_run_covariance(scores: np.ndarray, bandwidth: float | None = None) -> tuple[np.ndarray, float]:
-    """Σ_l w_l Γ_l of the rows of ``scores`` (N × p), Bartlett weights; returns (B, bandwidth)."""
-    L = hac_bandwidth(scores) if bandwidth is None else bandwidth
-    B = scores.T @ scores
-    for lag in range(1, int(L) + 1):
-        G = scores[lag:].T @ scores[:-lag]
-        B += (1 - lag / (L + 1)) * (G + G.T)
-    return B, L
+def coloured_score_covariance(J: np.ndarray, rho: np.ndarray) -> tuple[np.ndarray, list[int]]:
+    """B = Var(Σ_k J_kᵀ ρ_k) for one recording under an AR noise model per residual:
+    J (N, n_rho, p) sensitivities, rho (N, n_rho) residuals. Returns (B, AR orders)."""
+    N, n_rho, p = J.shape
+    W, Psi, orders = np.zeros((N, n_rho)), np.zeros((N, n_rho, p)), []
+    for j in range(n_rho):
+        a, _ = autoregression(rho[:, j])
+        orders.append(len(a) - 1)
+        W[:, j] = lfilter(a, [1.0], rho[:, j])                         # the white part w
+        Psi[:, j] = lfilter([1.0], a, J[::-1, j], axis=0)[::-1]         # Σ_j h_j J_{m+j}
+    Sw = W.T @ W / N
+    return np.einsum("mip,ij,mjq->pq", Psi, Sw, Psi), orders
 
 
-def covariance(J: np.ndarray, scores: np.ndarray | None, lengths: list[int], prior: np.ndarray,
+def covariance(J: np.ndarray, rho: np.ndarray | None, lengths: list[int], prior: np.ndarray,
                G: np.ndarray | None = None) -> tuple[np.ndarray, dict]:
-    """Covariance of the scaled variables: the inverse Fisher information A⁻¹, or with
-    ``scores`` the sandwich A⁻¹ B A⁻¹.
+    """Covariance of the scaled variables: the inverse Fisher information A⁻¹, or with the
+    residuals ``rho`` the sandwich A⁻¹ B A⁻¹.
 
-    J: (Σ N_r · n_rho) × p Jacobian of the pseudo-residuals (A = JᵀJ + prior, the
-    Fisher information); scores: Σ N_r × p per-sample gradients of −log L (B, their
-    long-run covariance, per recording); prior: prior precision per variable; G:
-    Jacobian of the equality constraints (or None). Returns (C, info) with the
-    bandwidths used.
+    J: (Σ N_r · n_rho) × p Jacobian of the pseudo-residuals, sample-major (A = JᵀJ + prior,
+    the Fisher information); rho: n_rho × Σ N_r pseudo-residuals (B: their AR noise model,
+    per recording); prior: prior precision per variable; G: Jacobian of the equality
+    constraints (or None). Returns (C, info) with the AR orders used.
     """
     p = J.shape[1]
     Z = null_space(G) if G is not None and G.shape[0] else np.eye(p)
@@ -69,14 +86,15 @@ def covariance(J: np.ndarray, scores: np.ndarray | None, lengths: list[int], pri
     A = Jz.T @ Jz + Z.T @ np.diag(prior) @ Z
     d = np.sqrt(np.clip(np.diag(A), 1e-300, None))         # invert in the normalised basis
     Ainv = np.linalg.pinv(A / np.outer(d, d), rcond=1e-12) / np.outer(d, d)
-    if scores is None:
-        return Z @ Ainv @ Z.T, {"bandwidth": []}
-    per_sample = scores @ Z
-    B, start, info = Z.T @ np.diag(prior) @ Z, 0, {"bandwidth": []}
+    if rho is None:
+        return Z @ Ainv @ Z.T, {"ar_orders": []}
+    n_rho = rho.shape[0]
+    Jr = Jz.reshape(-1, n_rho, Jz.shape[1])
+    B, start, info = Z.T @ np.diag(prior) @ Z, 0, {"ar_orders": []}
     for n in lengths:
-        Bi, L = long_run_covariance(per_sample[start:start + n])
+        Bi, orders = coloured_score_covariance(Jr[start:start + n], rho[:, start:start + n].T)
         B += Bi
-        info["bandwidth"].append(L)
+        info["ar_orders"].append(orders)
         start += n
     return Z @ (Ainv @ B @ Ainv) @ Z.T, info
 
