@@ -160,7 +160,8 @@ def _diagnose(args) -> int:
         for f in d["findings"]:
             print(f"finding: {f['effect']} on {f['equation']}: {f['expression']}, coefficient "
                   f"{f['coefficient']:.4g} ± {f['std'] if f['std'] is None else format(f['std'], '.2g')}, "
-                  f"cross-validated evidence {f['evidence']:+.1f}")
+                  f"cross-validated evidence {f['evidence']:+.1f}, free run without it "
+                  f"{'diverges' if f.get('free_run_without') in (None, float('inf')) else format(f['free_run_without'], '.3g')}")
         for f in d["compensating"] + d["not_identifiable"]:
             print(f"not a finding: {f['effect']} on {f['equation']}: {f['note']}")
         if d["fit"]["after"]:

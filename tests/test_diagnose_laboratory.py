@@ -24,14 +24,18 @@ def test_silverbox_names_the_cubic_stiffness_first(tmp_path):
 
 
 @pytest.mark.skipif(not DATA.is_dir(), reason=f"laboratory recordings not found in {DATA} (../shared/data)")
-def test_unbalanced_disc_names_coulomb_friction(tmp_path):
+def test_unbalanced_disc_names_coulomb_friction_first(tmp_path):
     """The viscous-only disc (constants declared as parameters) on 4000 samples: Coulomb friction
-    is named, opposing the motion, and the corrected model simulates the recording better. (It is
-    not the top finding: a one-sample input delay and a bias carry more evidence; see README.)"""
+    is the first finding, opposing the motion, and the corrected model simulates the recording
+    better. Measured (free-run RMSE over the output's spread): without it the corrected model
+    free-runs at 0.765, without the one-sample input delay 0.273, the limit 0.092, the bias 0.089
+    (with all: 0.045); one step ahead the delay (+8 995) and the bias (+5 215) carry more evidence
+    than Coulomb friction (+3 029)."""
     from examples.diagnose_real import run as diagnose_case
     rep = diagnose_case("unbalanced_disk", tmp_path, 4000, show_progress=False)
-    coulomb = [f for f in rep.findings if f["effect"] == "coulomb_friction"]
-    assert coulomb and coulomb[0]["coefficient"] > 5 * coulomb[0]["std"], rep.findings
+    top = rep.findings[0]
+    assert top["effect"] == "coulomb_friction" and top["coefficient"] > 5 * top["std"], rep.findings
+    assert top["free_run_without"] > 2 * max(f["free_run_without"] for f in rep.findings[1:])   # 2.8
     before, after = rep.data["fit"]["before"], rep.data["fit"]["after"]
     assert after["free_run_rmse"]["th"] < before["free_run_rmse"]["th"]
 

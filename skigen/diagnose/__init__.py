@@ -39,7 +39,7 @@ from .detect import Consistency, consistency, judge, normalised_innovations, rem
 from .errors import DiagnosisError
 from .evidence import weigh
 from .figures import diagnosis_figures, plot_residuals
-from .fit import evaluate_fit
+from .fit import evaluate_fit, simulation_worth
 from .inputs import MIN_SAMPLES, check, load
 from .locate import Location, locate
 from .name import Correction, basis_rms, beyond_parameters, focus_window, name_terms, shape_search
@@ -211,7 +211,10 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
                          f"gain {p.gain:+.1f}" + "".join(f"; {a['effect']} on {a['equation']} set aside as compensating"
                                                           for a in p.set_aside)
                           + (f"; {p.note}" if p.note else "") for i, p in enumerate(history)]
-    data["findings"] = _findings(nominal, corr, ev, shapes)
+    stage("weighing the findings (drop-one free runs)")
+    free_all, worth = simulation_worth(calibrated, corr, rec)
+    data["findings"] = _findings(nominal, corr, ev, shapes, worth)
+    data["free_run_with_all_findings"] = free_all
     set_aside = [item for p in history for item in p.set_aside]
     data["compensating"] = set_aside + rejected["compensating"]
     data["not_identifiable"] = rejected["not_identifiable"]
@@ -323,11 +326,12 @@ def _fit_note(folds: int) -> str:
             f"never fitted on")
 
 
-def _findings(nominal: Model, corr: Correction, ev: dict, shapes: dict) -> list[dict]:
+def _findings(nominal: Model, corr: Correction, ev: dict, shapes: dict, worth: dict) -> list[dict]:
+    """The findings, most needed by a simulation first (the free run without it worst), then by evidence."""
     out = []
     for c, coef, std in corr.found:
         f = {"effect": c.effect, "equation": c.equation, "expression": c.formula,
-             "coefficient": coef, "std": std, "evidence": ev[c], "kind": "additive",
+             "coefficient": coef, "std": std, "evidence": ev[c], "free_run_without": worth[c], "kind": "additive",
              "reading": c.reading + (f" ({c.variant})" if c.variant else "")}
         if c.shape:
             f["shape"] = dict(c.shape)
@@ -336,12 +340,12 @@ def _findings(nominal: Model, corr: Correction, ev: dict, shapes: dict) -> list[
         out.append(f)
     for s, value, std in corr.structural:
         f = {"effect": s.effect, "equation": "+".join(_acted_on(nominal, s)), "expression": s.describe(value),
-             "coefficient": value, "std": std, "evidence": ev[s], "kind": "structural",
+             "coefficient": value, "std": std, "evidence": ev[s], "free_run_without": worth[s], "kind": "structural",
              "parameter": s.parameter, "unit": s.unit, "reading": s.reading}
         f.update({"output": s.output, "shape": {"bound": value, "side": s.side, "output": s.output}}
                  if s.output else {"input": s.input})
         out.append(f)
-    return sorted(out, key=lambda f: -f["evidence"])
+    return sorted(out, key=lambda f: (-f["free_run_without"], -f["evidence"]))
 
 
 def _acted_on(nominal: Model, s) -> list[str]:

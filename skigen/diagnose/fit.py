@@ -21,7 +21,7 @@ from ..runtime import RunResult
 from .cv import ekf_run
 from .transform import memory_values
 
-__all__ = ["Fit", "evaluate_fit", "free_run", "settle"]
+__all__ = ["Fit", "evaluate_fit", "free_run", "settle", "simulation_worth"]
 
 
 @dataclass
@@ -80,3 +80,19 @@ def evaluate_fit(model: Model, rec: Recording, run: RunResult | None = None) -> 
     for k in ("free_run_rmse",):
         metrics[k] = {n: (v if np.isfinite(v) else None) for n, v in metrics[k].items()}
     return Fit(metrics, run, free)
+
+
+def simulation_worth(nominal: Model, corr, rec: Recording) -> tuple[float, dict]:
+    """What each finding of ``corr`` (a :class:`~skigen.diagnose.name.Correction`) is worth to a
+    simulation: (the free-run error of the corrected model, {finding: that error without it}),
+    the error being the whole-record free-run RMSE over the output's spread, mean over the
+    outputs (∞ where the free run diverges). One step ahead, a delay or a sensor effect can
+    outweigh a force that a simulation cannot do without; this measures the latter."""
+    spread = np.maximum(np.nanstd(rec.outputs, axis=0), 1e-300)
+
+    def error(c) -> float:
+        rmse = evaluate_fit(c.build(nominal), rec).metrics["free_run_rmse"]
+        return float(np.mean([np.inf if rmse[n] is None else rmse[n] / s
+                              for n, s in zip(nominal.output_names, spread)]))
+    items = [a[0] for a in corr.found] + [s[0] for s in corr.structural]
+    return error(corr), {c: error(corr.without(c)) for c in items}

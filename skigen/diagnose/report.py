@@ -106,13 +106,18 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
         L += ["", "## 4. Name", ""]
         if data["findings"]:
             L += ["Evidence: the cross-validated log-likelihood each finding adds given the others (drop-one; "
-                  "the findings' evidences need not add up).", "",
-                  "| effect | equation | term | coefficient ± std | shape | evidence |", "|---|---|---|---|---|---|"]
+                  "the findings' evidences need not add up). Free run without it: the whole-record free-run "
+                  "RMSE, over the output's spread and averaged over the outputs, of the corrected model without "
+                  f"this one finding (with all of them: {_fmt(data.get('free_run_with_all_findings'), '.3g')}); "
+                  "the findings are listed by it, the one a simulation needs most first: one step ahead a "
+                  "delay or a sensor effect can carry more evidence than a force the simulation cannot do without.",
+                  "", "| effect | equation | term | coefficient ± std | shape | evidence | free run without it |",
+                  "|---|---|---|---|---|---|---|"]
             for f in data["findings"]:
                 shape = ", ".join(f"{k} {v}" for k, v in f.get("shape", {}).items() if k != "state") or "–"
                 L.append(f"| {f['effect']} | `{f['equation']}` | `{f['expression']}` | "
                          f"{_fmt(f['coefficient'])} ± {_fmt(f['std'], '.2g')} {f.get('unit', '')} | {shape} | "
-                         f"{f['evidence']:+.1f} |")
+                         f"{f['evidence']:+.1f} | {_fmt(f.get('free_run_without'), '.3g')} |")
             L.append("")
             for f in data["findings"]:
                 L.append(f"- **{f['effect']}**: {f['reading']}." + (f" *Note: {f['note']}.*" if f.get("note") else ""))
