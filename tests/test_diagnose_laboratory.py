@@ -28,14 +28,17 @@ def test_unbalanced_disc_names_coulomb_friction_first(tmp_path):
     """The viscous-only disc (constants declared as parameters) on 4000 samples: Coulomb friction
     is the first finding, opposing the motion, and the corrected model simulates the recording
     better. Measured (free-run RMSE over the output's spread): without it the corrected model
-    free-runs at 0.765, without the one-sample input delay 0.273, the limit 0.092, the bias 0.089
-    (with all: 0.045); one step ahead the delay (+8 995) and the bias (+5 215) carry more evidence
-    than Coulomb friction (+3 029)."""
+    free-runs at 0.758, without the one-sample input delay 0.274, the limit 0.091, the bias 0.089
+    (with all: 0.045); one step ahead the delay (+8 553) and the bias (+4 981) carry more evidence
+    than Coulomb friction (+2 896). Round 2 proposes, with the bias and the friction, a negative
+    quadratic drag (−0.047), which is set aside as compensating when the proposal is adopted."""
     from examples.diagnose_real import run as diagnose_case
     rep = diagnose_case("unbalanced_disk", tmp_path, 4000, show_progress=False)
     top = rep.findings[0]
     assert top["effect"] == "coulomb_friction" and top["coefficient"] > 5 * top["std"], rep.findings
     assert top["free_run_without"] > 2 * max(f["free_run_without"] for f in rep.findings[1:])   # 2.8
+    assert [(c["effect"], c["coefficient"] < 0) for c in rep.data["compensating"]] == [("quadratic_drag", True)]
+    assert "quadratic_drag on w set aside as compensating" in (tmp_path / "unbalanced_disk" / "report.md").read_text()
     before, after = rep.data["fit"]["before"], rep.data["fit"]["after"]
     assert after["free_run_rmse"]["th"] < before["free_run_rmse"]["th"]
 

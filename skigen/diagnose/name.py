@@ -75,17 +75,20 @@ class Correction:
     structural: list[tuple[Structural, float, float]] = field(default_factory=list)
 
     def build(self, nominal: Model, name: str | None = None, unknown: list[Additive] | None = None,
-              prior_variance=None) -> Model:
+              prior_variance=None, scales=None) -> Model:
+        """The nominal with these terms; ``unknown`` terms left for a filter to estimate, each
+        regressor divided by its ``scales`` entry (its weight's prior variance multiplied by its square)."""
         m = T.copy_model(nominal, name, unknowns=False)
         for c, coef, _ in self.additive:
             m = T.add_term(m, c.equation, coef, c.sx(m))
         if unknown:
+            r = np.ones(len(unknown)) if scales is None else np.asarray(scales, float)
             by_eq: dict[str, list[int]] = {}
             for i, c in enumerate(unknown):
                 by_eq.setdefault(c.equation, []).append(i)
             for eq, idx in by_eq.items():
-                m.unknown(eq, [term(unknown[i].formula, unknown[i].sx(m), key=f"c{i}") for i in idx],
-                          prior_variance=np.asarray(prior_variance)[idx])
+                m.unknown(eq, [term(unknown[i].formula, unknown[i].sx(m) / r[i], key=f"c{i}") for i in idx],
+                          prior_variance=np.asarray(prior_variance)[idx] * r[idx] ** 2)
         for s, value, _ in self.structural:
             m = s.build(m, value)
         return m
@@ -210,6 +213,17 @@ def _prior(cands, rms, size) -> np.ndarray:
     return np.array([(2.0 * size[c.equation] / rms[c]) ** 2 for c in cands])
 
 
+def _estimating(known: "Correction", nominal: Model, cands, prior, rms, size) -> tuple[Model, np.ndarray]:
+    """``known`` built with ``cands`` left for a filter to estimate, each regressor scaled so that
+    its weight's default prior (:func:`_prior`) is 1: the term's RMS along the trajectory over twice
+    the size of what is missing in its equation. The ARD step's speed and the filters' floors then
+    do not depend on the units a formula happens to have (a user's term written 10¹⁰ too large was
+    pruned at once). Returns the model and the scales (a weight estimated as w′ is w′ / scale in
+    the formula's units)."""
+    r = np.array([rms[c] / (2.0 * size[c.equation]) for c in cands])
+    return known.build(nominal, unknown=cands, prior_variance=prior, scales=r), r
+
+
 def _kept(cands, w, sd, alpha: float, n_tests: int) -> list[tuple]:
     """(candidate, ŵ, σ) with |ŵ| > z·σ, the best variant per (effect, equation)."""
     z_min = stats.norm.isf(alpha / (2 * n_tests))
@@ -227,14 +241,14 @@ def cv_loglik(nominal: Model, corr: Correction, rec: Recording, folds: Folds, rm
         return fold_loglik(corr.build(nominal), rec, folds)
     base = Correction([], corr.structural)
     cands = [a[0] for a in corr.additive]
-    m = base.build(nominal, unknown=cands, prior_variance=_prior(cands, rms, size))
+    m, r = _estimating(base, nominal, cands, _prior(cands, rms, size), rms, size)
     start = start_trace(base.build(nominal), rec)
     out = np.empty(len(folds))
     for f, fitted in enumerate(fits_without(m, "ekf", rec, folds, start)):
         if isinstance(fitted, Exception):        # diverged
             out[f] = -np.inf
             continue
-        w, sd = fitted
+        w, sd = fitted[0] / r, fitted[1] / r
         fold_corr = Correction([(c, float(wi), float(si)) for c, wi, si in zip(cands, w, sd)], corr.structural)
         out[f] = fold_loglik(fold_corr.build(nominal), rec, folds)[f]
     return out
@@ -244,11 +258,12 @@ def _additive(nominal, current: Correction, cands, rec, folds: Folds, rms, size,
               focus: tuple[int, int] | None = None, states: np.ndarray | None = None) -> Proposal | None:
     """The SKI proposal: the terms SKI keeps on the recording (or on its samples ``focus``),
     cross-validated with the current and kept terms' coefficients refitted without each fold."""
-    m = current.build(nominal, unknown=cands, prior_variance=_prior(cands, rms, size))
+    m, r = _estimating(current, nominal, cands, _prior(cands, rms, size), rms, size)
     piece = rec.slice(*focus) if focus else rec
     # The naming rule (z = |ŵ|/σ) was calibrated with the paper's gradient ARD; the EM update's
     # honest σ needs its own rule (not yet done), so the SKI selection keeps the gradient.
     w, sd = fit_without(m, "ski", piece, Folds.of(len(piece.t), 1), None, None, FilterOptions(ard="gradient"))
+    w, sd = w / r, sd / r
     kept = _kept(cands, w, sd, alpha, len(cands))
     if not kept:
         return None
@@ -363,9 +378,10 @@ def refit(nominal: Model, corr: Correction, rec: Recording, rms: dict, size: dic
         prior = np.array([max(3 * s, 0.1 * abs(w)) ** 2 for _, w, s in known])
     else:
         known = []
-    m = Correction(known, corr.structural).build(nominal, unknown=cands, prior_variance=prior)
+    m, r = _estimating(Correction(known, corr.structural), nominal, cands, prior, rms, size)
     try:
         w, sd = fit_without(m, "ekf", rec, Folds.of(len(rec.t), 1), None, None)
+        w, sd = w / r, sd / r
     except (FloatingPointError, RuntimeError, ValueError, np.linalg.LinAlgError):
         if known:
             return corr                  # the filter diverged: keep the coefficients it started from
