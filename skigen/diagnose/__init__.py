@@ -215,6 +215,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     free_all, worth = simulation_worth(calibrated, corr, rec)
     data["findings"] = _findings(nominal, corr, ev, shapes, worth)
     data["free_run_with_all_findings"] = free_all
+    _flag_one_step_only(data["findings"], free_all)
     set_aside = [item for p in history for item in p.set_aside]
     data["compensating"] = set_aside + rejected["compensating"]
     data["not_identifiable"] = rejected["not_identifiable"]
@@ -301,9 +302,22 @@ def _update_findings(findings: list[dict], names: dict, fitted: dict, alpha: flo
         f["std"] = float(np.hypot(std, spread)) if std is not None and np.isfinite(std) else std
         f["parameter"] = n
         if std is not None and not significant(f["coefficient"], std, alpha):   # needed at all, in its shape
-            f["note"] = (f"after the joint refit its coefficient is within {stats.norm.isf(alpha / 2):.2f} std "
-                         f"of zero (cross-validated: {f['cv_coefficient']:.4g} ± {f['cv_std']:.2g}): "
-                         f"the refitted constants take over most of what it explained")
+            _note(f, f"after the joint refit its coefficient is within {stats.norm.isf(alpha / 2):.2f} std "
+                     f"of zero (cross-validated: {f['cv_coefficient']:.4g} ± {f['cv_std']:.2g}): "
+                     f"the refitted constants take over most of what it explained")
+
+
+def _flag_one_step_only(findings: list[dict], free_all: float) -> None:
+    """A finding without which the corrected model simulates the recording better gets a note:
+    it earns its evidence one step ahead, and a simulation is better off without it."""
+    for f in findings:
+        if f["free_run_without"] < free_all:
+            _note(f, f"the free run is better without it ({f['free_run_without']:.3g} of the output's spread, "
+                     f"{free_all:.3g} with it): it helps the one-step prediction, not a simulation")
+
+
+def _note(finding: dict, text: str) -> None:
+    finding["note"] = "; ".join(filter(None, [finding.get("note"), text]))
 
 
 def detect(model, recording, *, alpha: float = 0.01, equations=None, **read) -> dict:
