@@ -18,6 +18,7 @@ sys.path.insert(0, str(ROOT))
 
 from models import unbalanced_disk_greybox as G  # noqa: E402
 from skigen.diagnose import diagnose  # noqa: E402
+from skigen.diagnose.report import finding_line  # noqa: E402
 from skigen.recording import read_recording  # noqa: E402
 
 
@@ -32,9 +33,9 @@ def main(argv=None) -> dict:
     rec = read_recording(path, ["u"], ["th"])
     n = int(G.TRAIN_FRACTION * len(rec.t))
     rep = diagnose(G.viscous, rec.slice(0, n), args.out, validate=[rec.slice(n, None)])
-    print(f"diagnosis: {rep.seconds:.1f} s; findings: "
-          + "; ".join(f"{f['effect']} on {f['equation']} {f['coefficient']:.4g} ± {f['std'] or 0:.2g}"
-                      for f in rep.findings))
+    print(f"diagnosis: {rep.seconds:.1f} s; findings, the one a simulation needs most first:")
+    for f in rep.findings:
+        print(f"  {finding_line(f)}")
     held = rep.data["fit"]["recordings"][0]
     out = {"findings": rep.findings, "seconds": rep.seconds,
            "held_out_rad": {"nominal": held["before"]["free_run_rmse"]["th"],

@@ -24,6 +24,7 @@ sys.path.insert(0, str(ROOT))
 
 from skigen.modelfile import load_model  # noqa: E402
 from skigen.diagnose import diagnose  # noqa: E402
+from skigen.diagnose.report import finding_line  # noqa: E402
 from skigen.recording import read_recording, write_recording  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data"
@@ -62,8 +63,7 @@ def main() -> None:
         fit = rep.data["fit"]
         print(f"{name}: expected {expected}; {rep.seconds:.1f} s")
         for f in rep.findings:
-            print(f"  {f['effect']:18s} on {f['equation']}: {f['expression']:22s} {f['coefficient']:.4g} ± "
-                  f"{f['std'] or 0:.2g}  (validation log-lik. +{f['evidence']:.0f})")
+            print(f"  {finding_line(f)}")
         if fit["after"]:
             k = next(iter(fit["before"]["free_run_rmse"]))
             print(f"  validation: NIS {fit['before']['nis_mean']:.3g} -> {fit['after']['nis_mean']:.3g}, "

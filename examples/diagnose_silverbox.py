@@ -23,6 +23,7 @@ sys.path.insert(0, str(ROOT))
 
 from models import silverbox_greybox as G  # noqa: E402
 from skigen.diagnose import diagnose  # noqa: E402
+from skigen.diagnose.report import finding_line  # noqa: E402
 from skigen.fit import fit  # noqa: E402
 from skigen.fit.output import validate  # noqa: E402
 from skigen.modelfile import load_model  # noqa: E402
@@ -43,8 +44,9 @@ def main(argv=None) -> dict:
     a, b = G.TRAIN
     train = rec if args.whole_file else rec.slice(a, b if args.samples is None else a + args.samples)
     rep = diagnose(G.linear, train, args.out)
-    print(f"diagnosis: {rep.seconds:.1f} s; findings: "
-          + "; ".join(f"{f['effect']} on {f['equation']} {f['coefficient']:.6g} ± {f['std']:.2g}" for f in rep.findings))
+    print(f"diagnosis: {rep.seconds:.1f} s; findings, the one a simulation needs most first:")
+    for f in rep.findings:
+        print(f"  {finding_line(f)}")
     out = {"findings": rep.findings, "seconds": rep.seconds}
     if rep.data["corrected_model"]:
         corrected = load_model(rep.data["corrected_model"])

@@ -131,6 +131,7 @@ def _generate(args) -> int:
 
 def _diagnose(args) -> int:
     from .diagnose import DiagnosisError, diagnose
+    from .diagnose.report import finding_line
 
     candidates = []
     for c in args.candidate:
@@ -158,10 +159,7 @@ def _diagnose(args) -> int:
         print(f"located: outputs {', '.join(loc['outputs'])}; equations {', '.join(loc['equations'])}; "
               f"{len(loc['windows'])} window(s); {loc.get('regime') or 'no single regime'}")
         for f in d["findings"]:
-            print(f"finding: {f['effect']} on {f['equation']}: {f['expression']}, coefficient "
-                  f"{f['coefficient']:.4g} ± {f['std'] if f['std'] is None else format(f['std'], '.2g')}, "
-                  f"cross-validated evidence {f['evidence']:+.1f}, free run without it "
-                  f"{'diverges' if f.get('free_run_without') in (None, float('inf')) else format(f['free_run_without'], '.3g')}")
+            print(f"finding: {finding_line(f)}")
         for f in d["compensating"] + d["not_identifiable"]:
             print(f"not a finding: {f['effect']} on {f['equation']}: {f['note']}")
         if d["fit"]["after"]:

@@ -213,14 +213,16 @@ def _prior(cands, rms, size) -> np.ndarray:
     return np.array([(2.0 * size[c.equation] / rms[c]) ** 2 for c in cands])
 
 
-def _estimating(known: "Correction", nominal: Model, cands, prior, rms, size) -> tuple[Model, np.ndarray]:
+def _estimating(known: "Correction", nominal: Model, cands, rms, size, prior=None) -> tuple[Model, np.ndarray]:
     """``known`` built with ``cands`` left for a filter to estimate, each regressor scaled so that
     its weight's default prior (:func:`_prior`) is 1: the term's RMS along the trajectory over twice
     the size of what is missing in its equation. The ARD step's speed and the filters' floors then
     do not depend on the units a formula happens to have (a user's term written 10¹⁰ too large was
-    pruned at once). Returns the model and the scales (a weight estimated as w′ is w′ / scale in
+    pruned at once). ``prior``: the weights' prior variances in the formulas' units (default
+    :func:`_prior`). Returns the model and the scales (a weight estimated as w′ is w′ / scale in
     the formula's units)."""
     r = np.array([rms[c] / (2.0 * size[c.equation]) for c in cands])
+    prior = _prior(cands, rms, size) if prior is None else prior
     return known.build(nominal, unknown=cands, prior_variance=prior, scales=r), r
 
 
@@ -241,7 +243,7 @@ def cv_loglik(nominal: Model, corr: Correction, rec: Recording, folds: Folds, rm
         return fold_loglik(corr.build(nominal), rec, folds)
     base = Correction([], corr.structural)
     cands = [a[0] for a in corr.additive]
-    m, r = _estimating(base, nominal, cands, _prior(cands, rms, size), rms, size)
+    m, r = _estimating(base, nominal, cands, rms, size)
     start = start_trace(base.build(nominal), rec)
     out = np.empty(len(folds))
     for f, fitted in enumerate(fits_without(m, "ekf", rec, folds, start)):
@@ -258,7 +260,7 @@ def _additive(nominal, current: Correction, cands, rec, folds: Folds, rms, size,
               focus: tuple[int, int] | None = None, states: np.ndarray | None = None) -> Proposal | None:
     """The SKI proposal: the terms SKI keeps on the recording (or on its samples ``focus``),
     cross-validated with the current and kept terms' coefficients refitted without each fold."""
-    m, r = _estimating(current, nominal, cands, _prior(cands, rms, size), rms, size)
+    m, r = _estimating(current, nominal, cands, rms, size)
     piece = rec.slice(*focus) if focus else rec
     # The naming rule (z = |ŵ|/σ) was calibrated with the paper's gradient ARD; the EM update's
     # honest σ needs its own rule (not yet done), so the SKI selection keeps the gradient.
@@ -373,12 +375,12 @@ def refit(nominal: Model, corr: Correction, rec: Recording, rms: dict, size: dic
         return corr
     cands = [a[0] for a in corr.additive]
     known = [(c, w, s) for c, w, s in corr.additive if w != 0 and np.isfinite(s) and s > 0]
-    prior = _prior(cands, rms, size)
+    prior = None                         # the default: each term alone could explain it twice over
     if len(known) == len(cands):
         prior = np.array([max(3 * s, 0.1 * abs(w)) ** 2 for _, w, s in known])
     else:
         known = []
-    m, r = _estimating(Correction(known, corr.structural), nominal, cands, prior, rms, size)
+    m, r = _estimating(Correction(known, corr.structural), nominal, cands, rms, size, prior)
     try:
         w, sd = fit_without(m, "ekf", rec, Folds.of(len(rec.t), 1), None, None)
         w, sd = w / r, sd / r

@@ -5,7 +5,7 @@ import json
 import math
 from pathlib import Path
 
-__all__ = ["write_json", "write_markdown"]
+__all__ = ["write_json", "write_markdown", "finding_line"]
 
 
 def _clean(x):
@@ -25,6 +25,14 @@ def write_json(path, data: dict) -> Path:
     path = Path(path)
     path.write_text(json.dumps(_clean(data), indent=2) + "\n")
     return path
+
+
+def finding_line(f: dict) -> str:
+    """One finding in a line: effect, equation, term, coefficient ± std, evidence, free run without it."""
+    free = f.get("free_run_without")
+    return (f"{f['effect']} on {f['equation']}: {f['expression']}, coefficient {f['coefficient']:.6g} ± "
+            f"{_fmt(f['std'], '.2g')}, cross-validated evidence {f['evidence']:+.1f}, free run without it "
+            f"{'diverges' if free is None or not math.isfinite(free) else format(free, '.3g')}")
 
 
 def _fmt(x, spec=".4g"):
