@@ -3,13 +3,19 @@
 Vehicle (world frame, z up)
 ---------------------------
     ṗ = v
-    v̇ = b3 · a_T(pwm) − d1 · v + g + w_gust,      g = [0, 0, −9.81] m/s²
+    v̇ = b3 · a_T(pwm) − d1 · (I − b3 b3ᵀ) v + g + w_gust,      g = [0, 0, −9.81] m/s²
     a_T(pwm) = THRUST_GAIN · (pwm − PWM_MIN)        (LINEAR in the mean PWM)
 
 with ``THRUST_GAIN = 2 g / 1000 µs`` (zero thrust at the ESC minimum
-1000 µs, hover at 1500 µs, thrust-to-weight 2 at 2000 µs), linear drag
-``d1 = DRAG_LIN = 0.3 1/s`` (no quadratic drag) and ``b3 = R(q) e3`` the body
-z axis in the world frame. ``w_gust`` is a small Ornstein–Uhlenbeck
+1000 µs, hover at 1500 µs, thrust-to-weight 2 at 2000 µs), ``b3 = R(q) e3``
+the body z axis in the world frame and linear ROTOR drag ``d1 = DRAG_LIN =
+0.3 1/s`` (no quadratic drag). Rotor drag (blade flapping and induced drag)
+acts on the velocity in the rotor plane only, as in Gazebo's PX4 motor model
+(``gazebo_motor_model``: −|ω| c_d · v⊥, v⊥ the relative air velocity
+perpendicular to the rotor axis), which stands behind the paper's flights;
+the thrust does not depend on the axial velocity there. ``axial_drag`` adds
+a linear drag −d_a (b3·v) b3 along the rotor axis (0 by default: a
+what-if for a vehicle whose thrust falls with its climb rate). ``w_gust`` is a small Ornstein–Uhlenbeck
 acceleration disturbance (light turbulence: std ``gust_std`` = 0.02 m/s²,
 correlation time 1 s, held over each sample), recorded in the truth: it is
 the part of the motion no model term explains, so the filters need process
@@ -151,15 +157,27 @@ def vertical_reference(t, z0=1.5, amplitude=0.5, period=3.0):
 
 
 def exact_step(pos, vel, acc, drag, dt):
-    """Exact solution over dt of ṗ = v, v̇ = acc − drag·v with acc constant."""
+    """Exact solution over dt of ṗ = v, v̇ = acc − drag·v with acc constant (drag ≥ 0, 1/s)."""
+    if drag == 0.0:
+        return pos + vel * dt + acc * dt * dt / 2, vel + acc * dt
     e = np.exp(-drag * dt)
     one = (1 - e) / drag                       # ∫ e^{-d s} ds over [0, dt]
     return pos + vel * one + acc / drag * (dt - one), vel * e + acc * one
 
 
+def rotor_step(pos, vel, acc, b3, drag, axial_drag, dt):
+    """Exact step of ṗ = v, v̇ = acc − drag (I − b3 b3ᵀ) v − axial_drag (b3 b3ᵀ) v, b3 held:
+    the two drags act on complementary subspaces, each solved by :func:`exact_step`."""
+    along = lambda x: b3 * (x @ b3)
+    p_a, v_a = exact_step(along(pos), along(vel), along(acc), axial_drag, dt)
+    p_r, v_r = exact_step(pos - along(pos), vel - along(vel), acc - along(acc), drag, dt)
+    return p_a + p_r, v_a + v_r
+
+
 def simulate(reference, dt: float, duration: float, seed: int = 0, *, noise_std: float = NOISE_STD,
-             gust_std: float = GUST_STD, drag: float = DRAG_LIN) -> Flight:
-    """Fly ``reference(t) → (pos, vel, acc)`` for ``duration`` s at sample time ``dt``."""
+             gust_std: float = GUST_STD, drag: float = DRAG_LIN, axial_drag: float = 0.0) -> Flight:
+    """Fly ``reference(t) → (pos, vel, acc)`` for ``duration`` s at sample time ``dt``;
+    drag, axial_drag: linear drag in the rotor plane and along the rotor axis, 1/s."""
     N = int(round(duration / dt)) + 1
     t = np.arange(N) * dt
     rng_meas, rng_est, rng_gust = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(3))
@@ -212,8 +230,9 @@ def simulate(reference, dt: float, duration: float, seed: int = 0, *, noise_std:
         pwm[k] = np.clip(CTRL_HOVER + (a_cmd - G) / CTRL_GAIN, *PWM_CLIP)
         euler[k] = att
         acc = b3 * thrust_acceleration(pwm[k]) + G_VEC + gust[k]
-        p, v = exact_step(p, v, acc, drag, dt)
-    params = dict(thrust_gain=THRUST_GAIN, pwm_min=PWM_MIN, drag_lin=drag, drag_quad=0.0, g=G,
+        p, v = rotor_step(p, v, acc, b3, drag, axial_drag, dt)
+    params = dict(thrust_gain=THRUST_GAIN, pwm_min=PWM_MIN, drag_lin=drag, axial_drag=axial_drag, drag_quad=0.0,
+                  g=G,
                   att_tau=ATT_TAU, gust_std=gust_std, gust_tau=GUST_TAU, noise_std=noise_std, dt=dt,
                   duration=duration, seed=seed)
     return Flight(t, pos, vel, euler, euler_to_quat(euler), pwm, pos + meas_noise, gust, ref_pos,

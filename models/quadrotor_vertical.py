@@ -18,10 +18,11 @@ the paper's raw-PWM flight. ``build(pwm_offset=0)`` gives u = pwm / 1000
 (milliseconds), the pure scale; see the benchmark for what changes then.
 
 With the simulator's thrust a_T = THRUST_GAIN·(pwm − 1000 µs) the truth in
-this basis is w_u = 2 g = 19.62 and all other weights 0, up to the two
-effects the model leaves out: the tilt (cos ≤ 1) and linear drag −0.3 v_z.
-``build(drag=True)`` adds the candidate ``drag_lin`` (−v_z, as in the spiral's
-basis) so that the simulator's drag has a term of its own (truth 0.3).
+this basis is w_u = 2 g = 19.62 and all other weights 0, up to the tilt
+(cos ≤ 1), which the model leaves out; the simulator's rotor drag acts in the
+rotor plane, not along z. ``build(drag=True)`` adds the candidate ``drag_lin``
+(−v_z) for flights with an axial drag (``quadrotor_sim.vertical(seed,
+axial_drag=0.3)``: truth 0.3), which the paper's basis cannot represent.
 """
 import numpy as np
 
@@ -37,7 +38,7 @@ PWM_RANGE = 1000.0                    # µs (PWM_MAX − PWM_MIN)
 DEGREE = 5
 TERMS = ["1", "pwm"] + [f"pwm^{k}" for k in range(2, DEGREE + 1)]
 TRUE_TERM = "pwm"
-DRAG_RMS = 0.676                      # m/s: RMS of v_z over the vertical flight (seed 0)
+DRAG_RMS = 0.676                      # m/s: RMS of v_z over the vertical flight with axial drag 0.3 (seed 0)
 
 
 def w_true(pwm_offset=PWM_OFFSET, pwm_range=PWM_RANGE) -> np.ndarray:

@@ -2,7 +2,8 @@
 
 Independent of CasADi and of skigen's declaration (complex-step safe): z =
 [p (3), v (3), w (8)], u = [qw, qx, qy, qz, pwm]; v̇ = Σ wᵢ φᵢ + g with the
-thrust polynomial along the body z axis and the two drag directions.
+thrust polynomial along the body z axis and the two drag directions (linear
+rotor drag in the rotor plane, quadratic drag along −v).
 """
 import numpy as np
 
@@ -17,7 +18,8 @@ def _accel(v, w, u):
     s = (pwm - PWM_CENTER) / PWM_SCALE
     speed = np.sqrt(v @ v + 1e-12)
     thrust = sum(w[k] * s ** k for k in range(6))
-    return thrust * b3 - w[6] * v - w[7] * v * speed + np.array([0.0, 0.0, -G])
+    rotor_plane_v = v - b3 * (b3 @ v)
+    return thrust * b3 - w[6] * rotor_plane_v - w[7] * v * speed + np.array([0.0, 0.0, -G])
 
 
 def spiral_f(z, u, dt=DT):
