@@ -109,6 +109,34 @@ def _check_length(samples, series, start, end, dt) -> int:
         f"(check this time stamp and --time-unit)")
 
 
+def _repeats(ts, before=None) -> tuple[int, float | None]:
+    """(how many stamps in ``ts`` equal the one before them, the first such stamp); ``before``: the
+    stamp before ts[0], if any."""
+    ts = np.asarray(ts) if before is None else np.concatenate([[before], ts])
+    same = np.flatnonzero(np.diff(ts) == 0)
+    return len(same), (float(ts[same[0] + 1]) if len(same) else None)
+
+
+def _column_notes(name, column, output, count, early, dropped, repeated, first_repeat, origin, start, dt):
+    """What the grid did with one column's samples, as notes (times relative to ``origin``, s)."""
+    kind = "output" if output else "input"
+    notes = []
+    if early:
+        notes.append(f"output '{name}': {early} sample(s) before the inputs are known "
+                     f"(t < {origin + start:g} s) not used")
+    if repeated:
+        use = "the first at each stamp is used" if output else "the last at each stamp is used from it on"
+        notes.append(f"{kind} '{name}': {repeated} sample(s) repeat the time stamp before them "
+                     f"(first at t = {origin + first_repeat:g} s): {use}")
+    faster = dropped - repeated
+    if faster > 0:
+        notes.append(f"output '{name}': {faster} sample(s) not used: a nearer sample of '{name}' had "
+                     f"the same grid sample (the log is faster than the model's 1/dt = {1 / dt:g} Hz)")
+    if output and not count:
+        notes.append(f"output '{name}' (column '{column}') has no value: never measured")
+    return notes
+
+
 def _nearest(ts, start, dt, n):
     """(grid index of each sample used, the samples' positions): the nearest within dt/2, nearest wins."""
     k = np.rint((ts - start) / dt).astype(np.int64)
@@ -159,21 +187,15 @@ def to_grid(samples: Samples, dt: float, input_names, output_names, input_hold: 
             inputs[:, j] = np.interp(t, ts, v)
         else:
             inputs[:, j] = v[np.searchsorted(ts, t + dt / 2, side="left") - 1]   # the last sample nearest ≤ t
+        notes += _column_notes(name, cols[name], False, len(ts), 0, 0, *_repeats(ts), origin, start, dt)
     outputs = np.full((n, len(output_names)), np.nan)
     for j, name in enumerate(output_names):
         ts, v = series[name][:2]
         k, used = _nearest(ts, start, dt, n)
         outputs[k, j] = v[used]
         early = int(np.sum(ts < start - dt / 2))
-        dropped = len(ts) - len(used) - early
-        if early:
-            notes.append(f"output '{name}': {early} sample(s) before the inputs are known (t < {origin + start:g} s) "
-                         f"not used")
-        if dropped:
-            notes.append(f"output '{name}': {dropped} sample(s) not used: a nearer sample of '{name}' had "
-                         f"the same grid sample (the log is faster than the model's 1/dt = {1 / dt:g} Hz)")
-        if not len(ts):
-            notes.append(f"output '{name}' (column '{cols[name]}') has no value: never measured")
+        notes += _column_notes(name, cols[name], True, len(ts), early, len(ts) - len(used) - early,
+                               *_repeats(ts), origin, start, dt)
     holes = [Hole(h.t0 + origin, h.t1 + origin, h.columns, h.inputs) for h in
              _holes(series, input_names + output_names, input_names, start, end, max_gap, cols)]
     return Recording(samples.source, origin + t, inputs, outputs, input_names, output_names,
@@ -199,11 +221,15 @@ class _Column:
         self.t, self.v = np.zeros(0), np.zeros(0)
         self.new = []                 # stamps not yet looked at for holes
         self.first = self.last = None
-        self.count = self.early = self.used = 0
+        self.count = self.early = self.used = self.repeated = 0
+        self.first_repeat = None
         self.prev = None              # the last stamp looked at for holes (the grid start at first)
 
     def add(self, t, v):
         if len(t):
+            repeated, first = _repeats(t, self.last)
+            self.repeated += repeated
+            self.first_repeat = first if self.first_repeat is None else self.first_repeat
             self.t, self.v = np.concatenate([self.t, t]), np.concatenate([self.v, v])
             self.new.append(t)
             self.first = float(t[0]) if self.first is None else self.first
@@ -421,18 +447,11 @@ class GridStream:
             holes.append(Hole(a + self.origin, b + self.origin, tuple(cols[n] for n in names),
                               any(n in self.input_names for n in names)))
         self.holes = tuple(holes)
-        for name in self.output_names:
-            c = self.cols[name]
-            dropped = c.count - c.used - c.early
-            if c.early:
-                self.notes.append(f"output '{name}': {c.early} sample(s) before the inputs are known "
-                                  f"(t < {self.origin + self.start:g} s) not used")
-            if dropped:
-                self.notes.append(f"output '{name}': {dropped} sample(s) not used: a nearer sample of '{name}' "
-                                  f"had the same grid sample (the log is faster than the model's "
-                                  f"1/dt = {1 / dt:g} Hz)")
-            if not c.count:
-                self.notes.append(f"output '{name}' (column '{cols[name]}') has no value: never measured")
+        for name in self.names:
+            c, output = self.cols[name], name in self.output_names
+            self.notes += _column_notes(name, cols[name], output, c.count, c.early,
+                                        c.count - c.used - c.early if output else 0, c.repeated,
+                                        c.first_repeat, self.origin, self.start, dt)
 
     def time(self, k) -> float:
         """The time of grid sample ``k`` (seconds), as in the recording."""

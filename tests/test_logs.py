@@ -79,6 +79,27 @@ def test_a_log_faster_than_the_model_uses_the_nearest_sample():
     assert any("not used" in n and "faster than the model" in n for n in rec.notes)
 
 
+def test_repeated_time_stamps_are_named_as_such(flight, tmp_path):
+    """A logger that writes a row twice: the repeat is named with its time, the first output value
+    and the last input value at the stamp are used, and the log is not called faster than the model."""
+    df = flight.iloc[:100].copy()
+    df.loc[40, "t"] = df.loc[39, "t"]                        # phi and delta both repeat 0.78 s
+    df.loc[41, "t"] = df.loc[39, "t"]
+    rec = load_recording(df, MODEL)
+    assert rec.notes == ("input 'delta': 2 sample(s) repeat the time stamp before them (first at t = 0.78 s): "
+                         "the last at each stamp is used from it on",
+                         "output 'phi': 2 sample(s) repeat the time stamp before them (first at t = 0.78 s): "
+                         "the first at each stamp is used")
+    k = 39
+    assert rec.outputs[k, 0] == df.phi[39] and rec.inputs[k, 0] == df.delta[41]
+    assert np.isnan(rec.outputs[40:42, 0]).all()
+    path = tmp_path / "repeats.csv"
+    df.to_csv(path, index=False)
+    grid = skigen.recording.stream_recording(path, MODEL)
+    list(grid)
+    assert tuple(grid.notes) == rec.notes
+
+
 @pytest.mark.parametrize("unit, factor", [("ms", 1e3), ("us", 1e6), ("ns", 1e9)])
 def test_time_units(flight, clean, unit, factor):
     scaled = flight.assign(t=np.round(flight.t * factor))
