@@ -50,18 +50,23 @@ EFFECTS = {   # name: (default parameter, what it means)
 VALVE_LEVELS = (0.08, 0.11)        # m: float valve opens below the first, closes above the second
 
 
-def build(name: str = "two_tanks", *, process_scale: float = 1.0, measurement_scale: float = 1.0) -> Model:
+def build(name: str = "two_tanks", *, process_scale: float = 1.0, measurement_scale: float = 1.0,
+          parameters: dict | None = None) -> Model:
     """The nominal model; ``process_scale``/``measurement_scale`` multiply the declared noise std
-    (for recordings diagnosed with mis-declared noise)."""
+    (for recordings diagnosed with mis-declared noise); ``parameters``: {"kp", "a1"} declared as
+    parameters at these values (a grey box to refit)."""
     model = Model(name, dt=DT, discretization="rk4")
     h1 = model.state("h1", unit="m", role="position", initial=INITIAL[0], std=0.01,
                      process_std=process_scale * LEVEL_STD["h1"])
     h2 = model.state("h2", unit="m", role="position", initial=INITIAL[1], std=0.01,
                      process_std=process_scale * LEVEL_STD["h2"])
     u = model.input("u", unit="V")
-    q1 = a1 * np.sqrt(2 * G) * ca.sqrt(h1)
+    kp, orifice = ((model.parameter("kp", parameters["kp"], unit="m^3/(s V)", bounds=(0, 1)),
+                    model.parameter("a1", parameters["a1"], unit="m^2", bounds=(0, 1)))
+                   if parameters else (KP, a1))
+    q1 = orifice * np.sqrt(2 * G) * ca.sqrt(h1)
     q2 = a2 * np.sqrt(2 * G) * ca.sqrt(h2)
-    model.dynamics({h1: (KP * u - q1) / A1, h2: (q1 - q2) / A2})
+    model.dynamics({h1: (kp * u - q1) / A1, h2: (q1 - q2) / A2})
     model.output("h1_meas", h1, unit="m", noise_std=measurement_scale * H_NOISE["h1_meas"])
     model.output("h2_meas", h2, unit="m", noise_std=measurement_scale * H_NOISE["h2_meas"])
     return model

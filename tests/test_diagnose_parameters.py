@@ -114,3 +114,28 @@ def test_a_finding_a_simulation_is_better_without_is_flagged():
     _flag_one_step_only(findings, 0.063)
     assert "note" not in findings[0]
     assert findings[1]["note"].startswith("after the joint refit ...; the free run is better without it (0.041")
+
+
+def test_a_limit_is_refitted_with_the_declared_parameters_it_depends_on(tmp_path):
+    """Two tanks whose pump gain and upper orifice are declared 20 % low and 15 % high, and a pump
+    that delivers at most 5 V. The calibration, without the limit, lowers the gain to make up for
+    it, and the limit found at that gain is 5.37 ± 0.05 (7 std off; measured). Refitted jointly
+    with the gain and the orifice, the limit is 5.067 ± 0.052 and the gain 1.958e-5 ± 0.020e-5
+    (truth 2e-5; seed 3: 4.94 ± 0.06 and 2.020e-5)."""
+    from models import two_tanks as tanks
+    from skigen.diagnose import diagnose
+    pump = tanks.pump_steps(600.0, levels=(2.5, 6.0), seed=1)
+    truth = tanks.simulate(pump, effect="pump_limit", seed=1)
+    rec = Recording("tanks", truth.t, truth.u[:, None], np.column_stack([truth.h1_meas, truth.h2_meas]),
+                    ("u",), ("h1_meas", "h2_meas"))
+    model = tanks.build("tanks_grey", parameters={"kp": 0.8 * tanks.KP, "a1": 1.15 * tanks.a1})
+    data = diagnose(model, rec, tmp_path, show_progress=False, figures=False, emit=False).data
+    [limit] = data["findings"]
+    assert limit["effect"] == "input_saturation" and limit["side"] == "upper"
+    assert abs(limit["cv_coefficient"] - 5.0) > 5 * limit["cv_std"]          # at the calibrated gain
+    assert abs(limit["coefficient"] - 5.0) < 2 * limit["std"] < 0.15          # refitted with it
+    assert limit["expression"] == "min(u, 5.07)"
+    kp = data["refit"]["parameters"]["kp"]
+    assert abs(kp["value"] - tanks.KP) < 3 * kp["std"] < 0.05 * tanks.KP
+    corrected = (tmp_path / "corrected_model.py").read_text()
+    assert "ca.fmin(u, input_saturation_u_upper)" in corrected

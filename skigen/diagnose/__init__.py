@@ -290,10 +290,19 @@ def windows_where_it_acts(nominal: Model, after, rec, equations, states) -> tupl
 def _update_findings(findings: list[dict], names: dict, fitted: dict, alpha: float) -> None:
     """The refitted values in the findings; the std keeps the shape search's share. A finding whose
     refitted coefficient is no longer significant gets a note saying so."""
-    by_effect = {(c.effect, c.equation): n for n, c in names.items() if c is not None}
+    by_target = {(c.effect, c.target, c.side): (n, c) for n, c in names.items() if isinstance(c, C.Structural)}
+    by_effect = {(c.effect, c.equation): n for n, c in names.items()
+                 if c is not None and not isinstance(c, C.Structural)}
     for f in findings:
+        if f["kind"] == "structural":
+            n, s = by_target.get((f["effect"], f.get("output") or f.get("input"), f.get("side", "")), (None, None))
+            if n in fitted:
+                f["cv_coefficient"], f["cv_std"] = f["coefficient"], f["std"]
+                f["coefficient"], f["std"] = fitted[n]["value"], fitted[n]["std"]
+                f["expression"], f["refit_parameter"] = s.describe(f["coefficient"]), n
+            continue
         n = by_effect.get((f["effect"], f["equation"]))
-        if f["kind"] != "additive" or n not in fitted:
+        if n not in fitted:
             continue
         spread = f.get("shape_search", {}).get("coefficient_std_from_shape", 0.0)
         f["cv_coefficient"], f["cv_std"] = f["coefficient"], f["std"]
@@ -358,6 +367,8 @@ def _findings(nominal: Model, corr: Correction, ev: dict, shapes: dict, worth: d
              "parameter": s.parameter, "unit": s.unit, "reading": s.reading}
         f.update({"output": s.output, "shape": {"bound": value, "side": s.side, "output": s.output}}
                  if s.output else {"input": s.input})
+        if s.side:
+            f["side"] = s.side
         out.append(f)
     return sorted(out, key=lambda f: (-f["free_run_without"], -f["evidence"]))
 

@@ -104,6 +104,7 @@ class Structural:
     side: str = ""
     params: int = 1
     coarser: "Structural | None" = None
+    refit: bool = True        # its value a parameter of the joint refit (not a whole delay, a fraction, a play)
 
     @property
     def target(self) -> str:
@@ -294,7 +295,8 @@ def structural_candidates(model: Model, equations, inputs: np.ndarray) -> list[S
         whole = Structural(
             "input_delay", u, "delay", "samples", tuple(range(1, 16)), True, False,
             lambda m, d, u=u: T.input_delay(m, u, int(round(d))),
-            lambda d, u=u: f"{u}[k-{int(round(d))}] ({int(round(d)) * dt:g} s)", READINGS["input_delay"])
+            lambda d, u=u: f"{u}[k-{int(round(d))}] ({int(round(d)) * dt:g} s)", READINGS["input_delay"],
+            refit=False)
         out.append(whole)
         out.append(Structural(
             "actuator_lag", u, "tau", "s", tuple(dt * 2.0 ** np.arange(0, 6)), False, True,
@@ -312,11 +314,12 @@ def structural_candidates(model: Model, equations, inputs: np.ndarray) -> list[S
             out.append(Structural(
                 "backlash", u, "width", unit, widths, False, True,
                 lambda m, a, u=u, first=first: T.backlash(m, u, a, initial=first),
-                lambda a, u=u: f"play({u}, ±{_num(a)})", READINGS["backlash"]))
+                lambda a, u=u: f"play({u}, ±{_num(a)})", READINGS["backlash"], refit=False))
         out.append(Structural(
             "fractional_delay", u, "delay", "samples", FRACTIONAL_DELAYS, False, False,
             lambda m, d, u=u: T.fractional_delay(m, u, d),
-            lambda d, u=u: _describe_fraction(u, d, dt), READINGS["fractional_delay"], params=2, coarser=whole))
+            lambda d, u=u: _describe_fraction(u, d, dt), READINGS["fractional_delay"], params=2, coarser=whole,
+            refit=False))
     return out
 
 

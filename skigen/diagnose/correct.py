@@ -127,8 +127,9 @@ def _unique_name(model: Model, name: str) -> str:
 def parametrised(base: Model, corr: Correction, lift: list[tuple[str, str, str]] = ()) -> tuple[Model, dict, dict]:
     """``base`` plus the correction, each additive coefficient a declared parameter (a physical
     sign as its bound), plus ``lift``: (effect, equation, formula) corrections of the nominal's own
-    linear terms, parameters starting at 0. Returns (model, {parameter: finding candidate or None},
-    {equation: [comment per added term]})."""
+    linear terms, parameters starting at 0, and each structural change whose value is continuous (a
+    limit, a width, a time constant, a sensor's bound) with that value a parameter. Returns (model,
+    {parameter: finding candidate or None}, {equation: [comment per added term]})."""
     m = T.copy_model(base, unknowns=False)
     names, notes = {}, {}
     for c, coef, std in corr.additive:
@@ -144,6 +145,11 @@ def parametrised(base: Model, corr: Correction, lift: list[tuple[str, str, str]]
         names[name] = None
         notes.setdefault(eq, []).append(f"correction of the nominal {effect.replace('_', ' ')}: {name} × ({formula})")
     for s, value, _ in corr.structural:
+        if s.refit:
+            name = _unique_name(m, "_".join(filter(None, (s.effect, s.target, s.side))))
+            value = m.parameter(name, float(value), unit=s.unit,      # searched on a log scale: positive
+                                bounds=(0.0, np.inf) if s.log else None)
+            names[name] = s
         m = s.build(m, value)
     return m, names, notes
 

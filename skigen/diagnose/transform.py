@@ -161,13 +161,14 @@ def fractional_delay(model: Model, u: str, samples: float) -> Model:
 def actuator_lag(model: Model, u: str, tau: float, initial: float = 0.0, std: float = 1.0) -> Model:
     """The plant sees a first-order lag of u with time constant tau (seconds): a new state
     ``<u>_act`` with d/dt u_act = (u − u_act)/tau, starting at ``initial``."""
-    if not tau > 0:
+    tau = _number(tau)
+    if not isinstance(tau, ca.SX) and not tau > 0:
         raise ValueError("an actuator lag needs a positive time constant")
     sym = ca.SX.sym(_unique(model, f"{u}_act"))
     m = replace_input(model, u, sym)
     uu = _input(m, u)
     if m.discretization == "discrete":
-        a = 1.0 - np.exp(-m.dt / tau)
+        a = 1.0 - ca.exp(-m.dt / tau)
         rhs = sym + a * (uu - sym)
     else:
         rhs = (uu - sym) / tau
@@ -175,17 +176,22 @@ def actuator_lag(model: Model, u: str, tau: float, initial: float = 0.0, std: fl
     return m
 
 
+def _number(x):
+    """A structural change's value: a number, or a declared parameter's symbol (refitted)."""
+    return x if isinstance(x, ca.SX) else float(x)
+
+
 def input_saturation(model: Model, u: str, low: float | None, high: float | None) -> Model:
     """The plant sees clip(u, low, high); a side given as None is not limited."""
     seen = _input(model, u)
-    seen = seen if low is None else ca.fmax(seen, float(low))
-    return replace_input(model, u, seen if high is None else ca.fmin(seen, float(high)))
+    seen = seen if low is None else ca.fmax(seen, _number(low))
+    return replace_input(model, u, seen if high is None else ca.fmin(seen, _number(high)))
 
 
 def smooth_dead_zone(x, width: float, smooth: float):
     """sp(x − a) − sp(−x − a), sp(y) = ε log(1 + e^(y/ε)): zero inside ±a, x ∓ a outside,
     with corners rounded over about ε."""
-    a, e = float(width), float(smooth)
+    a, e = _number(width), _number(smooth)
     sp = lambda y: e * (ca.fmax(y / e, 0) + ca.log1p(ca.exp(-ca.fabs(y / e))))
     return sp(x - a) - sp(-x - a)
 
@@ -225,7 +231,7 @@ def output_saturation(model: Model, y: str, bound: float, side: str) -> Model:
     if i is None:
         raise ValueError(f"model '{model.name}' has no output '{y}' (outputs: {', '.join(m.output_names)})")
     clip = ca.fmin if side == "upper" else ca.fmax
-    m.outputs[i] = dataclasses.replace(m.outputs[i], sym=clip(ca.SX(m.outputs[i].sym), float(bound)))
+    m.outputs[i] = dataclasses.replace(m.outputs[i], sym=clip(ca.SX(m.outputs[i].sym), _number(bound)))
     return m
 
 
