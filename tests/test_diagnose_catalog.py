@@ -162,3 +162,16 @@ def test_a_width_whose_profile_has_no_maximum_is_not_identifiable():
     assert [(r["effect"], r["equation"]) for r in rejected["not_identifiable"]] == [("dead_zone", "V")]
     kept, rejected = screen(model, Correction([], [(dead, 0.08, 0.004)]), None, rec, 0.01)
     assert len(kept.structural) == 1 and not rejected["not_identifiable"]
+
+
+def test_a_user_candidate_that_cannot_be_read_is_named_with_what_it_may_use():
+    from skigen.diagnose.catalog import user_candidates
+    m = _echo()
+    with pytest.raises(ValueError, match=r"formula 'tanh\(w\)': name 'w' is not defined \(known names: .*x.*u"):
+        user_candidates(m, [("drag", "x", "tanh(w)")])
+    with pytest.raises(ValueError, match=r"time is not a symbol of the model: declare an input for it"):
+        user_candidates(m, [("drift", "x", "t * u")])
+    with pytest.raises(ValueError, match=r"formula 'u \*' is not an expression"):
+        user_candidates(m, [("gain", "x", "u *")])
+    with pytest.raises(ValueError, match=r"candidate 'gain': no equation 'v' \(states: x\)"):
+        user_candidates(m, [("gain", "v", "u")])

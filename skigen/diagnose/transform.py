@@ -69,7 +69,9 @@ def formula(model: Model, text: str) -> ca.SX:
     try:
         value = eval(compile(text, "<formula>", "eval"), {"__builtins__": {}}, {**_FUNCS, **names})
     except NameError as exc:
-        raise ValueError(f"formula '{text}': {exc} (known names: {', '.join(names)})") from None
+        hint = ("; time is not a symbol of the model: declare an input for it (model.input('clock', unit='s')) "
+                "and give the recording a 'clock' column holding the time" if exc.name in ("t", "time") else "")
+        raise ValueError(f"formula '{text}': {exc} (known names: {', '.join(names)}){hint}") from None
     except SyntaxError as exc:
         raise ValueError(f"formula '{text}' is not an expression: {exc.msg}") from None
     value = ca.SX(value)
