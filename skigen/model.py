@@ -353,6 +353,7 @@ class Model:
         if clash:
             raise ModelError(f"weight name(s) {', '.join(sorted(clash))} collide with a declared name")
         self._check_finite_at_start()
+        self._check_step_is_stable()
         _check_covariance(self.process_noise(), "Q (process noise)", self.state_names, definite=False)
         _check_covariance(self.measurement_noise(), "R (measurement noise)", self.output_names)
         _check_covariance(self.initial_covariance(), "P0 (initial covariance)", self.state_names)
@@ -370,6 +371,35 @@ class Model:
             if not np.isfinite(v):
                 raise ModelError(f"{what} is {v} at the declared initial state (inputs 0): a non-finite "
                                  f"constant, or an expression undefined there")
+
+    def _check_step_is_stable(self):
+        """No mode the continuous dynamics damp is amplified by the integration step, at the declared
+        initial state (inputs, history 0): a step too long for a fast mode makes every run diverge."""
+        if self.discretization == "discrete":
+            return
+        x = ca.vertcat(*[v.sym for v in self.states])
+        syms = [v.sym for v in self.inputs] + [m.sym for m in self.memory] + [p.sym for p in self.parameters]
+        values = [0.0] * (len(self.inputs) + len(self.memory)) + [p.value for p in self.parameters]
+        jac = ca.jacobian(ca.vertcat(*[self.rhs[n] for n in self.state_names]), x)
+        A = np.asarray(ca.Function("state_jacobian", [x, ca.vertcat(*syms)], [jac])(self.x0, values))
+        if not np.isfinite(A).all():
+            return
+        lam = np.linalg.eigvals(A)
+        lam = lam[lam.real < 0]
+        amplified = lambda n: np.abs(_step_gain(self.discretization, lam * self.dt / n)) > 1 + 1e-9
+        if not amplified(self.substeps).any():
+            return
+        worst = lam[amplified(self.substeps)][np.argmax(np.abs(lam[amplified(self.substeps)]))]
+        lo, n = self.substeps, 2 * self.substeps          # the fewest substeps that damp it: double, then bisect
+        while amplified(n).any():
+            lo, n = n, 2 * n
+        while n - lo > 1:
+            lo, n = ((lo + n) // 2, n) if amplified((lo + n) // 2).any() else (lo, (lo + n) // 2)
+        raise ModelError(
+            f"model '{self.name}': its {self.discretization} step of {self.dt / self.substeps:g} s amplifies a mode "
+            f"the dynamics damp (eigenvalue {_complex(worst)} /s of the state Jacobian at the declared initial "
+            f"state, time constant {1 / abs(worst.real):.3g} s): every run would diverge. Give "
+            f"substeps={n} or more, or a shorter dt")
 
     def process_noise(self) -> np.ndarray:
         """Q over the physical states, per sample (state units²)."""
@@ -439,6 +469,15 @@ def _per_weight(value, count: int, what: str) -> np.ndarray:
     if not np.all(np.isfinite(arr)) or np.any(arr < 0):
         raise ModelError(f"{what} must be finite and non-negative, got {arr}")
     return arr.copy()
+
+
+def _complex(z) -> str:
+    return f"{z.real:.4g}" if z.imag == 0 else f"{z.real:.4g} ± {abs(z.imag):.4g}j"
+
+
+def _step_gain(method: str, z):
+    """The integrator's amplification of a linear mode over one step, z = λ·h."""
+    return 1 + z if method == "euler" else 1 + z + z ** 2 / 2 + z ** 3 / 6 + z ** 4 / 24
 
 
 def _check_scalar(expr: ca.SX, what: str):

@@ -1,5 +1,6 @@
 """Property: a random invalid declaration raises ModelError naming its culprit, never anything else."""
 import math
+import re
 
 import casadi as ca
 import pytest
@@ -82,3 +83,25 @@ def test_weight_name_colliding_with_a_state_is_refused():
     m.unknown(x, [term("x", x, key="one")])
     with pytest.raises(ModelError, match="reserved"):
         m.state("w_one")
+
+
+@pytest.mark.parametrize("method, dt, rate, substeps, need", [
+    ("rk4", 0.002, -2000.0, 1, 2),        # z = −4, RK4 damps down to z ≈ −2.785
+    ("rk4", 0.002, -2e5, 10, 144),        # 2e5 · 0.002 / 2.785 = 143.6
+    ("euler", 0.1, -30.0, 1, 2),          # z = −3, Euler damps down to z = −2
+])
+def test_a_step_too_long_for_a_fast_mode_is_refused_with_the_substeps_it_needs(method, dt, rate, substeps, need):
+    def motor(n):
+        m = Model("fast", dt=dt, discretization=method, substeps=n)
+        x, i = m.state("x", std=1.0), m.state("i", std=1.0)
+        u = m.input("u")
+        m.dynamics({x: i - 0.1 * x, i: rate * i + u})
+        m.output("y", x, noise_std=0.1)
+        return m
+    with pytest.raises(ModelError, match=rf"model 'fast': its {method} step of {dt / substeps:g} s amplifies a "
+                                         rf"mode the dynamics damp \(eigenvalue {re.escape(f'{rate:.4g}')} /s .* Give "
+                                         rf"substeps={need} or more"):
+        motor(substeps).check()
+    motor(need).check()
+    with pytest.raises(ModelError):
+        motor(need - 1).check()
