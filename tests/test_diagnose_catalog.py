@@ -175,3 +175,23 @@ def test_a_user_candidate_that_cannot_be_read_is_named_with_what_it_may_use():
         user_candidates(m, [("gain", "x", "u *")])
     with pytest.raises(ValueError, match=r"candidate 'gain': no equation 'v' \(states: x\)"):
         user_candidates(m, [("gain", "v", "u")])
+
+
+@pytest.mark.parametrize("role", [None, "velocity"])
+def test_the_rate_of_a_position_gets_friction_and_stiffness_whatever_its_declared_role(role):
+    """A motor's speed ω with θ̇ = ω is a velocity by kinematics: a model that declares θ a position
+    and leaves ω's role out gets the same candidates on ω as one that declares it (before, it got
+    no damping, drag or friction, and a DC motor's Coulomb friction went unnamed)."""
+    from skigen import Model
+    from skigen.diagnose.catalog import additive_candidates
+    m = Model("motor", dt=0.002, substeps=4)
+    th = m.state("theta", unit="rad", role="position", std=0.01)
+    om = m.state("omega", unit="rad/s", std=0.1, **({"role": role} if role else {}))
+    i = m.state("i", unit="A", std=0.1)
+    v = m.input("V", unit="V")
+    m.dynamics({th: om, om: 500 * i - 2 * om, i: 1000 * v - 2000 * i - 50 * om})
+    m.output("enc", th, noise_std=2e-3)
+    effects = {c.effect for c in additive_candidates(m, ["omega"], {"omega": 10.0})}
+    assert {"viscous_damping", "quadratic_drag", "coulomb_friction", "linear_stiffness", "cubic_stiffness"} <= effects
+    assert {c.formula for c in additive_candidates(m, ["omega"], {"omega": 10.0}) if c.effect == "coulomb_friction"} \
+        == {"-tanh(omega/0.05)", "-tanh(omega/0.2)", "-tanh(omega/0.8)"}

@@ -136,10 +136,19 @@ def kinematic_equations(model: Model) -> list[str]:
 
 
 def pairs(model: Model, velocity: str) -> list[str]:
-    """Position-type states whose equation depends on ``velocity`` (ẋ = v)."""
+    """Position-type states whose equation depends on ``velocity``, and the states whose rate it is
+    (ẋ = v: a position whatever its declared role)."""
     vs = T.symbols(model)[velocity]
+    kinematic = driven(model, velocity)
     return [v.name for v in model.states
-            if v.role in POSITION_ROLES and ca.depends_on(model.rhs[v.name], vs)]
+            if v.name in kinematic or v.role in POSITION_ROLES and ca.depends_on(model.rhs[v.name], vs)]
+
+
+def driven(model: Model, velocity: str) -> list[str]:
+    """States whose rate is exactly ``velocity`` (ẋ = v): the positions it drives kinematically."""
+    v = T.symbols(model)[velocity]
+    return [s.name for s in model.states if s.name != velocity and model.rhs[s.name].is_symbolic()
+            and ca.is_equal(model.rhs[s.name], v)]
 
 
 def _inputs_of(model: Model, equation: str) -> list[str]:
@@ -161,10 +170,7 @@ FRACTIONAL_DELAYS = tuple(n + a for n in range(4) for a in (0.25, 0.5, 0.75)) + 
 def _limit_states(model: Model, eq: str) -> list[str]:
     """States a bound may stop through equation ``eq``: the positions it drives kinematically
     (ẋ = v), or the state itself when its equation is first order (a tank level)."""
-    syms = T.symbols(model)
-    out = [v.name for v in model.states if v.name != eq and model.rhs[v.name].is_symbolic()
-           and ca.is_equal(model.rhs[v.name], syms[eq])]
-    return out or [eq]
+    return driven(model, eq) or [eq]
 
 
 def additive_candidates(model: Model, equations, scale: dict[str, float],
@@ -178,7 +184,8 @@ def additive_candidates(model: Model, equations, scale: dict[str, float],
         def add(effect, formula, variant="", shape=(), sign=0):
             out.append(Additive(effect, eq, formula, READINGS[effect], variant, shape=shape, sign=sign))
         add("bias", "1")
-        rate_like = eq in [v.name for v in model.states if v.role in VELOCITY_ROLES] or not pairs(model, eq)
+        rate_like = (eq in [v.name for v in model.states if v.role in VELOCITY_ROLES] or not pairs(model, eq)
+                     or bool(driven(model, eq)))      # the rate of a position: friction and drag act on it
         if rate_like:
             add("viscous_damping", f"-{eq}")
             add("quadratic_drag", f"-{eq}*abs({eq})", sign=1)
