@@ -353,7 +353,6 @@ class Model:
         if clash:
             raise ModelError(f"weight name(s) {', '.join(sorted(clash))} collide with a declared name")
         self._check_finite_at_start()
-        self._check_step_is_stable()
         _check_covariance(self.process_noise(), "Q (process noise)", self.state_names, definite=False)
         _check_covariance(self.measurement_noise(), "R (measurement noise)", self.output_names)
         _check_covariance(self.initial_covariance(), "P0 (initial covariance)", self.state_names)
@@ -372,34 +371,36 @@ class Model:
                 raise ModelError(f"{what} is {v} at the declared initial state (inputs 0): a non-finite "
                                  f"constant, or an expression undefined there")
 
-    def _check_step_is_stable(self):
-        """No mode the continuous dynamics damp is amplified by the integration step, at the declared
-        initial state (inputs, history 0): a step too long for a fast mode makes every run diverge."""
+    def unstable_step(self) -> str | None:
+        """Why a run diverges when the integration step amplifies a mode the dynamics damp (the
+        state Jacobian at the declared initial state, inputs and history 0), with the fewest
+        substeps that damp it; None when no mode is amplified. A local, linear reading: a steep
+        but saturating term (a narrow tanh) is amplified there without any run diverging, so it
+        explains a divergence seen, it does not refuse a model."""
         if self.discretization == "discrete":
-            return
+            return None
         x = ca.vertcat(*[v.sym for v in self.states])
         syms = [v.sym for v in self.inputs] + [m.sym for m in self.memory] + [p.sym for p in self.parameters]
         values = [0.0] * (len(self.inputs) + len(self.memory)) + [p.value for p in self.parameters]
         jac = ca.jacobian(ca.vertcat(*[self.rhs[n] for n in self.state_names]), x)
         A = np.asarray(ca.Function("state_jacobian", [x, ca.vertcat(*syms)], [jac])(self.x0, values))
         if not np.isfinite(A).all():
-            return
+            return None
         lam = np.linalg.eigvals(A)
         lam = lam[lam.real < 0]
         amplified = lambda n: np.abs(_step_gain(self.discretization, lam * self.dt / n)) > 1 + 1e-9
         if not amplified(self.substeps).any():
-            return
+            return None
         worst = lam[amplified(self.substeps)][np.argmax(np.abs(lam[amplified(self.substeps)]))]
         lo, n = self.substeps, 2 * self.substeps          # the fewest substeps that damp it: double, then bisect
         while amplified(n).any():
             lo, n = n, 2 * n
         while n - lo > 1:
             lo, n = ((lo + n) // 2, n) if amplified((lo + n) // 2).any() else (lo, (lo + n) // 2)
-        raise ModelError(
-            f"model '{self.name}': its {self.discretization} step of {self.dt / self.substeps:g} s amplifies a mode "
-            f"the dynamics damp (eigenvalue {_complex(worst)} /s of the state Jacobian at the declared initial "
-            f"state, time constant {1 / abs(worst.real):.3g} s): every run would diverge. Give "
-            f"substeps={n} or more, or a shorter dt")
+        return (f"model '{self.name}': its {self.discretization} step of {self.dt / self.substeps:g} s amplifies "
+                f"a mode the dynamics damp (eigenvalue {_complex(worst)} /s of the state Jacobian at the declared "
+                f"initial state, time constant {1 / abs(worst.real):.3g} s). Give substeps={n} or more, or a "
+                f"shorter dt")
 
     def process_noise(self) -> np.ndarray:
         """Q over the physical states, per sample (state units²)."""

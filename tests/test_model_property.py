@@ -3,6 +3,7 @@ import math
 import re
 
 import casadi as ca
+import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -90,18 +91,20 @@ def test_weight_name_colliding_with_a_state_is_refused():
     ("rk4", 0.002, -2e5, 10, 144),        # 2e5 · 0.002 / 2.785 = 143.6
     ("euler", 0.1, -30.0, 1, 2),          # z = −3, Euler damps down to z = −2
 ])
-def test_a_step_too_long_for_a_fast_mode_is_refused_with_the_substeps_it_needs(method, dt, rate, substeps, need):
+def test_a_step_too_long_for_a_fast_mode_is_named_with_the_substeps_it_needs(method, dt, rate, substeps, need):
+    """Why a free run diverges (a 0.5 ms current mode at a 2 ms RK4 step), for the fit's and the
+    diagnosis's errors; the model itself is not refused (a narrow tanh friction is as steep at
+    v = 0 and never diverges)."""
+
     def motor(n):
         m = Model("fast", dt=dt, discretization=method, substeps=n)
         x, i = m.state("x", std=1.0), m.state("i", std=1.0)
         u = m.input("u")
-        m.dynamics({x: i - 0.1 * x, i: rate * i + u})
+        k = m.parameter("k", 0.1, bounds=(0, 1))
+        m.dynamics({x: i - k * x, i: rate * i + u})
         m.output("y", x, noise_std=0.1)
-        return m
-    with pytest.raises(ModelError, match=rf"model 'fast': its {method} step of {dt / substeps:g} s amplifies a "
-                                         rf"mode the dynamics damp \(eigenvalue {re.escape(f'{rate:.4g}')} /s .* Give "
-                                         rf"substeps={need} or more"):
-        motor(substeps).check()
-    motor(need).check()
-    with pytest.raises(ModelError):
-        motor(need - 1).check()
+        return m.check()
+    why = (rf"model 'fast': its {method} step of {dt / substeps:g} s amplifies a mode the dynamics damp "
+           rf"\(eigenvalue {re.escape(f'{rate:.4g}')} /s .* Give substeps={need} or more")
+    assert re.match(why, motor(substeps).unstable_step())
+    assert motor(need).unstable_step() is None and motor(need - 1).unstable_step() is not None

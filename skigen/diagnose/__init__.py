@@ -30,6 +30,7 @@ from scipy import stats
 
 from ..model import Model, ModelError
 from ..recording import RecordingError
+from ..simulate import free_run
 from . import catalog as C
 from . import transform as T
 from .calibrate import calibrate
@@ -136,6 +137,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         raise
     except ValueError as exc:
         raise DiagnosisError(str(exc)) from None
+    _refuse_a_diverging_step(nominal, rec)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     N = len(rec.t)
@@ -327,6 +329,20 @@ def _flag_one_step_only(findings: list[dict], free_all: float) -> None:
 
 def _note(finding: dict, text: str) -> None:
     finding["note"] = "; ".join(filter(None, [finding.get("note"), text]))
+
+
+def _refuse_a_diverging_step(nominal: Model, rec) -> None:
+    """A nominal whose free run on the recording's inputs diverges because its step is too long
+    for a fast mode is refused with the substeps it needs, rather than diagnosed on overflows."""
+    why = nominal.unstable_step()
+    if why is None:
+        return
+    with np.errstate(all="ignore"):
+        states, _ = free_run(T.constants(nominal), rec.inputs)
+    if not (np.isfinite(states).all() and np.abs(states).max() < 1e150):
+        i = int(np.argmax(~np.isfinite(states).all(axis=1) | (np.abs(states).max(axis=1) >= 1e150)))
+        raise DiagnosisError(f"the free run of '{nominal.name}' on the recording's inputs diverges "
+                             f"(t = {rec.t[i]:g} s): {why}")
 
 
 def detect(model, recording, *, alpha: float = 0.01, equations=None, **read) -> dict:

@@ -216,7 +216,8 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     rho0, _ = (np.asarray(v) for v in prob.residuals(theta0 / nominal, np.r_[nominal, data]))
     where = _first_bad(rho0, lengths, recs)
     if where:
-        hint = ("; use shorter shooting intervals" if shooting else
+        why = model.unstable_step()
+        hint = (f": {why}" if why else "; use shorter shooting intervals" if shooting else
                 "; give a shooting interval (shooting=... samples, --shooting) to fit it by multiple shooting")
         raise FitError(f"the simulation of '{model.name}' at the initial values diverges in {where}{hint}")
     if method == "output-error" and np.nanmax(np.nanmean(rho0 ** 2, axis=1)) > STRAY:
