@@ -139,3 +139,12 @@ def test_a_limit_is_refitted_with_the_declared_parameters_it_depends_on(tmp_path
     assert abs(kp["value"] - tanks.KP) < 3 * kp["std"] < 0.05 * tanks.KP
     corrected = (tmp_path / "corrected_model.py").read_text()
     assert "ca.fmin(u, input_saturation_u_upper)" in corrected
+
+
+def test_a_refitted_value_is_written_to_its_std_second_digit():
+    """A stiffness of 2399.81 ± 0.6 was written "2400 ± 0.6" in report.md: the std's digits lost."""
+    from skigen.diagnose.report import _pm
+    assert _pm(2399.81, 0.60) == "2399.81 ± 0.6"
+    assert _pm(1.60015, 0.0056) == "1.6001 ± 0.0056"
+    assert _pm(6.002, 0.0085) == "6.002 ± 0.0085"            # at least four significant digits
+    assert _pm(0.0, 0.1) == "0 ± 0.1" and _pm(None, None) == "– ± –"

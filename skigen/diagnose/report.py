@@ -39,6 +39,14 @@ def _fmt(x, spec=".4g"):
     return "–" if x is None else format(x, spec)
 
 
+def _pm(value, std) -> str:
+    """value ± std, the value to the std's second digit (at least 4 significant): 2399.81 ± 0.6."""
+    if value is None or std is None or not (math.isfinite(value) and math.isfinite(std)) or value == 0 or std <= 0:
+        return f"{_fmt(value)} ± {_fmt(std, '.2g')}"
+    digits = math.floor(math.log10(abs(value))) - math.floor(math.log10(std)) + 2
+    return f"{format(value, f'.{min(max(digits, 4), 15)}g')} ± {_fmt(std, '.2g')}"
+
+
 def _noise_table(noise: dict) -> list[str]:
     d, c = noise["declared"], noise["calibrated"]
     L = ["| noise std | declared | calibrated |", "|---|---|---|"]
@@ -124,7 +132,7 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
             for f in data["findings"]:
                 shape = ", ".join(f"{k} {v}" for k, v in f.get("shape", {}).items() if k != "state") or "–"
                 L.append(f"| {f['effect']} | `{f['equation']}` | `{f['expression']}` | "
-                         f"{_fmt(f['coefficient'])} ± {_fmt(f['std'], '.2g')} {f.get('unit', '')} | {shape} | "
+                         f"{_pm(f['coefficient'], f['std'])} {f.get('unit', '')} | {shape} | "
                          f"{f['evidence']:+.1f} | {_fmt(f.get('free_run_without'), '.3g')} |")
             L.append("")
             for f in data["findings"]:
@@ -135,7 +143,7 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
         for key, title in (("compensating", "Compensating, not findings"), ("not_identifiable", "Not identifiable")):
             for f in data.get(key, []):
                 L.append(f"- {title}: {f['effect']} on `{f['equation']}` (`{f['expression']}`, "
-                         f"{_fmt(f['coefficient'])} ± {_fmt(f['std'], '.2g')}): {f['note']}.")
+                         f"{_pm(f['coefficient'], f['std'])}): {f['note']}.")
         for line in meta.get("proposals", []):
             L.append(f"- {line}")
         L += ["", "## 5. Model", ""]
@@ -149,7 +157,7 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
         if r:
             L += ["", f"Refit ({r['method']}, jointly with the noise): {r.get('note') or 'converged'}"]
             for n, p in (r.get("parameters") or {}).items():
-                L.append(f"- `{n}` = {_fmt(p['value'])} ± {_fmt(p['std'], '.2g')} (from {_fmt(p['initial'])})")
+                L.append(f"- `{n}` = {_pm(p['value'], p['std'])} (from {_fmt(p['initial'])})")
         L += ["", "## 6. Fit", ""]
         rows = [(f"this recording (in-sample)", fit["before"], fit["after"])]
         rows += [(Path(v["before"]["recording"]).name, v["before"], v["after"]) for v in fit.get("recordings", [])]
