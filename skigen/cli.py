@@ -172,6 +172,8 @@ def _diagnose(args) -> int:
         print("what remains: " + ("a mismatch remains" + (f"; it follows {rem['explained_by']}: try --candidate "
                                                           f"'{rem['suggested_candidate']}'" if rem.get("explained_by") else "")
                                   if rem["mismatch"] else "the corrected model is consistent"))
+    if (d["remaining"] or {}).get("integration"):
+        print(f"integration: {d['remaining']['integration']}")
     if d["corrected_model"]:
         print(f"corrected model: {d['corrected_model']}")
     print(f"report: {Path(args.out) / 'report.md'} ({report.seconds:.1f} s)")

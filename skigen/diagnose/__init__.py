@@ -266,6 +266,8 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         data["remaining"] = {"mismatch": True, "where": {"equations": loc.equations, "windows": data["located"]["windows"],
                                                           "regime": loc.regime},
                              "note": "no candidate explains the mismatch: it remains as detected"}
+    if data["remaining"].get("mismatch") and (hint := _integration_hint(nominal)):
+        data["remaining"]["integration"] = hint
     data["fit"]["recordings"] = [{"before": evaluate_fit(calibrated, r).metrics,
                                   "after": evaluate_fit(corrected, r).metrics if corrected is not None else None}
                                  for r in others]
@@ -329,6 +331,19 @@ def _flag_one_step_only(findings: list[dict], free_all: float) -> None:
 
 def _note(finding: dict, text: str) -> None:
     finding["note"] = "; ".join(filter(None, [finding.get("note"), text]))
+
+
+def _integration_hint(nominal: Model) -> str | None:
+    """Where a mismatch remains, whether the integration step itself may be it: more than 1 % error
+    per step on the fastest damped mode."""
+    e = nominal.step_error()
+    if e is None or e[0] < 0.01:
+        return None
+    err, lam, n = e
+    lam = f"{lam.real:.4g}" if lam.imag == 0 else f"{lam.real:.4g} ± {abs(lam.imag):.4g}j"
+    return (f"the {nominal.discretization} step of {nominal.dt / nominal.substeps:g} s misses the mode of "
+            f"eigenvalue {lam} /s by {100 * err:.3g} % per step: the mismatch may be the integration's; "
+            f"try substeps={n} (below 0.1 %)")
 
 
 def _refuse_a_diverging_step(nominal: Model, rec) -> None:

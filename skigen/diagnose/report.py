@@ -181,6 +181,8 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
                          f"`{rem['shape']}`); to test it: `--candidate '{rem['suggested_candidate']}'`.")
             if rem.get("note"):
                 L.append(rem["note"] + ".")
+            if rem.get("integration"):
+                L.append(f"Integration: {rem['integration']}.")
         L.append("")
     if meta.get("figures"):
         L += ["## Figures", ""] + [f"![{Path(p).stem}]({Path(p).name})" for p in meta["figures"]] + [""]
