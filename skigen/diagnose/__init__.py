@@ -342,7 +342,7 @@ def _integration_hint(nominal: Model) -> str | None:
     err, lam, n = e
     lam = f"{lam.real:.4g}" if lam.imag == 0 else f"{lam.real:.4g} ± {abs(lam.imag):.4g}j"
     return (f"the {nominal.discretization} step of {nominal.dt / nominal.substeps:g} s misses the mode of "
-            f"eigenvalue {lam} /s by {100 * err:.3g} % per step: the mismatch may be the integration's; "
+            f"eigenvalue {lam} /s by {f'{100 * err:.3g} %' if err < 1 else 'more than 100 %'} per step: the mismatch may be the integration's; "
             f"try substeps={n} (below 0.1 %)")
 
 
