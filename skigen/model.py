@@ -381,9 +381,10 @@ class Model:
         if lam is None:
             return None
         amplified = lambda n: np.abs(_step_gain(self.discretization, lam * self.dt / n)) > 1 + 1e-9
-        if not amplified(self.substeps).any():
+        now = lam[amplified(self.substeps)]
+        if not now.size:
             return None
-        worst = lam[amplified(self.substeps)][np.argmax(np.abs(lam[amplified(self.substeps)]))]
+        worst = now[np.argmax(np.abs(now))]
         lo, n = self.substeps, 2 * self.substeps          # the fewest substeps that damp it: double, then bisect
         while amplified(n).any():
             lo, n = n, 2 * n

@@ -28,7 +28,7 @@ import casadi as ca
 import numpy as np
 from scipy import stats
 
-from ..model import Model, ModelError
+from ..model import Model, ModelError, _complex
 from ..recording import RecordingError
 from ..simulate import free_run
 from . import catalog as C
@@ -340,9 +340,8 @@ def _integration_hint(nominal: Model) -> str | None:
     if e is None or e[0] < 0.01:
         return None
     err, lam, n = e
-    lam = f"{lam.real:.4g}" if lam.imag == 0 else f"{lam.real:.4g} ± {abs(lam.imag):.4g}j"
     return (f"the {nominal.discretization} step of {nominal.dt / nominal.substeps:g} s misses the mode of "
-            f"eigenvalue {lam} /s by {f'{100 * err:.3g} %' if err < 1 else 'more than 100 %'} per step: the mismatch may be the integration's; "
+            f"eigenvalue {_complex(lam)} /s by {f'{100 * err:.3g} %' if err < 1 else 'more than 100 %'} per step: the mismatch may be the integration's; "
             f"try substeps={n} (below 0.1 %)")
 
 
@@ -354,8 +353,9 @@ def _refuse_a_diverging_step(nominal: Model, rec) -> None:
         return
     with np.errstate(all="ignore"):
         states, _ = free_run(T.constants(nominal), rec.inputs)
-    if not (np.isfinite(states).all() and np.abs(states).max() < 1e150):
-        i = int(np.argmax(~np.isfinite(states).all(axis=1) | (np.abs(states).max(axis=1) >= 1e150)))
+        diverged = ~np.isfinite(states).all(axis=1) | (np.abs(states).max(axis=1) >= 1e150)
+    if diverged.any():
+        i = int(np.argmax(diverged))
         raise DiagnosisError(f"the free run of '{nominal.name}' on the recording's inputs diverges "
                              f"(t = {rec.t[i]:g} s): {why}")
 
