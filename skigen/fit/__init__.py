@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
+from scipy.optimize import minimize_scalar
 
 from ..model import Model, ModelError
 from ..progress import note
@@ -40,6 +41,7 @@ _IPOPT_WORDS = {
     "Error_In_Step_Computation": "failed to compute a step (the problem is numerically singular)",
     "Invalid_Number_Detected": "met a non-finite value (the simulation diverges for some trial "
                                "parameters: add bounds, or use shorter shooting intervals)",
+    "Solved_To_Negligible_Gain": "converged: Fisher scoring predicts less than 0.001 nat of further gain",
     "Diverging_Iterates": "diverged (a parameter grew without bound: is it identifiable? add bounds)",
 }
 
@@ -142,11 +144,14 @@ class _Progress(ca.Callback):
 
     def __init__(self, nx: int, ng: int):
         ca.Callback.__init__(self)
-        self.nx, self.ng, self.label, self.iteration, self.t0 = nx, ng, "fit", 0, time.perf_counter()
+        self.nx, self.ng = nx, ng
+        self.start("fit")
         self.construct("fit_progress", {})
 
-    def start(self, label: str):
+    def start(self, label: str | None, negligible=None):
+        """negligible(ξ) → True where the remaining gain is negligible: IPOPT then stops."""
         self.label, self.iteration, self.t0 = label, 0, time.perf_counter()
+        self.negligible, self.history, self.next_check, self.stopped = negligible, [], 0, False
 
     def get_n_in(self):
         return ca.nlpsol_n_out()
@@ -171,10 +176,18 @@ class _Progress(ca.Callback):
         return ca.Sparsity(0, 0)
 
     def eval(self, arg):
+        f = float(arg[1])
         if self.label:
-            note(f"{self.label}: iteration {self.iteration}, -log L {float(arg[1]):.7g} "
+            note(f"{self.label}: iteration {self.iteration}, -log L {f:.7g} "
                  f"({time.perf_counter() - self.t0:.1f} s)")
         self.iteration += 1
+        self.history.append(f)
+        if (self.negligible and len(self.history) > STALL and self.iteration >= self.next_check
+                and self.history[-STALL - 1] - f < NEGLIGIBLE_GAIN):
+            self.next_check = self.iteration + STALL
+            if self.negligible(np.asarray(arg[0]).ravel()):
+                self.stopped = True
+                return [1]
         return [0]
 
 
@@ -234,21 +247,28 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     lower = _resolution_floor(model, V, recs, prob.solver_inputs["lbx"])
     inputs = dict(prob.solver_inputs, x0=np.maximum(theta0, lower) / scale, lbx=lower / scale,
                   ubx=prob.solver_inputs["ubx"] / scale, p=p)
+    if method == "filter-error":
+        inputs["x0"] = _noise_start(prob, inputs)
     if show_progress:
         note(f"fitting '{model.name}' by {method}: {len(V)} unknowns, {sum(lengths)} samples")
-    prob.progress.start(f"fit {model.name}" if show_progress else None)
+    negligible = None if prob.nlp["g"].shape[0] else functools.partial(_negligible_gain, prob, inputs)
+    prob.progress.start(f"fit {model.name}" if show_progress else None, negligible)
     scoring, newton = solver
     sol = scoring(**inputs)
     stats = scoring.stats()
     iterations, status = stats["iter_count"], stats["return_status"]
-    if status not in ("Solve_Succeeded", "Solved_To_Acceptable_Level"):
+    if prob.progress.stopped:
+        status = NEGLIGIBLE_STATUS
+    if status not in ("Solve_Succeeded", "Solved_To_Acceptable_Level", NEGLIGIBLE_STATUS):
         if show_progress:
             note(f"fit {model.name}: Fisher scoring {_IPOPT_WORDS.get(status, status)}; continuing with "
                  f"Newton steps (exact Hessian)")
         sol = newton()(**dict(inputs, x0=sol["x"], lam_x0=sol["lam_x"], lam_g0=sol["lam_g"]))
         stats = newton().stats()
         iterations, status = iterations + stats["iter_count"], stats["return_status"]
-    if status not in ("Solve_Succeeded", "Solved_To_Acceptable_Level"):
+        if prob.progress.stopped:
+            status = NEGLIGIBLE_STATUS
+    if status not in ("Solve_Succeeded", "Solved_To_Acceptable_Level", NEGLIGIBLE_STATUS):
         raise FitError(f"IPOPT {_IPOPT_WORDS.get(status, status)} (status {status}, "
                        f"{iterations} iterations)")
     stats = dict(stats, iter_count=iterations)
@@ -266,6 +286,34 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     Y = np.asarray(prob.predict(xi, p)).T
     return _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_at,
                    nll, Y, stats, status, time.perf_counter() - t0, float(sol["f"]), info, robust)
+
+
+STALL = 3                      # iterations whose summed gain in log-likelihood triggers the check below
+NEGLIGIBLE_GAIN = 1e-3         # nat: far below what any likelihood-ratio or interval can tell apart
+NEGLIGIBLE_STATUS = "Solved_To_Negligible_Gain"
+
+
+def _negligible_gain(prob: Problem, inputs: dict, xi: np.ndarray) -> bool:
+    """Whether Fisher scoring predicts less than NEGLIGIBLE_GAIN nat from ``xi`` to the optimum:
+    ½ gᵀ H⁻¹ g over the variables a bound does not hold (the gradient g of −log L and the damped
+    scoring curvature H IPOPT steps with). IPOPT's own test asks for a gradient near 0, which a
+    likelihood flat along an unresolved noise scale reaches only after dozens of iterations that
+    change −log L by less than 10⁻⁴ nat each."""
+    g, H = (np.asarray(ca.DM(v)).astype(float) for v in prob.decrement(xi, inputs["p"]))
+    g = g.ravel()
+    lo, hi = np.asarray(inputs["lbx"], float), np.asarray(inputs["ubx"], float)
+    near = 1e-6 * np.maximum(1.0, np.abs(xi))
+    held = ((xi - lo <= near) & (g > 0)) | ((hi - xi <= near) & (g < 0)) | (hi - lo <= near)
+    free = ~held
+    if not free.any():
+        return True
+    if not np.all(np.isfinite(g[free])):
+        return False
+    try:
+        step = np.linalg.solve(H[np.ix_(free, free)], g[free])
+    except np.linalg.LinAlgError:
+        return False
+    return 0.5 * float(g[free] @ step) < NEGLIGIBLE_GAIN
 
 
 STRAY = 1e4        # output error reweighs when the start's free run strays 100 noise std from the data
@@ -298,6 +346,32 @@ def _scales(prob: Problem, theta0: np.ndarray, data: np.ndarray) -> np.ndarray:
     return scale
 
 
+
+
+def _noise_start(prob: Problem, inputs: dict) -> np.ndarray:
+    """IPOPT's start with the log scales of R, then of Q, then of R again each shifted together to
+    the likelihood's best at the starting parameters (a bounded 1-D search to half an e-fold).
+
+    Fisher scoring in a log-variance λ steps by r − 1 where r = ē²/S is the innovations' excess:
+    from a start whose innovations are 20× their predicted variance, λ overshoots by ~20 e-folds
+    and comes back one e-fold per iteration. The search moves it by log r instead."""
+    V, x = prob.variables, np.array(inputs["x0"], float)
+    lo, hi = np.asarray(inputs["lbx"], float), np.asarray(inputs["ubx"], float)
+
+    def nll(rows, shift):
+        y = x.copy()
+        y[rows] = np.clip(x[rows] + shift, lo[rows], hi[rows])
+        v = float(np.sum(np.asarray(prob.residuals(y, inputs["p"])[1])))
+        return v if np.isfinite(v) else np.inf
+
+    groups = [[i for i, n in enumerate(V.names) if V.kinds[i] == "noise" and n.startswith(g)]
+              for g in ("R_scale_", "Q_scale_", "R_scale_")]
+    for rows in filter(None, groups):
+        best = minimize_scalar(functools.partial(nll, rows), bounds=(-LOG_SCALE_BOUND, LOG_SCALE_BOUND),
+                               method="bounded", options=dict(xatol=0.5))
+        if best.fun < nll(rows, 0.0):
+            x[rows] = np.clip(x[rows] + best.x, lo[rows], hi[rows])
+    return x
 
 
 def _dense(M) -> np.ndarray:

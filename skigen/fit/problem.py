@@ -87,6 +87,7 @@ class Problem:
     lengths: list[int]             # samples per recording
     shooting: int                  # samples per shooting interval (output error)
     progress: object = None        # the solver's iteration callback
+    decrement: ca.Function = None  # (ξ, data) → gradient of −log L, its damped scoring curvature
 
 
 def _scale_of(value: float, std: float | None) -> float:
@@ -243,11 +244,12 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
     for j, i in enumerate(prior_idx):
         prior_prec[i] = (sc[i] / prior_sd[j]) ** 2
     lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", gg.shape[0])
-    curvature = lam_f * (ca.mtimes(J.T, J) + ca.diag(prior_prec))
+    curvature = lam_f * (ca.mtimes(J.T, J) + ca.diag(prior_prec + _damping(V)))
     if gg.shape[0]:      # the constraints' own curvature: multiple shooting needs it to converge
         curvature += ca.hessian(ca.dot(lam_g, gg), xi)[0]
     hess = ca.Function("nlp_hess_l", [xi, p, lam_f, lam_g], [ca.triu(curvature)],
                        ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
+    decrement = ca.Function("decrement", [xi, p], [ca.gradient(f, xi), ca.mtimes(J.T, J) + ca.diag(prior_prec + _damping(V))])
     lbx, ubx = np.array(V.lower), np.array(V.upper)
     for i in fixed_weights:
         lbx[i] = ubx[i] = 0.0
@@ -256,7 +258,18 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
                    ca.Function("residuals", [xi, p], [rho, nll]),
                    ca.Function("fisher", [xi, p], [J, prior_prec]),
                    ca.Function("predict", [xi, p], [ca.horzcat(*yhat_all)]),
-                   filtered, list(lengths), shooting or max(lengths))
+                   filtered, list(lengths), shooting or max(lengths), decrement=decrement)
+
+
+NOISE_DAMPING = 0.5     # curvature added to each log noise scale: one sample's Fisher information about
+                        # its own log-variance. Where the recordings do not resolve a scale (a noise-free
+                        # truth drives Q towards 0, where the likelihood is flat) its Fisher information
+                        # vanishes, and an undamped scoring step along it is so long that the line search
+                        # cuts every other variable's step with it.
+
+
+def _damping(V: Variables) -> ca.DM:
+    return ca.DM([NOISE_DAMPING if k == "noise" else 0.0 for k in V.kinds])
 
 
 def _chol_function(ny: int) -> ca.Function:
