@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
-from scipy.optimize import minimize_scalar
+from scipy.optimize import minimize, minimize_scalar
 
 from ..model import Model, ModelError
 from ..progress import note
@@ -41,7 +41,8 @@ _IPOPT_WORDS = {
     "Error_In_Step_Computation": "failed to compute a step (the problem is numerically singular)",
     "Invalid_Number_Detected": "met a non-finite value (the simulation diverges for some trial "
                                "parameters: add bounds, or use shorter shooting intervals)",
-    "Solved_To_Negligible_Gain": "converged: Fisher scoring predicts less than 0.001 nat of further gain",
+    "Solved_To_Negligible_Step": "converged: Fisher scoring puts the optimum within 0.02 standard errors "
+                                 "of every estimate",
     "Diverging_Iterates": "diverged (a parameter grew without bound: is it identifiable? add bounds)",
 }
 
@@ -183,7 +184,7 @@ class _Progress(ca.Callback):
         self.iteration += 1
         self.history.append(f)
         if (self.negligible and len(self.history) > STALL and self.iteration >= self.next_check
-                and self.history[-STALL - 1] - f < NEGLIGIBLE_GAIN):
+                and self.history[-STALL - 1] - f < STALL_GAIN):
             self.next_check = self.iteration + STALL
             if self.negligible(np.asarray(arg[0]).ravel()):
                 self.stopped = True
@@ -288,32 +289,41 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
                    nll, Y, stats, status, time.perf_counter() - t0, float(sol["f"]), info, robust)
 
 
-STALL = 3                      # iterations whose summed gain in log-likelihood triggers the check below
-NEGLIGIBLE_GAIN = 1e-3         # nat: far below what any likelihood-ratio or interval can tell apart
-NEGLIGIBLE_STATUS = "Solved_To_Negligible_Gain"
+STALL, STALL_GAIN = 3, 0.01    # iterations whose summed gain in −log L (nat) below STALL_GAIN triggers the check below
+NEGLIGIBLE_MOVE = 0.02         # standard errors: what a step to the optimum must stay under to be left out
+NEGLIGIBLE_STATUS = "Solved_To_Negligible_Step"
 
 
 def _negligible_gain(prob: Problem, inputs: dict, xi: np.ndarray) -> bool:
-    """Whether Fisher scoring predicts less than NEGLIGIBLE_GAIN nat from ``xi`` to the optimum:
-    ½ gᵀ H⁻¹ g over the variables a bound does not hold (the gradient g of −log L and the damped
-    scoring curvature H IPOPT steps with). IPOPT's own test asks for a gradient near 0, which a
-    likelihood flat along an unresolved noise scale reaches only after dozens of iterations that
-    change −log L by less than 10⁻⁴ nat each."""
+    """Whether Fisher scoring puts the optimum within the bounds less than NEGLIGIBLE_MOVE of a
+    standard error from ``xi`` in every estimate (the bounded quadratic model's step against the
+    inverse Fisher information, the fit's own error bars).
+
+    The noise scales enter as variances s = e^λ, not as their logs: the likelihood is smooth in s
+    down to s = 0 (a Q scale's information is constant there and vanishes in λ), so the quadratic
+    model holds where IPOPT's test, a gradient near 0, takes dozens of iterations that walk an
+    unresolved log-scale towards its bound by less than 10⁻⁴ nat each."""
     g, H = (np.asarray(ca.DM(v)).astype(float) for v in prob.decrement(xi, inputs["p"]))
     g = g.ravel()
-    lo, hi = np.asarray(inputs["lbx"], float), np.asarray(inputs["ubx"], float)
-    near = 1e-6 * np.maximum(1.0, np.abs(xi))
-    held = ((xi - lo <= near) & (g > 0)) | ((hi - xi <= near) & (g < 0)) | (hi - lo <= near)
-    free = ~held
-    if not free.any():
-        return True
-    if not np.all(np.isfinite(g[free])):
+    if not (np.all(np.isfinite(g)) and np.all(np.isfinite(H))):
         return False
-    try:
-        step = np.linalg.solve(H[np.ix_(free, free)], g[free])
-    except np.linalg.LinAlgError:
-        return False
-    return 0.5 * float(g[free] @ step) < NEGLIGIBLE_GAIN
+    V, sc = prob.variables, np.asarray(inputs["p"][:len(xi)], float)
+    lo, hi = np.asarray(inputs["lbx"], float) - xi, np.asarray(inputs["ubx"], float) - xi
+    dxi_ds = np.ones(len(xi))                   # ξ's change per unit of the quadratic model's coordinate
+    for i, kind in enumerate(V.kinds):
+        if kind == "noise":
+            lam = xi[i] * sc[i]
+            dxi_ds[i] = 1 / (sc[i] * np.exp(lam))
+            lo[i], hi[i] = (np.exp(np.clip(b * sc[i] + lam, -700, 700)) - np.exp(lam) for b in (lo[i], hi[i]))
+    g, H = g * dxi_ds, H * np.outer(dxi_ds, dxi_ds)
+    d = np.sqrt(np.where(np.diag(H) > 0, np.diag(H), 1.0))
+    g, H, lo, hi = g / d, H / np.outer(d, d), lo * d, hi * d
+    quadratic = lambda z: (g @ z + 0.5 * z @ H @ z, g + H @ z)
+    step = minimize(quadratic, np.zeros(len(g)), jac=True, method="L-BFGS-B",
+                    bounds=[(a if np.isfinite(a) else None, b if np.isfinite(b) else None) for a, b in zip(lo, hi)]).x
+    std = np.sqrt(np.clip(np.diag(np.linalg.pinv(H, hermitian=True)), 0, None))
+    moves = np.abs(step) > NEGLIGIBLE_MOVE * std
+    return not moves.any()
 
 
 STRAY = 1e4        # output error reweighs when the start's free run strays 100 noise std from the data

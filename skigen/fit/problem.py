@@ -87,7 +87,7 @@ class Problem:
     lengths: list[int]             # samples per recording
     shooting: int                  # samples per shooting interval (output error)
     progress: object = None        # the solver's iteration callback
-    decrement: ca.Function = None  # (ξ, data) → gradient of −log L, its damped scoring curvature
+    decrement: ca.Function = None  # (ξ, data) → gradient of −log L, its Fisher information
 
 
 def _scale_of(value: float, std: float | None) -> float:
@@ -249,7 +249,7 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
         curvature += ca.hessian(ca.dot(lam_g, gg), xi)[0]
     hess = ca.Function("nlp_hess_l", [xi, p, lam_f, lam_g], [ca.triu(curvature)],
                        ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"])
-    decrement = ca.Function("decrement", [xi, p], [ca.gradient(f, xi), ca.mtimes(J.T, J) + ca.diag(prior_prec + _damping(V))])
+    decrement = ca.Function("decrement", [xi, p], [ca.gradient(f, xi), ca.mtimes(J.T, J) + ca.diag(prior_prec)])
     lbx, ubx = np.array(V.lower), np.array(V.upper)
     for i in fixed_weights:
         lbx[i] = ubx[i] = 0.0
