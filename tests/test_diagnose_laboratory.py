@@ -28,9 +28,9 @@ def test_unbalanced_disc_names_coulomb_friction_first(tmp_path):
     """The viscous-only disc (constants declared as parameters) on 4000 samples: Coulomb friction
     is the first finding, opposing the motion, and the corrected model simulates the recording
     better. Measured (free-run RMSE over the output's spread): without it the corrected model
-    free-runs at 0.758, without the one-sample input delay 0.274, the limit 0.091, the bias 0.089
-    (with all: 0.045); one step ahead the delay (+8 553) and the bias (+4 981) carry more evidence
-    than Coulomb friction (+2 896). Round 2 proposes, with the bias and the friction, a negative
+    free-runs at 0.784, without the one-sample input delay 0.273, the limit 0.091, the bias 0.089;
+    one step ahead the delay (+9 809) and the bias (+5 898) carry more evidence than Coulomb
+    friction (+3 219). Refitted: 6.11 ± 0.04 rad/s², free run 0.133 → 0.022 rad. Round 2 proposes, with the bias and the friction, a negative
     quadratic drag (−0.047), which is set aside as compensating when the proposal is adopted."""
     from examples.diagnose_real import run as diagnose_case
     rep = diagnose_case("unbalanced_disk", tmp_path, 4000, show_progress=False)
