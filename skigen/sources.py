@@ -143,6 +143,11 @@ def _csv_header(path) -> list[str]:
     if not first or not any(c.strip() for c in first):
         raise RecordingError(f"{path}: file is empty")
     header = [h.strip() for h in first]
+    if len(header) == 1 and (sep := next((c for c in ";\t|" if c in header[0]), None)):
+        raise RecordingError(f"{_where(path, 'row 1')}: one column '{header[0]}': the file seems separated by "
+                             f"{'tabs' if sep == chr(9) else repr(sep)}, and skigen reads comma-separated values. "
+                             f"Convert it (pandas.read_csv(path, sep={sep!r}).to_csv(new_path, index=False)) "
+                             f"or pass a DataFrame")
     seen = {}
     for j, h in enumerate(header):
         if h in seen:

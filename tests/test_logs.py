@@ -168,6 +168,15 @@ def test_dataframe_in_and_out(flight, clean):
         skigen.run(MODEL, flight.drop(columns="t"))
 
 
+def test_a_csv_separated_by_semicolons_or_tabs_is_named_as_such(tmp_path, flight):
+    """A European or spreadsheet export reads as one column; the error says which separator it saw."""
+    for sep, words in ((";", "separated by ';'"), ("\t", "separated by tabs")):
+        path = tmp_path / "log.csv"
+        flight.to_csv(path, sep=sep, index=False)
+        with pytest.raises(RecordingError, match=rf"log.csv, row 1: one column .*{words}.*sep="):
+            skigen.run(MODEL, path)
+
+
 def test_parquet_round_trip(tmp_path, flight, clean):
     path = tmp_path / "log.parquet"
     flight.assign(note="x").to_parquet(path)
