@@ -160,11 +160,14 @@ class RunSummary:
         self.holes, self.notes = (), ()
         self.events = {c: 0 for c in EVENTS}
         self.first_restart = None
+        self.per_output = np.zeros(len(filt.aug.model.output_names), int)   # samples where each was measured
 
     def add(self, part: RunResult) -> "RunSummary":
         ok = np.isfinite(part.nis)
         self.samples += len(part.t)
         self.with_measurement += int(part.measured.any(axis=1).sum()) if part.measured.size else 0
+        if part.measured.size:
+            self.per_output += part.measured.sum(axis=0).astype(int)
         self.nis_sum += float(part.nis[ok].sum())
         self.nis_count += int(ok.sum())
         self.expected_sum += float(part.measured[ok].sum())
@@ -217,6 +220,10 @@ class RunSummary:
                        f"{self.with_measurement} of {self.samples} samples measured)")
         else:
             out.append("no sample was measured: no NIS")
+        names = aug.model.output_names
+        if self.samples and (self.per_output < self.samples).any():
+            out.append("measured per output: " + ", ".join(f"{n} {m} of {self.samples}" for n, m in zip(names, self.per_output))
+                       + " (the rest empty, non-finite, gated or stuck)")
         return out
 
 
