@@ -174,6 +174,8 @@ def _diagnose(args) -> int:
                                   if rem["mismatch"] else "the corrected model is consistent"))
     if (d["remaining"] or {}).get("integration"):
         print(f"integration: {d['remaining']['integration']}")
+    for hint in (d["remaining"] or {}).get("units", []):
+        print(f"units: {hint}")
     if d["corrected_model"]:
         print(f"corrected model: {d['corrected_model']}")
     print(f"report: {Path(args.out) / 'report.md'} ({report.seconds:.1f} s)")

@@ -168,3 +168,37 @@ def test_a_remaining_mismatch_points_at_a_step_too_coarse_for_a_fast_mode():
                                            "1.87 % per step: the mismatch may be the integration's; try "
                                            "substeps=8 (below 0.1 %)")
     assert motor(8).step_error()[0] < 1e-3 and _integration_hint(motor(8)) is None
+
+
+def test_a_recording_in_degrees_against_a_model_in_radians_is_named():
+    """A pendulum's angle logged in degrees (57.3× the radians its model declares), and its rate in
+    mrad/s: both named with the conversion. The same recording in the model's units, and one whose
+    plant has a 20 % stronger input, give no hint: 1.2 is no unit conversion."""
+    import casadi as ca
+
+    from skigen.diagnose import unit_hints
+
+    def pendulum(b=2.0):
+        m = Model("pendulum", dt=0.02)
+        th, w = m.state("theta", unit="rad", std=0.1), m.state("w", unit="rad/s", std=0.1)
+        u = m.input("u")
+        m.dynamics({th: w, w: -9.0 * ca.sin(th) - 0.8 * w + b * u})
+        m.output("angle", th, unit="rad", noise_std=0.005)
+        m.output("rate", w, unit="rad/s", noise_std=0.02)
+        return m
+
+    rng = np.random.default_rng(3)
+    U = np.repeat(rng.uniform(-1, 1, 60), 25)[:, None]
+    model = pendulum()
+
+    def recording(plant, scale):
+        _, Y = free_run(plant, U)
+        Y = (Y + rng.normal(0, 1, Y.shape) * [0.005, 0.02]) * scale
+        return Recording("log.csv", np.arange(len(U)) * 0.02, U, Y, ("u",), ("angle", "rate"))
+
+    hints = unit_hints(model, recording(model, [180 / np.pi, 1000]))
+    assert len(hints) == 2
+    assert hints[0].startswith("output 'angle' [rad] is 57.") and "in degrees where the model declares radians" in hints[0]
+    assert hints[1].startswith("output 'rate' [rad/s] is 1000") and "1000× smaller" in hints[1]
+    assert unit_hints(model, recording(model, [1, 1])) == []
+    assert unit_hints(model, recording(pendulum(b=2.4), [1, 1])) == []

@@ -90,6 +90,13 @@ class _Stages:
             self.stream.flush()
             self.width = len(text)
 
+    def note(self, text: str):
+        """A line that stays (a warning the user should read now, not only in the report)."""
+        if self.on:
+            self.stream.write("\r" + f"diagnose: {text}".ljust(self.width) + "\n")
+            self.stream.flush()
+            self.width = 0
+
     def seconds(self) -> dict:
         """Seconds spent per stage (stages of the same name summed)."""
         out: dict[str, float] = {}
@@ -138,6 +145,8 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     except ValueError as exc:
         raise DiagnosisError(str(exc)) from None
     _refuse_a_diverging_step(nominal, rec)
+    if units := unit_hints(nominal, rec):
+        stage.note("; ".join(units))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     N = len(rec.t)
@@ -268,6 +277,8 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
                              "note": "no candidate explains the mismatch: it remains as detected"}
     if data["remaining"].get("mismatch") and (hint := _integration_hint(nominal)):
         data["remaining"]["integration"] = hint
+    if data["remaining"].get("mismatch") and units:
+        data["remaining"]["units"] = units
     data["fit"]["recordings"] = [{"before": evaluate_fit(calibrated, r).metrics,
                                   "after": evaluate_fit(corrected, r).metrics if corrected is not None else None}
                                  for r in others]
@@ -343,6 +354,36 @@ def _integration_hint(nominal: Model) -> str | None:
     return (f"the {nominal.discretization} step of {nominal.dt / nominal.substeps:g} s misses the mode of "
             f"eigenvalue {_complex(lam)} /s by {f'{100 * err:.3g} %' if err < 1 else 'more than 100 %'} per step: the mismatch may be the integration's; "
             f"try substeps={n} (below 0.1 %)")
+
+
+CONVERSIONS = {180 / np.pi: "degrees where the model declares radians", np.pi / 180: "radians where the model declares degrees",
+               1e3: "a unit 1000× smaller (mm for m, mV for V?)", 1e-3: "a unit 1000× larger (m for mm, kV for V?)",
+               1e2: "a unit 100× smaller (cm for m, % for a fraction?)", 1e-2: "a unit 100× larger (a fraction for %?)",
+               3.6: "km/h where the model declares m/s", 1 / 3.6: "m/s where the model declares km/h",
+               1 / 0.3048: "feet where the model declares metres", 0.3048: "metres where the model declares feet"}
+
+
+def unit_hints(nominal: Model, rec) -> list[str]:
+    """Outputs whose recording is the nominal free run times a unit conversion (within 3 %, the scaled
+    free run explaining at least 90 % of what the unscaled one leaves, offsets allowed): a log in
+    degrees against a model in radians, say. Hints only: the diagnosis goes on."""
+    with np.errstate(all="ignore"):
+        _, Y = free_run(T.constants(nominal), rec.inputs)
+    out = []
+    for j, name in enumerate(nominal.output_names):
+        y, yhat = np.asarray(rec.outputs)[:, j], Y[:, j]
+        ok = np.isfinite(y) & np.isfinite(yhat)
+        if ok.sum() < 10 or np.std(yhat[ok]) == 0:
+            continue
+        y, yhat = y[ok] - y[ok].mean(), yhat[ok] - yhat[ok].mean()
+        a = float(yhat @ y / (yhat @ yhat))
+        unscaled, scaled = np.mean((y - yhat) ** 2), np.mean((y - a * yhat) ** 2)
+        factor = min(CONVERSIONS, key=lambda f: abs(np.log(a / f)) if a > 0 else np.inf)
+        if a > 0 and abs(np.log(a / factor)) < 0.03 and scaled < 0.1 * unscaled:
+            unit = nominal.outputs[j].unit
+            out.append(f"output '{name}'{f' [{unit}]' if unit else ''} is {a:.4g}× the nominal free run: "
+                       f"is the recording in {CONVERSIONS[factor]}?")
+    return out
 
 
 def _refuse_a_diverging_step(nominal: Model, rec) -> None:

@@ -183,6 +183,8 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
                 L.append(rem["note"] + ".")
             if rem.get("integration"):
                 L.append(f"Integration: {rem['integration']}.")
+            if rem.get("units"):
+                L.append("Units: " + "; ".join(rem["units"]))
         L.append("")
     if meta.get("figures"):
         L += ["## Figures", ""] + [f"![{Path(p).stem}]({Path(p).name})" for p in meta["figures"]] + [""]
