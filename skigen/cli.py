@@ -175,7 +175,7 @@ def _diagnose(args) -> int:
     if (d["remaining"] or {}).get("integration"):
         print(f"integration: {d['remaining']['integration']}")
     for hint in (d["remaining"] or {}).get("units", []):
-        print(f"units: {hint}")
+        print(f"check the units: {hint}")
     if d["corrected_model"]:
         print(f"corrected model: {d['corrected_model']}")
     print(f"report: {Path(args.out) / 'report.md'} ({report.seconds:.1f} s)")

@@ -175,6 +175,8 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     meta = dict(model=spec or user.name, recording=rec.path, samples=N, dt=nominal.dt, folds=folds,
                 figures=[], kinematic=[])
     report = Report(data, out, cons)
+    if units:
+        data["remaining"]["units"] = units
     if not verdict.mismatch:
         data["fit"]["recordings"] = [{"before": evaluate_fit(calibrated, r).metrics, "after": None} for r in others]
         if figures:
@@ -277,7 +279,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
                              "note": "no candidate explains the mismatch: it remains as detected"}
     if data["remaining"].get("mismatch") and (hint := _integration_hint(nominal)):
         data["remaining"]["integration"] = hint
-    if data["remaining"].get("mismatch") and units:
+    if units:
         data["remaining"]["units"] = units
     data["fit"]["recordings"] = [{"before": evaluate_fit(calibrated, r).metrics,
                                   "after": evaluate_fit(corrected, r).metrics if corrected is not None else None}

@@ -85,6 +85,9 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
     else:
         verdict = "**A significant mismatch exists; the corrected model explains it.**"
     L += [verdict, "", f"{meta['samples']} samples, dt = {meta['dt']:g} s. {fit['validation']}.", ""]
+    if rem.get("units"):
+        L += ["**Check the units first** — the findings below may only be making up for them: "
+              + "; ".join(rem["units"]), ""]
     L += ["## 1. Calibrate the noise", "", data["noise"]["method"] + ":", ""] + _noise_table(data["noise"]) + [""]
     dn = c.get("declared_noise")
     if dn:
@@ -183,8 +186,6 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
                 L.append(rem["note"] + ".")
             if rem.get("integration"):
                 L.append(f"Integration: {rem['integration']}.")
-            if rem.get("units"):
-                L.append("Units: " + "; ".join(rem["units"]))
         L.append("")
     if meta.get("figures"):
         L += ["## Figures", ""] + [f"![{Path(p).stem}]({Path(p).name})" for p in meta["figures"]] + [""]
