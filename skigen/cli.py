@@ -164,7 +164,8 @@ def _diagnose(args) -> int:
             print(f"not a finding: {f['effect']} on {f['equation']}: {f['note']}")
         if d["fit"]["after"]:
             b, a = d["fit"]["before"], d["fit"]["after"]
-            print(f"log-likelihood {b['loglik']:.1f} -> {a['loglik']:.1f}, free-run RMSE "
+            span = f" (restarted every {b['free_run_window']:.3g} s)" if b.get("free_run_window") else ""
+            print(f"log-likelihood {b['loglik']:.1f} -> {a['loglik']:.1f}, free-run RMSE{span} "
                   + ", ".join(f"{k} {b['free_run_rmse'][k]:.4g} -> {a['free_run_rmse'][k]:.4g}"
                               for k in b["free_run_rmse"] if b['free_run_rmse'][k] is not None
                               and a['free_run_rmse'][k] is not None))
@@ -207,7 +208,8 @@ def _fit(args) -> int:
         print(f"  {name:>12} = {p['value']:.6g} ± {p['std']:.2g}" + (f" {p['unit']}" if p.get("unit") else ""))
     for r in result.recordings + checks:
         kind = "validation" if r in checks else "fit"
-        print(f"  {kind} {Path(r['file']).name}: RMSE " + ", ".join(f"{o} {v:.4g}" for o, v in r["rmse"].items()))
+        span = f" (free runs restarted every {r['window']:.3g} s)" if r.get("window") else ""
+        print(f"  {kind} {Path(r['file']).name}: RMSE{span} " + ", ".join(f"{o} {v:.4g}" for o, v in r["rmse"].items()))
     print(f"results: {Path(args.out) / 'fit.json'}, {Path(args.out) / 'report.md'}")
     return 0
 

@@ -4,10 +4,12 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from .derive.augment import augment, step_inputs
+from .derive.augment import augment, memory_values, step_inputs
 from .model import Model
 
-__all__ = ["free_run"]
+__all__ = ["AMPLIFICATION", "free_run", "growth_rate", "simulation_window", "windowed_free_run"]
+
+AMPLIFICATION = 10.0    # a free run is scored over windows within which it amplifies a state error at most this much
 
 
 def free_run(model: Model, inputs: np.ndarray, x0=None, weights=None) -> tuple[np.ndarray, np.ndarray]:
@@ -31,3 +33,83 @@ def free_run(model: Model, inputs: np.ndarray, x0=None, weights=None) -> tuple[n
     states = np.column_stack([np.r_[z0, np.zeros(aug.mem.shape[0])], traj])
     outputs = np.array(out.map(N)(states, inputs.T)).T
     return states[:nx].T, outputs
+
+
+def _state_step(model: Model) -> tuple[ca.Function, int]:
+    """x[k+1] = F(x[k], u_step[k], memory[k]), weights and estimated parameters at their declared values."""
+    aug = augment(model)
+    nx = len(model.states)
+    f = aug.f[:nx]
+    if aug.z.shape[0] > nx:
+        f = ca.substitute(f, aug.z[nx:], ca.DM(aug.z0[nx:]))
+    return ca.Function("F", [aug.z[:nx], aug.u, aug.mem], [f]), nx
+
+
+def growth_rate(model: Model, states: np.ndarray, inputs: np.ndarray) -> float:
+    """Largest Lyapunov exponent [1/s] of ``model``'s free run along a state trajectory
+    (N × nx, e.g. a filter's estimate) driven by the recorded ``inputs`` (N × nu).
+
+    Benettin's method on the step's Jacobian, each state in units of its spread along the
+    trajectory; the rate is the slope of the log-amplification over the trajectory's second
+    half (the first aligns the direction), so an integrator's polynomial drift counts as ≈ 0
+    and an open-loop unstable plant flown in closed loop as its divergence rate. NaN if the
+    trajectory is not finite."""
+    states = np.asarray(states, float)
+    N = len(states)
+    if N < 4 or not np.isfinite(states).all():
+        return float("nan")
+    F, nx = _state_step(model)
+    x = ca.SX.sym("x", nx)
+    u, mem = (ca.SX.sym(n, F.size1_in(i)) for i, n in ((1, "u"), (2, "m")))
+    J = ca.Function("J", [x, u, mem], [ca.jacobian(F(x, u, mem), x)])
+    U, M = step_inputs(model, inputs), memory_values(model, inputs)
+    Js = np.asarray(J.map(N - 1)(states[:-1].T, U[:-1].T, M[:-1].T)).reshape(nx, N - 1, nx).transpose(1, 0, 2)
+    spread = np.std(states, axis=0)
+    d = np.where(spread > 0, spread, 1.0)
+    Js = Js / d[None, :, None] * d[None, None, :]
+    v, c = np.ones(nx) / np.sqrt(nx), np.zeros(N)
+    for k in range(N - 1):
+        v = Js[k] @ v
+        g = np.linalg.norm(v)
+        if not np.isfinite(g) or g == 0:
+            return float("nan") if not np.isfinite(g) else -np.inf
+        c[k + 1] = c[k] + np.log(g)
+        v /= g
+    half = np.arange(N // 2, N)
+    return float(np.polyfit(half * model.dt, c[half], 1)[0])
+
+
+def simulation_window(rate: float, dt: float, samples: int) -> int:
+    """Samples per free-run window: where the free run amplifies state errors by more than
+    AMPLIFICATION over ``samples``, the steps within which it does so by AMPLIFICATION (at least
+    2); else the whole of it."""
+    if not np.isfinite(rate) or rate <= 0 or rate * samples * dt <= np.log(AMPLIFICATION):
+        return int(samples)
+    return int(max(2, min(samples, np.floor(np.log(AMPLIFICATION) / (rate * dt)))))
+
+
+def windowed_free_run(model: Model, states: np.ndarray, inputs: np.ndarray, k0: int, window: int) -> np.ndarray:
+    """Outputs (N × ny) of free runs restarted every ``window`` steps from ``states`` (N × nx,
+    e.g. a filter's estimate) at samples k0, k0 + window, …, each driven by the recorded
+    ``inputs`` alone (NaN up to k0). A window of the whole record is one free run from k0."""
+    aug = augment(model)
+    F, nx = _state_step(model)
+    h = aug.h if aug.z.shape[0] == nx else ca.substitute(aug.h, aug.z[nx:], ca.DM(aug.z0[nx:]))
+    H = ca.Function("H", [aug.z[:nx], aug.u, aug.mem], [h])
+    N = len(states)
+    out = np.full((N, len(model.outputs)), np.nan)
+    n = N - 1 - k0
+    if n <= 0:
+        return out
+    window = int(min(max(window, 1), n))
+    U, M = step_inputs(model, inputs), memory_values(model, inputs)
+    starts = np.arange(k0, N - 1, window)
+    steps = starts[:, None] + np.arange(window)[None, :]           # the sample each step leaves
+    inside = steps < N - 1
+    steps = np.minimum(steps, N - 2).ravel()
+    X = np.asarray(F.mapaccum("sim", window).map(len(starts))(
+        np.asarray(states, float)[starts].T, U[steps].T, M[steps].T))
+    X = X.reshape(nx, -1)[:, inside.ravel()]
+    k = (steps.reshape(inside.shape)[inside] + 1)
+    out[k] = np.asarray(H.map(len(k))(X, U[k].T, M[k].T)).T
+    return out

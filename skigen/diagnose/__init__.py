@@ -40,7 +40,7 @@ from .detect import Consistency, consistency, judge, normalised_innovations, rem
 from .errors import DiagnosisError
 from .evidence import weigh
 from .figures import diagnosis_figures, plot_residuals
-from .fit import evaluate_fit, simulation_worth
+from .fit import evaluate_fit, free_run_window, simulation_worth
 from .inputs import MIN_SAMPLES, check, load
 from .locate import Location, locate
 from .name import Correction, basis_rms, beyond_parameters, focus_window, name_terms, shape_search
@@ -161,7 +161,8 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     eqs = list(equations) if equations else C.rate_equations(nominal)
     verdict = judge(calibrated, rec, nominal_run, eqs, alpha)
     cons = verdict.consistency
-    before = evaluate_fit(calibrated, rec, run=nominal_run)
+    window = free_run_window(calibrated, rec, nominal_run)       # the nominal's: every model is compared on it
+    before = evaluate_fit(calibrated, rec, run=nominal_run, window=window)
     eps = normalised_innovations(nominal_run)
     data = {"mismatch_detected": verdict.mismatch, "noise": noise.asdict(),
             "consistency": dict(cons.asdict(), declared_noise=consistency(declared_run, nominal.output_names,
@@ -178,7 +179,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     if units:
         data["remaining"]["units"] = units
     if not verdict.mismatch:
-        data["fit"]["recordings"] = [{"before": evaluate_fit(calibrated, r).metrics, "after": None} for r in others]
+        data["fit"]["recordings"] = [_compared(calibrated, None, r) for r in others]
         if figures:
             meta["figures"].append(plot_residuals(out / "residuals.png", rec.t, eps, nominal.output_names, [],
                                                   None, "normalised innovations of the calibrated nominal model"))
@@ -225,7 +226,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
                                                           for a in p.set_aside)
                           + (f"; {p.note}" if p.note else "") for i, p in enumerate(history)]
     stage("weighing the findings (drop-one free runs)")
-    free_all, worth = simulation_worth(calibrated, corr, rec)
+    free_all, worth = simulation_worth(calibrated, corr, rec, window)
     data["findings"] = _findings(nominal, corr, ev, shapes, worth)
     data["free_run_with_all_findings"] = free_all
     _flag_one_step_only(data["findings"], free_all)
@@ -249,7 +250,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
             if m is not None:
                 m.covariances(**noise)
         corrected, names, notes, refit_info = refit_jointly(nominal, base, corr.without_parameters(), rec,
-                                                            loc.equations, refit, anchored)
+                                                            loc.equations, refit, anchored, window)
         data["refit"] = refit_info
         _update_findings(data["findings"], names, refit_info.get("parameters", {}), alpha)
         path = out / "corrected_model.py"
@@ -261,7 +262,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
             stage("emitting the corrected filter's C")
             meta["generated"] = [str(p) for p in emit_filter(corrected, out / "generated")]
         stage("fit of the corrected model")
-        after = evaluate_fit(corrected, rec)
+        after = evaluate_fit(corrected, rec, window=window)
         data["fit"]["after"] = after.metrics
         w, regime = windows_where_it_acts(calibrated, after, rec, loc.equations, loc.states)
         data["located"].update(windows=[[float(a), float(b)] for a, b in w], regime=regime or loc.regime,
@@ -281,13 +282,19 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         data["remaining"]["integration"] = hint
     if units:
         data["remaining"]["units"] = units
-    data["fit"]["recordings"] = [{"before": evaluate_fit(calibrated, r).metrics,
-                                  "after": evaluate_fit(corrected, r).metrics if corrected is not None else None}
-                                 for r in others]
+    data["fit"]["recordings"] = [_compared(calibrated, corrected, r) for r in others]
     if figures:
         stage("figures")
         meta["figures"] = diagnosis_figures(out, calibrated, rec, eps, loc, before, after, None) + meta["figures"]
     return _finish(report, meta, t_start, stage)
+
+
+def _compared(nominal: Model, corrected: Model | None, rec) -> dict:
+    """A held-out recording's statistics, nominal and corrected, on the nominal's free-run window."""
+    before = evaluate_fit(nominal, rec)
+    window = round(before.metrics["free_run_window"] / nominal.dt) if before.metrics["free_run_window"] else None
+    return {"before": before.metrics,
+            "after": evaluate_fit(corrected, rec, window=window).metrics if corrected is not None else None}
 
 
 def windows_where_it_acts(nominal: Model, after, rec, equations, states) -> tuple[list, str | None]:

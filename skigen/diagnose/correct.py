@@ -175,12 +175,14 @@ def liftable(nominal: Model, corr: Correction, equations) -> list[tuple[str, str
 
 
 def refit_jointly(nominal: Model, calibrated: Model, corr: Correction, rec, equations,
-                  enabled: bool = True, anchored: Model | None = None) -> tuple[Model, dict, dict, dict]:
+                  enabled: bool = True, anchored: Model | None = None,
+                  window: int | None = None) -> tuple[Model, dict, dict, dict]:
     """The corrected model refitted by `skigen fit` (filter error): the nominal's declared
     parameters, the found coefficients, the lifted linear corrections and the noise, jointly.
     ``anchored``: ``calibrated`` with the calibration's std as the parameters' prior, tried when
     the refit without it does not converge (the prior comes from the same recording: it steadies
     a rough likelihood, and its error bars count the data twice, which the note says).
+    ``window``: the free-run window the polish compares on (fit.free_run_window).
     Returns (fitted model, {parameter: candidate}, comments per equation, what the refit did)."""
     from ..fit import FitError, fit
     lift = liftable(nominal, corr, equations)
@@ -206,23 +208,23 @@ def refit_jointly(nominal: Model, calibrated: Model, corr: Correction, rec, equa
         info.update(parameters=res.parameters, noise=res.noise.get("scales"), converged=res.converged,
                     seconds=res.seconds, iterations=res.iterations,
                     lifted=[dict(effect=e, equation=q, formula=f) for e, q, f in attempt])
-        return _polished(res.model, rec, pieces, names, notes, info)
+        return _polished(res.model, rec, pieces, names, notes, info, window)
     info["note"] += "coefficients from the cross-validated search"
     model, names, notes = parametrised(calibrated, corr, [])
-    return _polished(model, rec, pieces, names, notes, info)
+    return _polished(model, rec, pieces, names, notes, info, window)
 
 
-def _polished(fitted: Model, rec, pieces, names, notes, info):
+def _polished(fitted: Model, rec, pieces, names, notes, info, window=None):
     """refit_jointly's result, with the output-error polish on a long recording."""
     if len(pieces) > 1:
-        fitted, info["output_error"] = polish_for_simulation(fitted, rec, pieces)
+        fitted, info["output_error"] = polish_for_simulation(fitted, rec, pieces, window)
         if info["output_error"].get("adopted"):
             info["parameters"] = info["output_error"]["parameters"]
             info["method"] += ", polished by output-error"
     return fitted, names, notes, info
 
 
-def polish_for_simulation(fitted: Model, rec, pieces) -> tuple[Model, dict]:
+def polish_for_simulation(fitted: Model, rec, pieces, window: int | None = None) -> tuple[Model, dict]:
     """The joint refit (or the cross-validated coefficients, when it failed) polished by output error
     for simulation, when that simulates better.
 
@@ -238,7 +240,7 @@ def polish_for_simulation(fitted: Model, rec, pieces) -> tuple[Model, dict]:
     names = [p.name for p in fitted.parameters]
     start = T.copy_model(fitted).set_parameters({}, std={n: None for n in names})
     spread = np.nanstd(rec.outputs, axis=0) + 1e-12
-    score = lambda m: float(np.sum(np.array(list(evaluate_fit(m, rec).metrics["free_run_rmse"].values()),
+    score = lambda m: float(np.sum(np.array(list(evaluate_fit(m, rec, window=window).metrics["free_run_rmse"].values()),
                                             dtype=float) / spread))
     try:
         res = fit(start, pieces, method="output-error", estimate=names, show_progress=False)

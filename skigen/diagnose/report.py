@@ -5,6 +5,8 @@ import json
 import math
 from pathlib import Path
 
+from ..simulate import AMPLIFICATION
+
 __all__ = ["write_json", "write_markdown", "finding_line"]
 
 
@@ -68,9 +70,19 @@ def _metrics_table(rows: list[tuple[str, dict, dict | None]]) -> list[str]:
             L.append(f"| | innovation RMS `{k}` | {b['innovation_rms'][k]:.4g} | "
                      f"{_fmt(get(a, 'innovation_rms', k))} |")
         for k in b["free_run_rmse"]:
-            L.append(f"| | free-run RMSE `{k}` (whole record from t = {b['free_run_from']:.3g} s) | "
+            L.append(f"| | free-run RMSE `{k}` ({_free_run_span(b)}) | "
                      f"{_fmt(b['free_run_rmse'][k])} | {_fmt(get(a, 'free_run_rmse', k))} |")
     return L
+
+
+def _free_run_span(metrics: dict) -> str:
+    """What a free-run RMSE covers: the whole record, or windows restarted from the filter's state."""
+    w = metrics.get("free_run_window")
+    if not w:
+        return f"whole record from t = {metrics['free_run_from']:.3g} s"
+    return (f"from t = {metrics['free_run_from']:.3g} s, restarted from the filter's state every {w:.3g} s: "
+            f"the nominal model amplifies a state error {AMPLIFICATION:g}-fold within that, no longer run "
+            f"of it follows the recording")
 
 
 def write_markdown(path, data: dict, meta: dict) -> Path:
@@ -125,7 +137,7 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
         L += ["", "## 4. Name", ""]
         if data["findings"]:
             L += ["Evidence: the cross-validated log-likelihood each finding adds given the others (drop-one; "
-                  "the findings' evidences need not add up). Free run without it: the whole-record free-run "
+                  "the findings' evidences need not add up). Free run without it: the free-run "
                   "RMSE, over the output's spread and averaged over the outputs, of the corrected model without "
                   f"this one finding (with all of them: {_fmt(data.get('free_run_with_all_findings'), '.3g')}); "
                   "the findings are listed by it, the one a simulation needs most first: one step ahead a "

@@ -23,6 +23,7 @@ from scipy.optimize import minimize, minimize_scalar
 from ..model import Model, ModelError
 from ..progress import note
 from ..recording import Recording, load_recording, resolution
+from ..simulate import AMPLIFICATION, growth_rate, simulation_window
 from .problem import LOG_SCALE_BOUND, METHODS, Problem, build_problem, data_matrix
 from .uncertainty import covariance, unidentified
 
@@ -225,7 +226,8 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     data = np.concatenate([np.ravel(b, order="F") for b in blocks])
     theta0 = np.array(prob.solver_inputs["x0"], float)
     if method == "output-error":
-        theta0 = _initial_guess(model, prob, recs, theta0, blocks)
+        X = _filtered_states(prob, theta0, blocks)
+        theta0 = _initial_guess(model, prob, recs, theta0, X)
     nominal = np.array(V.scale)
     rho0, _ = (np.asarray(v) for v in prob.residuals(theta0 / nominal, np.r_[nominal, data]))
     where = _first_bad(rho0, lengths, recs)
@@ -234,6 +236,8 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
         hint = (f": {why}" if why else "; use shorter shooting intervals" if shooting else
                 "; give a shooting interval (shooting=... samples, --shooting) to fit it by multiple shooting")
         raise FitError(f"the simulation of '{model.name}' at the initial values diverges in {where}{hint}")
+    if method == "output-error":
+        _refuse_a_runaway_simulation(model, recs, X)
     if method == "output-error" and np.nanmax(np.nanmean(rho0 ** 2, axis=1)) > STRAY:
         weighted = _weighted_by_free_run(model, rho0)      # a free run strays far beyond the sensor noise
         prob, solver, jac_g = _problem(weighted, lengths, method, estimate, shooting, max_iter, tol)
@@ -388,12 +392,37 @@ def _dense(M) -> np.ndarray:
     return np.asarray(ca.DM(M).full()) if M is not None else None
 
 
-def _initial_guess(model: Model, prob: Problem, recs, theta0, data_blocks):
-    """Initial states (at every shooting node) from the model's EKF at the starting values:
-    its posterior state at each node's sample, where the filter stays finite."""
+def _filtered_states(prob: Problem, theta0, data_blocks) -> np.ndarray:
+    """The model's EKF posterior states at the starting values (states × samples of all recordings)."""
+    n_theta = sum(k in ("parameter", "weight") for k in prob.variables.kinds)
+    return np.asarray(prob.filtered(theta0[:n_theta], *data_blocks))
+
+
+def _refuse_a_runaway_simulation(model: Model, recs, X: np.ndarray) -> None:
+    """Output error fits one free run per recording (shooting intervals only split it: their
+    continuity constraints join them again). Where the free run amplifies a state error more than
+    AMPLIFICATION-fold over a recording (along the EKF's states at the starting values: an
+    open-loop unstable plant flown in closed loop), no simulation follows the recording and the
+    fit would return the constants of a plant that does not diverge; refused, pointing to filter
+    error, or to starting values that make a stable plant unstable."""
+    starts = np.cumsum([0] + [len(r.t) for r in recs])
+    for r, rec in enumerate(recs):
+        rate = growth_rate(model, X[:, starts[r]:starts[r + 1]].T, rec.inputs)
+        if simulation_window(rate, model.dt, len(rec.t)) < len(rec.t):
+            raise FitError(
+                f"output error cannot fit '{model.name}' to {rec.path}: along the recording its free run "
+                f"amplifies a state error {AMPLIFICATION:g}-fold every {np.log(AMPLIFICATION) / rate:.3g} s "
+                f"(largest Lyapunov exponent {rate:.3g}/s at the starting values), so no simulation follows "
+                f"the recording and shooting intervals do not help (their continuity constraints join them "
+                f"into one simulation). If the plant is open-loop unstable, flown in closed loop, fit it by "
+                f"filter error (method='filter-error', --method filter-error); if it is stable, start from "
+                f"values that make the model stable")
+
+
+def _initial_guess(model: Model, prob: Problem, recs, theta0, X: np.ndarray):
+    """Initial states (at every shooting node) from the model's EKF at the starting values
+    (``X``, states × samples): its posterior state at each node's sample, where the filter stays finite."""
     V, out = prob.variables, theta0.copy()
-    n_theta = sum(k in ("parameter", "weight") for k in V.kinds)
-    X = np.asarray(prob.filtered(theta0[:n_theta], *data_blocks))
     starts = np.cumsum([0] + [len(r.t) for r in recs])
     for i, node in enumerate(V.node):
         if node is not None:

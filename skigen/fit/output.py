@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 
 from ..modelfile import is_module_spec
-from ..simulate import free_run
+from ..simulate import AMPLIFICATION, free_run, growth_rate, simulation_window, windowed_free_run
 from . import FitResult, fit
 
 __all__ = ["validate", "write_outputs"]
@@ -20,23 +20,46 @@ def validate(result: FitResult, recordings, init_samples: int = 50) -> list[dict
 
     The initial state of each is estimated from its first ``init_samples``
     samples (parameters fixed), then the model runs free over the whole
-    recording; the RMSE counts the samples after those. Returns one dict per
-    recording: file, samples, rmse per output, and the simulated outputs.
+    recording; the RMSE counts the samples after those. A model without weights
+    whose free run amplifies state errors more than AMPLIFICATION-fold over the
+    recording (open-loop unstable) is instead restarted from its EKF's state every
+    window within which it does so AMPLIFICATION-fold (``window`` in seconds, else
+    None). Returns one dict per recording: file, samples, rmse per output, window,
+    and the simulated outputs.
     """
     model = result.model
     weights = [result.weights.get(n, {}).get("value", 0.0) for n in model.weight_names]
     out = []
     for rec in recordings:
         n0 = min(init_samples, len(rec.t) - 1)
+        if not model.weight_names and (windowed := _windowed(model, rec, n0)) is not None:
+            window, Y = windowed
+            e = rec.outputs[n0:] - Y[n0:]
+            out.append(dict(file=str(rec.path), samples=int(len(rec.t) - n0), window=window * model.dt,
+                            rmse={o: float(np.sqrt(np.nanmean(e[:, j] ** 2))) for j, o in enumerate(model.output_names)},
+                            simulated=Y))
+            continue
         head = fit(model, [rec.slice(0, max(n0, 2))], estimate=[], show_progress=False) if not model.weight_names \
             else None
         x0 = [head.initial_states[0][s]["value"] for s in model.state_names] if head else model.x0
         _, Y = free_run(model, rec.inputs, x0=x0, weights=weights)
         e = rec.outputs[n0:] - Y[n0:]
-        out.append(dict(file=str(rec.path), samples=int(len(rec.t) - n0),
+        out.append(dict(file=str(rec.path), samples=int(len(rec.t) - n0), window=None,
                         rmse={o: float(np.sqrt(np.nanmean(e[:, j] ** 2))) for j, o in enumerate(model.output_names)},
                         simulated=Y))
     return out
+
+
+def _windowed(model, rec, n0: int):
+    """(window in samples, outputs) of free runs restarted from the EKF's state, when the
+    model's free run amplifies state errors more than AMPLIFICATION-fold over ``rec``; else None."""
+    from ..derive import derive
+    from ..runtime import run
+    states = run(derive(model, "ekf"), rec, backend="casadi", show_progress=False).mean[:, :len(model.states)]
+    window = simulation_window(growth_rate(model, states, rec.inputs), model.dt, len(rec.t) - 1 - n0)
+    if window >= len(rec.t) - 1 - n0:
+        return None
+    return window, windowed_free_run(model, states, rec.inputs, n0, window)
 
 
 def write_outputs(result: FitResult, out_dir, recordings, *, model_spec: str | None = None,
@@ -57,7 +80,8 @@ def write_outputs(result: FitResult, out_dir, recordings, *, model_spec: str | N
         for r, (rec, Y) in enumerate(zip(recordings, result.predictions)):
             paths.append(recording_figure(out / f"fit_{r}.png", f"fitted: {Path(rec.path).name}", rec, Y, names))
         for r, (rec, v) in enumerate(zip(validation_recordings, validation)):
-            paths.append(recording_figure(out / f"validation_{r}.png", f"validation (free run): "
+            paths.append(recording_figure(out / f"validation_{r}.png", "validation (free run" + (
+                                          f", restarted every {v['window']:.3g} s" if v.get("window") else "") + "): "
                                           f"{Path(rec.path).name}", rec, v["simulated"], names))
         if result.correlation["names"]:
             paths.append(correlation_figure(out / "correlation.png", result))
@@ -151,10 +175,13 @@ def _write_report(path: Path, result: FitResult, validation, figures) -> Path:
     lines += ["", f"RMSE of the {kind} on the fitted recordings.", ""]
     if validation:
         lines += ["## Validation (free-run simulation, initial state from the first samples)", "",
-                  "| file | samples scored | RMSE |", "|---|---|---|"]
+                  "| file | samples scored | RMSE | free run |", "|---|---|---|---|"]
         for v in validation:
             lines.append(f"| {Path(v['file']).name} | {v['samples']} | "
-                         + ", ".join(f"{o} {x:.4g}" for o, x in v["rmse"].items()) + " |")
+                         + ", ".join(f"{o} {x:.4g}" for o, x in v["rmse"].items()) + " | "
+                         + (f"restarted from the EKF's state every {v['window']:.3g} s: the model amplifies a "
+                            f"state error {AMPLIFICATION:g}-fold within that" if v.get("window") else "whole recording")
+                         + " |")
         lines.append("")
     lines += [f"![{f}]({f})" for f in figures]
     path.write_text("\n".join(lines) + "\n")
