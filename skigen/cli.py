@@ -154,6 +154,9 @@ def _diagnose(args) -> int:
           f"{c.get('independence_pvalue', 1.0):.3g}, slowly varying disturbance gain "
           + ", ".join(f"{k} {v:+.1f}" for k, v in c["disturbance_gain"].items())
           + f" (threshold {c['disturbance_threshold']:.1f})")
+    unnamed = [f"candidate {c['name']} on {c['equation']}: {c['why']}" for c in d.get("candidates_not_named", [])]
+    for line in unnamed if not d["mismatch_detected"] else []:
+        print(line)
     if d["mismatch_detected"]:
         loc = d["located"]
         print(f"located: outputs {', '.join(loc['outputs'])}; equations {', '.join(loc['equations'])}; "
@@ -162,6 +165,8 @@ def _diagnose(args) -> int:
             print(f"finding: {finding_line(f)}")
         for f in d["compensating"] + d["not_identifiable"]:
             print(f"not a finding: {f['effect']} on {f['equation']}: {f['note']}")
+        for line in unnamed:
+            print(line)
         if d["fit"]["after"]:
             b, a = d["fit"]["before"], d["fit"]["after"]
             span = f" (restarted every {b['free_run_window']:.3g} s)" if b.get("free_run_window") else ""

@@ -80,11 +80,26 @@ def test_a_delayed_force_is_named_and_the_restarted_free_runs_show_the_gain(tmp_
     1.7 mm, θ 42.6 → 6.1 mrad); one free run over the record would fall over either way."""
     path = tmp_path / "delay.csv"
     pd.DataFrame(cart_pole.simulate(seed=3, delay=2).columns()).to_csv(path, index=False)
-    rep = diagnose(cart_pole.model, path, tmp_path / "out", figures=False, show_progress=False)
+    rep = diagnose(cart_pole.model, path, tmp_path / "out", figures=False, show_progress=False,
+                   candidates=[("drag_w", "w", "-2*w")])
     top = rep.findings[0]
     assert top["effect"] == "input_delay" and top["coefficient"] == pytest.approx(2, abs=0.05), rep.findings
     before, after = rep.data["fit"]["before"], rep.data["fit"]["after"]
     assert before["free_run_window"] == pytest.approx(np.log(AMPLIFICATION) / FALL_RATE, rel=0.05)
     assert after["free_run_rmse"]["x_meas"] < 2.5e-3 < before["free_run_rmse"]["x_meas"] / 3
     assert after["free_run_rmse"]["th_meas"] < 8e-3 < before["free_run_rmse"]["th_meas"] / 3
-    assert "restarted from the filter's state every 0.47 s" in (tmp_path / "out" / "report.md").read_text()
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "restarted from the filter's state every 0.47 s" in report
+    (drag,) = rep.data["candidates_not_named"]      # a user candidate that restates the catalog's damping
+    assert drag["name"] == "drag_w" and "catalog's viscous_damping on w" in drag["why"]
+    assert "Your candidate drag_w on `w`" in report
+
+
+def test_the_clean_flight_shows_no_mismatch_and_says_what_became_of_a_candidate(tmp_path):
+    path = tmp_path / "clean.csv"
+    pd.DataFrame(cart_pole.simulate(seed=4).columns()).to_csv(path, index=False)
+    rep = diagnose(cart_pole.model, path, tmp_path / "out", figures=False, show_progress=False,
+                   candidates=[("cogging", "v", "sin(2*pi*x/0.05)")])
+    assert not rep.data["mismatch_detected"]
+    assert rep.data["candidates_not_named"] == [{"name": "cogging", "equation": "v", "formula": "sin(2*pi*x/0.05)",
+                                                 "why": "not tried: no significant mismatch to explain"}]

@@ -179,6 +179,8 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     if units:
         data["remaining"]["units"] = units
     if not verdict.mismatch:
+        data["candidates_not_named"] = [_candidate(c, "not tried: no significant mismatch to explain")
+                                        for c in user_cands]
         data["fit"]["recordings"] = [_compared(calibrated, None, r) for r in others]
         if figures:
             meta["figures"].append(plot_residuals(out / "residuals.png", rec.t, eps, nominal.output_names, [],
@@ -233,6 +235,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     set_aside = [item for p in history for item in p.set_aside]
     data["compensating"] = set_aside + rejected["compensating"]
     data["not_identifiable"] = rejected["not_identifiable"]
+    data["candidates_not_named"] = _unnamed(user_cands, additive, data, calibrated, rec, loc.states)
     cv_before = fold_loglik(calibrated, rec, cv)
     data["fit"]["folds"] = [{"span": list(cv.span(f, rec.t)), "loglik_before": float(cv_before[f]),
                              "loglik_after": float(cv_after[f])} for f in range(len(cv))]
@@ -287,6 +290,35 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         stage("figures")
         meta["figures"] = diagnosis_figures(out, calibrated, rec, eps, loc, before, after, None) + meta["figures"]
     return _finish(report, meta, t_start, stage)
+
+
+def _candidate(c, why: str) -> dict:
+    return {"name": c.effect, "equation": c.equation, "formula": c.formula, "why": why}
+
+
+def _unnamed(user_cands, additive, data: dict, model: Model, rec, states) -> list[dict]:
+    """What became of each user (or declared) candidate that is not a finding nor listed as
+    compensating or not identifiable: a restated catalog term, or not kept by the naming rounds."""
+    from .name import basis_values
+    listed = {(f["effect"], f["equation"]) for key in ("findings", "compensating", "not_identifiable")
+              for f in data[key]}
+    user = [c for c in user_cands if (c.effect, c.equation) not in listed]
+    if not user:
+        return []
+    catalog = [c for c in additive if c not in user_cands]
+    vals = basis_values(model, rec, states, user + catalog)
+    unit = vals / (np.linalg.norm(vals, axis=1, keepdims=True) + 1e-300)
+    out = []
+    for i, c in enumerate(user):
+        same = [k for k, d in enumerate(catalog) if d.equation == c.equation
+                and abs(unit[i] @ unit[len(user) + k]) >= 0.9999]
+        why = (f"on this recording it is the catalog's {catalog[same[0]].effect} on {c.equation} "
+               f"(`{catalog[same[0]].formula}`), judged as that" if same else
+               "not named: no round adopted it (a round adopts its best proposal by cross-validated gain, "
+               "SKI's selection among all additive candidates or one structural change; report.md lists "
+               "the proposals)")
+        out.append(_candidate(c, why))
+    return out
 
 
 def _compared(nominal: Model, corrected: Model | None, rec) -> dict:

@@ -159,6 +159,8 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
             for f in data.get(key, []):
                 L.append(f"- {title}: {f['effect']} on `{f['equation']}` (`{f['expression']}`, "
                          f"{_pm(f['coefficient'], f['std'])}): {f['note']}.")
+        for c in data.get("candidates_not_named", []):
+            L.append(f"- Your candidate {c['name']} on `{c['equation']}` (`{c['formula']}`): {c['why']}.")
         for line in meta.get("proposals", []):
             L.append(f"- {line}")
         L += ["", "## 5. Model", ""]

@@ -174,7 +174,8 @@ def _write_report(path: Path, result: FitResult, validation, figures) -> Path:
     kind = "free-run simulation" if r.method == "output-error" else "one-step prediction (innovation)"
     lines += ["", f"RMSE of the {kind} on the fitted recordings.", ""]
     if validation:
-        lines += ["## Validation (free-run simulation, initial state from the first samples)", "",
+        lines += ["## Validation (free-run simulation from the first samples' initial state, or restarted from "
+                  "the EKF's state where the model amplifies errors, see the last column)", "",
                   "| file | samples scored | RMSE | free run |", "|---|---|---|---|"]
         for v in validation:
             lines.append(f"| {Path(v['file']).name} | {v['samples']} | "
