@@ -148,6 +148,7 @@ def test_a_refitted_value_is_written_to_its_std_second_digit():
     assert _pm(1.60015, 0.0056) == "1.6001 ± 0.0056"
     assert _pm(6.002, 0.0085) == "6.002 ± 0.0085"            # at least four significant digits
     assert _pm(0.0, 0.1) == "0 ± 0.1" and _pm(None, None) == "– ± –"
+    assert _pm(0.103, float("nan")) == "0.103 (no error bar)"   # a width not identifiable: was "0.103 ± nan"
 
 
 def test_a_remaining_mismatch_points_at_a_step_too_coarse_for_a_fast_mode():
