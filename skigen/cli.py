@@ -149,6 +149,9 @@ def _diagnose(args) -> int:
     c, cal = d["consistency"], d["noise"]["calibrated"]
     print("calibrated noise: " + ", ".join(f"{k} {v:.3g}" for kind in ("process_std", "measurement_std")
                                              for k, v in cal[kind].items() if v))
+    if d["noise"].get("parameters"):
+        print("calibrated parameters: " + ", ".join(f"{k} {p['calibrated']:.4g} ± {p['std']:.2g} (declared "
+                                                    f"{p['declared']:.4g})" for k, p in d["noise"]["parameters"].items()))
     print(f"{'mismatch detected' if d['mismatch_detected'] else 'no significant mismatch'}: "
           f"whiteness p = {c['whiteness_pvalue']:.3g}, independence of the past p = "
           f"{c.get('independence_pvalue', 1.0):.3g}, slowly varying disturbance gain "

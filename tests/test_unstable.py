@@ -96,10 +96,15 @@ def test_a_delayed_force_is_named_and_the_restarted_free_runs_show_the_gain(tmp_
 
 
 def test_the_clean_flight_shows_no_mismatch_and_says_what_became_of_a_candidate(tmp_path):
+    """L, m, B declared 20 % off: calibrated with the noise, shown in report.md, and no mismatch."""
     path = tmp_path / "clean.csv"
     pd.DataFrame(cart_pole.simulate(seed=4).columns()).to_csv(path, index=False)
-    rep = diagnose(cart_pole.model, path, tmp_path / "out", figures=False, show_progress=False,
+    grey = cart_pole.build(parameters=dict(L=0.6, m=0.25, B=0.4))
+    rep = diagnose(grey, path, tmp_path / "out", figures=False, show_progress=False,
                    candidates=[("cogging", "v", "sin(2*pi*x/0.05)")])
     assert not rep.data["mismatch_detected"]
+    L = rep.data["noise"]["parameters"]["L"]
+    assert abs(L["calibrated"] - cart_pole.L) < 2 * L["std"], L
+    assert "| parameter `L` (fitted with the noise) | 0.6 | 0.49" in (tmp_path / "out" / "report.md").read_text()
     assert rep.data["candidates_not_named"] == [{"name": "cogging", "equation": "v", "formula": "sin(2*pi*x/0.05)",
                                                  "why": "not tried: no significant mismatch to explain"}]

@@ -59,6 +59,9 @@ def _noise_table(noise: dict) -> list[str]:
         for k, v in d[kind].items():
             if v or c[kind][k]:
                 L.append(f"| {label} `{k}` | {v:.4g} | {c[kind][k]:.4g} |")
+    for k, p in (noise.get("parameters") or {}).items():
+        L.append(f"| parameter `{k}` (fitted with the noise) | {_fmt(p['declared'])} | "
+                 f"{_pm(p['calibrated'], p['std'])} |")
     return L
 
 
