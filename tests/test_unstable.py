@@ -105,6 +105,8 @@ def test_the_clean_flight_shows_no_mismatch_and_says_what_became_of_a_candidate(
     assert not rep.data["mismatch_detected"]
     L = rep.data["noise"]["parameters"]["L"]
     assert abs(L["calibrated"] - cart_pole.L) < 2 * L["std"], L
-    assert "| parameter `L` (fitted with the noise) | 0.6 | 0.49" in (tmp_path / "out" / "report.md").read_text()
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert "| parameter `L` (fitted with the noise) | 0.6 | 0.49" in report
+    assert "Your candidate cogging on `v`" in report and "free-run RMSE `th_meas` (from t = 0.5 s, restarted" in report
     assert rep.data["candidates_not_named"] == [{"name": "cogging", "equation": "v", "formula": "sin(2*pi*x/0.05)",
                                                  "why": "not tried: no significant mismatch to explain"}]

@@ -129,6 +129,11 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
     L.append("")
     if not data["mismatch_detected"]:
         L += ["Nothing further to locate or name: no findings, no corrected model.", ""]
+        for cand in data.get("candidates_not_named", []):
+            L.append(f"- Your candidate {cand['name']} on `{cand['equation']}` (`{cand['formula']}`): {cand['why']}.")
+        rows = [(f"this recording (in-sample)", fit["before"], None)]
+        rows += [(Path(v["before"]["recording"]).name, v["before"], None) for v in fit.get("recordings", [])]
+        L += ["", "## Fit", ""] + _metrics_table(rows) + [""]
     else:
         L += ["## 3. Locate", "",
               f"- outputs that disagree: {', '.join(f'`{o}`' for o in loc['outputs'])}",
