@@ -75,11 +75,11 @@ def test_output_error_is_refused_and_filter_error_recovers_the_cart_pole():
 
 
 def test_a_delayed_force_is_named_and_the_restarted_free_runs_show_the_gain(tmp_path):
-    """The force arrives 2 samples late. The diagnosis names the delay, and its free-run RMSE,
+    """The force arrives 2 samples late (a 12 s flight). The diagnosis names the delay, and its free-run RMSE,
     restarted every 0.47 s, falls to the sensors' noise (measured on a 25 s probe flight: x 13.1 →
     1.7 mm, θ 42.6 → 6.1 mrad); one free run over the record would fall over either way."""
     path = tmp_path / "delay.csv"
-    pd.DataFrame(cart_pole.simulate(seed=3, delay=2).columns()).to_csv(path, index=False)
+    pd.DataFrame(cart_pole.simulate(12.0, seed=3, delay=2).columns()).to_csv(path, index=False)
     rep = diagnose(cart_pole.model, path, tmp_path / "out", figures=False, show_progress=False,
                    candidates=[("drag_w", "w", "-2*w")])
     top = rep.findings[0]
