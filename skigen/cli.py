@@ -158,9 +158,10 @@ def _diagnose(args) -> int:
           + ", ".join(f"{k} {v:+.1f}" for k, v in c["disturbance_gain"].items())
           + f" (threshold {c['disturbance_threshold']:.1f})")
     unnamed = [f"candidate {c['name']} on {c['equation']}: {c['why']}" for c in d.get("candidates_not_named", [])]
-    for line in unnamed if not d["mismatch_detected"] else []:
-        print(line)
-    if d["mismatch_detected"]:
+    if not d["mismatch_detected"]:
+        for line in unnamed:
+            print(line)
+    else:
         loc = d["located"]
         print(f"located: outputs {', '.join(loc['outputs'])}; equations {', '.join(loc['equations'])}; "
               f"{len(loc['windows'])} window(s); {loc.get('regime') or 'no single regime'}")

@@ -35,14 +35,15 @@ def free_run(model: Model, inputs: np.ndarray, x0=None, weights=None) -> tuple[n
     return states[:nx].T, outputs
 
 
-def _state_step(model: Model) -> tuple[ca.Function, int]:
-    """x[k+1] = F(x[k], u_step[k], memory[k]), weights and estimated parameters at their declared values."""
+def _declared(model: Model):
+    """(augmented model, x[k+1] expression, y[k] expression, nx): the state step and the outputs
+    with the weights and estimated parameters at their declared values."""
     aug = augment(model)
     nx = len(model.states)
-    f = aug.f[:nx]
+    f, h = aug.f[:nx], aug.h
     if aug.z.shape[0] > nx:
-        f = ca.substitute(f, aug.z[nx:], ca.DM(aug.z0[nx:]))
-    return ca.Function("F", [aug.z[:nx], aug.u, aug.mem], [f]), nx
+        f, h = (ca.substitute(e, aug.z[nx:], ca.DM(aug.z0[nx:])) for e in (f, h))
+    return aug, f, h, nx
 
 
 def growth_rate(model: Model, states: np.ndarray, inputs: np.ndarray) -> float:
@@ -58,10 +59,9 @@ def growth_rate(model: Model, states: np.ndarray, inputs: np.ndarray) -> float:
     N = len(states)
     if N < 4 or not np.isfinite(states).all():
         return float("nan")
-    F, nx = _state_step(model)
-    x = ca.SX.sym("x", nx)
-    u, mem = (ca.SX.sym(n, F.size1_in(i)) for i, n in ((1, "u"), (2, "m")))
-    J = ca.Function("J", [x, u, mem], [ca.jacobian(F(x, u, mem), x)])
+    aug, f, _, nx = _declared(model)
+    x = aug.z[:nx]
+    J = ca.Function("J", [x, aug.u, aug.mem], [ca.jacobian(f, x)])
     U, M = step_inputs(model, inputs), memory_values(model, inputs)
     Js = np.asarray(J.map(N - 1)(states[:-1].T, U[:-1].T, M[:-1].T)).reshape(nx, N - 1, nx).transpose(1, 0, 2)
     spread = np.std(states, axis=0)
@@ -92,10 +92,8 @@ def windowed_free_run(model: Model, states: np.ndarray, inputs: np.ndarray, k0: 
     """Outputs (N × ny) of free runs restarted every ``window`` steps from ``states`` (N × nx,
     e.g. a filter's estimate) at samples k0, k0 + window, …, each driven by the recorded
     ``inputs`` alone (NaN up to k0). A window of the whole record is one free run from k0."""
-    aug = augment(model)
-    F, nx = _state_step(model)
-    h = aug.h if aug.z.shape[0] == nx else ca.substitute(aug.h, aug.z[nx:], ca.DM(aug.z0[nx:]))
-    H = ca.Function("H", [aug.z[:nx], aug.u, aug.mem], [h])
+    aug, f, h, nx = _declared(model)
+    F, H = (ca.Function(n, [aug.z[:nx], aug.u, aug.mem], [e]) for n, e in (("F", f), ("H", h)))
     N = len(states)
     out = np.full((N, len(model.outputs)), np.nan)
     n = N - 1 - k0

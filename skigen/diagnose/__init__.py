@@ -299,34 +299,29 @@ def _candidate(c, why: str) -> dict:
 def _unnamed(user_cands, additive, data: dict, model: Model, rec, states) -> list[dict]:
     """What became of each user (or declared) candidate that is not a finding nor listed as
     compensating or not identifiable: a restated catalog term, or not kept by the naming rounds."""
-    from .name import basis_values
+    from .name import restated
     listed = {(f["effect"], f["equation"]) for key in ("findings", "compensating", "not_identifiable")
               for f in data[key]}
-    user = [c for c in user_cands if (c.effect, c.equation) not in listed]
-    if not user:
-        return []
-    catalog = [c for c in additive if c not in user_cands]
-    vals = basis_values(model, rec, states, user + catalog)
-    unit = vals / (np.linalg.norm(vals, axis=1, keepdims=True) + 1e-300)
+    unlisted = [i for i, c in enumerate(additive) if c in user_cands and (c.effect, c.equation) not in listed]
+    same = restated(model, rec, states, additive) if unlisted else {}
     out = []
-    for i, c in enumerate(user):
-        same = [k for k, d in enumerate(catalog) if d.equation == c.equation
-                and abs(unit[i] @ unit[len(user) + k]) >= 0.9999]
-        why = (f"on this recording it is the catalog's {catalog[same[0]].effect} on {c.equation} "
-               f"(`{catalog[same[0]].formula}`), judged as that" if same else
-               "not named: no round adopted it (a round adopts its best proposal by cross-validated gain, "
-               "SKI's selection among all additive candidates or one structural change; report.md lists "
-               "the proposals)")
-        out.append(_candidate(c, why))
+    for i in unlisted:
+        c, twin = additive[i], additive[same[i]] if i in same else None
+        whose = "" if twin is None else (f"your candidate {twin.effect}" if twin in user_cands
+                                         else f"the catalog's {twin.effect}")
+        out.append(_candidate(c, f"on this recording it is {whose} on {c.equation} (`{twin.formula}`), judged "
+                                 f"as that" if twin is not None else
+                              "not named: no round adopted it (a round adopts its best proposal by "
+                              "cross-validated gain, SKI's selection among all additive candidates or one "
+                              "structural change; report.md lists the proposals)"))
     return out
 
 
 def _compared(nominal: Model, corrected: Model | None, rec) -> dict:
     """A held-out recording's statistics, nominal and corrected, on the nominal's free-run window."""
     before = evaluate_fit(nominal, rec)
-    window = round(before.metrics["free_run_window"] / nominal.dt) if before.metrics["free_run_window"] else None
     return {"before": before.metrics,
-            "after": evaluate_fit(corrected, rec, window=window).metrics if corrected is not None else None}
+            "after": evaluate_fit(corrected, rec, window=before.window).metrics if corrected is not None else None}
 
 
 def windows_where_it_acts(nominal: Model, after, rec, equations, states) -> tuple[list, str | None]:

@@ -30,6 +30,7 @@ class Fit:
     metrics: dict
     run: RunResult
     free: np.ndarray        # (N, ny) free-run prediction (NaN before k0)
+    window: int             # samples per free run
 
 
 def settle(n: int) -> int:
@@ -75,7 +76,7 @@ def evaluate_fit(model: Model, rec: Recording, run: RunResult | None = None, win
         }
     for k in ("free_run_rmse",):
         metrics[k] = {n: (v if np.isfinite(v) else None) for n, v in metrics[k].items()}
-    return Fit(metrics, run, free)
+    return Fit(metrics, run, free, window)
 
 
 def simulation_worth(nominal: Model, corr, rec: Recording, window: int | None = None) -> tuple[float, dict]:

@@ -135,16 +135,25 @@ def basis_rms(model: Model, rec: Recording, states: np.ndarray, cands: list[Addi
     return np.sqrt(np.mean(basis_values(model, rec, states, cands) ** 2, axis=1)) + 1e-12
 
 
-def distinct(model: Model, rec: Recording, states: np.ndarray, cands: list[Additive]) -> list[Additive]:
-    """Candidates without duplicates: one equal (up to scale, on this trajectory, on the same
-    equation) to an earlier one is dropped — a user term that restates a catalog term."""
+def restated(model: Model, rec: Recording, states: np.ndarray, cands: list[Additive]) -> dict[int, int]:
+    """{i: j}: candidate i equals (up to scale, on this trajectory, on the same equation) the
+    earlier candidate j, itself restating none — a user term that restates a catalog term."""
     vals = basis_values(model, rec, states, cands)
     unit = vals / (np.linalg.norm(vals, axis=1, keepdims=True) + 1e-300)
-    keep = []
+    keep, same = [], {}
     for i, c in enumerate(cands):
-        if all(c.equation != cands[j].equation or abs(unit[i] @ unit[j]) < 0.9999 for j in keep):
+        j = next((j for j in keep if c.equation == cands[j].equation and abs(unit[i] @ unit[j]) >= 0.9999), None)
+        if j is None:
             keep.append(i)
-    return [cands[i] for i in keep]
+        else:
+            same[i] = j
+    return same
+
+
+def distinct(model: Model, rec: Recording, states: np.ndarray, cands: list[Additive]) -> list[Additive]:
+    """Candidates without duplicates: one that :func:`restated` an earlier one is dropped."""
+    same = restated(model, rec, states, cands)
+    return [c for i, c in enumerate(cands) if i not in same]
 
 
 

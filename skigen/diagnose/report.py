@@ -81,6 +81,17 @@ def _metrics_table(rows: list[tuple[str, dict, dict | None]]) -> list[str]:
     return L
 
 
+def _fit_rows(fit: dict) -> list[tuple[str, dict, dict | None]]:
+    """The Fit table's rows: this recording, then each --validate recording."""
+    return ([("this recording (in-sample)", fit["before"], fit["after"])]
+            + [(Path(v["before"]["recording"]).name, v["before"], v["after"]) for v in fit.get("recordings", [])])
+
+
+def _candidate_lines(data: dict) -> list[str]:
+    return [f"- Your candidate {c['name']} on `{c['equation']}` (`{c['formula']}`): {c['why']}."
+            for c in data.get("candidates_not_named", [])]
+
+
 def _free_run_span(metrics: dict) -> str:
     """What a free-run RMSE covers: the whole record, or windows restarted from the filter's state."""
     w = metrics.get("free_run_window")
@@ -129,11 +140,7 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
     L.append("")
     if not data["mismatch_detected"]:
         L += ["Nothing further to locate or name: no findings, no corrected model.", ""]
-        for cand in data.get("candidates_not_named", []):
-            L.append(f"- Your candidate {cand['name']} on `{cand['equation']}` (`{cand['formula']}`): {cand['why']}.")
-        rows = [(f"this recording (in-sample)", fit["before"], None)]
-        rows += [(Path(v["before"]["recording"]).name, v["before"], None) for v in fit.get("recordings", [])]
-        L += ["", "## Fit", ""] + _metrics_table(rows) + [""]
+        L += _candidate_lines(data) + ["", "## Fit", ""] + _metrics_table(_fit_rows(fit)) + [""]
     else:
         L += ["## 3. Locate", "",
               f"- outputs that disagree: {', '.join(f'`{o}`' for o in loc['outputs'])}",
@@ -170,8 +177,7 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
             for f in data.get(key, []):
                 L.append(f"- {title}: {f['effect']} on `{f['equation']}` (`{f['expression']}`, "
                          f"{_pm(f['coefficient'], f['std'])}): {f['note']}.")
-        for c in data.get("candidates_not_named", []):
-            L.append(f"- Your candidate {c['name']} on `{c['equation']}` (`{c['formula']}`): {c['why']}.")
+        L += _candidate_lines(data)
         for line in meta.get("proposals", []):
             L.append(f"- {line}")
         L += ["", "## 5. Model", ""]
@@ -187,9 +193,7 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
             for n, p in (r.get("parameters") or {}).items():
                 L.append(f"- `{n}` = {_pm(p['value'], p['std'])} (from {_fmt(p['initial'])})")
         L += ["", "## 6. Fit", ""]
-        rows = [(f"this recording (in-sample)", fit["before"], fit["after"])]
-        rows += [(Path(v["before"]["recording"]).name, v["before"], v["after"]) for v in fit.get("recordings", [])]
-        L += _metrics_table(rows) + [""]
+        L += _metrics_table(_fit_rows(fit)) + [""]
         if fit.get("folds"):
             L += ["Cross-validated log-likelihood per fold (coefficients fitted without the fold):", "",
                   "| fold | nominal | corrected |", "|---|---|---|"]

@@ -32,19 +32,15 @@ def validate(result: FitResult, recordings, init_samples: int = 50) -> list[dict
     out = []
     for rec in recordings:
         n0 = min(init_samples, len(rec.t) - 1)
-        if not model.weight_names and (windowed := _windowed(model, rec, n0)) is not None:
-            window, Y = windowed
-            e = rec.outputs[n0:] - Y[n0:]
-            out.append(dict(file=str(rec.path), samples=int(len(rec.t) - n0), window=window * model.dt,
-                            rmse={o: float(np.sqrt(np.nanmean(e[:, j] ** 2))) for j, o in enumerate(model.output_names)},
-                            simulated=Y))
-            continue
-        head = fit(model, [rec.slice(0, max(n0, 2))], estimate=[], show_progress=False) if not model.weight_names \
-            else None
-        x0 = [head.initial_states[0][s]["value"] for s in model.state_names] if head else model.x0
-        _, Y = free_run(model, rec.inputs, x0=x0, weights=weights)
+        window, Y = (None, None) if model.weight_names else _windowed(model, rec, n0)
+        if Y is None:
+            head = fit(model, [rec.slice(0, max(n0, 2))], estimate=[], show_progress=False) \
+                if not model.weight_names else None
+            x0 = [head.initial_states[0][s]["value"] for s in model.state_names] if head else model.x0
+            _, Y = free_run(model, rec.inputs, x0=x0, weights=weights)
         e = rec.outputs[n0:] - Y[n0:]
-        out.append(dict(file=str(rec.path), samples=int(len(rec.t) - n0), window=None,
+        out.append(dict(file=str(rec.path), samples=int(len(rec.t) - n0),
+                        window=window * model.dt if window else None,
                         rmse={o: float(np.sqrt(np.nanmean(e[:, j] ** 2))) for j, o in enumerate(model.output_names)},
                         simulated=Y))
     return out
@@ -52,13 +48,13 @@ def validate(result: FitResult, recordings, init_samples: int = 50) -> list[dict
 
 def _windowed(model, rec, n0: int):
     """(window in samples, outputs) of free runs restarted from the EKF's state, when the
-    model's free run amplifies state errors more than AMPLIFICATION-fold over ``rec``; else None."""
+    model's free run amplifies state errors more than AMPLIFICATION-fold over ``rec``; else (None, None)."""
     from ..derive import derive
     from ..runtime import run
     states = run(derive(model, "ekf"), rec, backend="casadi", show_progress=False).mean[:, :len(model.states)]
     window = simulation_window(growth_rate(model, states, rec.inputs), model.dt, len(rec.t) - 1 - n0)
     if window >= len(rec.t) - 1 - n0:
-        return None
+        return None, None
     return window, windowed_free_run(model, states, rec.inputs, n0, window)
 
 
