@@ -13,7 +13,8 @@ long. ``build(parameters=...)`` declares L, m and B as parameters at the given v
 :func:`simulate` balances the truth with an LQR on the measured states (velocities by filtered
 differences) while the cart follows position steps and a multisine is added to the force; four
 RK4 sub-steps per sample, process noise as the model declares it, so that with no ``delay`` the
-nominal is right; ``delay``: the force reaches the cart this many samples late.
+nominal is right; ``delay``: the force reaches the cart this many samples late; ``friction``: a
+Coulomb friction on the cart; ``cart``: a cart heavier or lighter than the model's.
 """
 from dataclasses import dataclass
 
@@ -27,6 +28,7 @@ G, M, MP, L, B = 9.81, 1.0, 0.2, 0.5, 0.5   # m/s², kg, kg, m, N s/m
 DT = 0.01                                   # s (100 Hz)
 V_STD, W_STD = 1e-3, 2e-3                   # process noise per sample (m/s, rad/s)
 X_NOISE, TH_NOISE = 1e-3, 2e-3              # sensors (m, rad)
+FRICTION_WIDTH = 0.01                       # m/s: the smoothing of the cart's Coulomb friction
 
 
 def build(name: str = "cart_pole", parameters: dict | None = None) -> Model:
@@ -64,10 +66,11 @@ def _lqr() -> np.ndarray:
     return np.linalg.solve(R + Bd.T @ P @ Bd, Bd.T @ P @ Ad).ravel()
 
 
-def _rate(s: np.ndarray, force: float) -> np.ndarray:
+def _rate(s: np.ndarray, force: float, friction: float = 0.0, cart: float = M) -> np.ndarray:
     x, v, th, w = s
     sn, cs = np.sin(th), np.cos(th)
-    vdot = (force - B * v + MP * L * w ** 2 * sn - MP * G * sn * cs) / (M + MP * sn ** 2)
+    force = force - friction * np.tanh(v / FRICTION_WIDTH)
+    vdot = (force - B * v + MP * L * w ** 2 * sn - MP * G * sn * cs) / (cart + MP * sn ** 2)
     return np.array([v, vdot, w, (G * sn - vdot * cs) / L])
 
 
@@ -85,8 +88,10 @@ class CartPoleRun:
         return {"t": self.t, "F": self.F, "x_meas": self.x_meas, "th_meas": self.th_meas}
 
 
-def simulate(seconds: float = 20.0, *, seed: int = 0, delay: int = 0, substeps: int = 4) -> CartPoleRun:
-    """The balancing run (see the module docstring)."""
+def simulate(seconds: float = 20.0, *, seed: int = 0, delay: int = 0, friction: float = 0.0, cart: float = M,
+             substeps: int = 4) -> CartPoleRun:
+    """The balancing run (see the module docstring); ``friction``: a Coulomb friction on the cart
+    (N, smoothed as tanh(v / FRICTION_WIDTH)); ``cart``: the true cart mass (kg, the model's M = 1)."""
     rng = np.random.default_rng(seed)
     n, K, h = int(round(seconds / DT)), _lqr(), DT / substeps
     t = np.arange(n) * DT
@@ -108,10 +113,10 @@ def simulate(seconds: float = 20.0, *, seed: int = 0, delay: int = 0, substeps: 
         F[k] = float(np.clip(-K @ [xm[k] - ref[k], vf, thm[k], wf] + dither[k], -40, 40))
         force = F[k - delay] if k >= delay else 0.0
         for _ in range(substeps):
-            k1 = _rate(s, force)
-            k2 = _rate(s + h / 2 * k1, force)
-            k3 = _rate(s + h / 2 * k2, force)
-            s = s + h / 6 * (k1 + 2 * k2 + 2 * k3 + _rate(s + h * k3, force))
+            k1 = _rate(s, force, friction, cart)
+            k2 = _rate(s + h / 2 * k1, force, friction, cart)
+            k3 = _rate(s + h / 2 * k2, force, friction, cart)
+            s = s + h / 6 * (k1 + 2 * k2 + 2 * k3 + _rate(s + h * k3, force, friction, cart))
         s[1] += rng.normal(0, V_STD)
         s[3] += rng.normal(0, W_STD)
     return CartPoleRun(t, F, xm, thm, th)

@@ -131,7 +131,7 @@ def _generate(args) -> int:
 
 def _diagnose(args) -> int:
     from .diagnose import DiagnosisError, diagnose
-    from .diagnose.report import finding_line
+    from .diagnose.report import finding_line, where
 
     candidates = []
     for c in args.candidate:
@@ -168,7 +168,7 @@ def _diagnose(args) -> int:
         for f in d["findings"]:
             print(f"finding: {finding_line(f)}")
         for f in d["compensating"] + d["not_identifiable"]:
-            print(f"not a finding: {f['effect']} on {f['equation']}: {f['note']}")
+            print(f"not a finding: {where(f)}: {f['note']}")
         for line in unnamed:
             print(line)
         if d["fit"]["after"]:

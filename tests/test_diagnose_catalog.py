@@ -195,3 +195,38 @@ def test_the_rate_of_a_position_gets_friction_and_stiffness_whatever_its_declare
     assert {"viscous_damping", "quadratic_drag", "coulomb_friction", "linear_stiffness", "cubic_stiffness"} <= effects
     assert {c.formula for c in additive_candidates(m, ["omega"], {"omega": 10.0}) if c.effect == "coulomb_friction"} \
         == {"-tanh(omega/0.05)", "-tanh(omega/0.2)", "-tanh(omega/0.8)"}
+
+
+def test_an_input_that_drives_two_equations_is_offered_terms_added_to_it():
+    """The force on a cart-pole drives v̇ and, through the coupling, ω̇: friction, offset and gain
+    are also offered through F, entering both equations as ∂(rate)/∂F does (to first order exactly
+    F → F + c·φ), each friction oriented so that a positive coefficient opposes the motion. The
+    cart alone (F drives v̇ only) gets none."""
+    import casadi as ca
+    from models import cart, cart_pole
+    from skigen.diagnose.catalog import channel_candidates
+    m = cart_pole.model
+    rng = np.random.default_rng(0)
+    states = rng.normal(0, [0.2, 0.3, 0.05, 0.4], (200, 4))
+    inputs = rng.normal(0, 2.0, (200, 1))
+    cands = channel_candidates(m, ["v", "w"], {"v": 0.3, "w": 0.4}, states, inputs)
+    assert {(c.effect, c.equation) for c in cands} == {
+        ("bias", "v"), ("input_gain", "v"),
+        *((e, q) for e in ("viscous_damping", "quadratic_drag", "coulomb_friction") for q in ("v", "w"))}
+    assert all(c.through == "F" for c in cands)
+    assert {c.formula for c in cands if c.effect == "coulomb_friction"} == {   # ∂v̇/∂F > 0, ∂ω̇/∂F < 0 upright
+        "-tanh(v/0.0015)", "-tanh(v/0.006)", "-tanh(v/0.024)", "tanh(w/0.002)", "tanh(w/0.008)", "tanh(w/0.032)"}
+    assert {c.formula for c in cands if c.effect == "viscous_damping"} == {"-v", "w"}
+    # the contributions are the first-order change of the rates under F → F + ε·φ
+    x, F = ca.vertcat(*[v.sym for v in m.states]), m.inputs[0].sym
+    rhs = ca.vertcat(*[m.rhs[n] for n in m.state_names])
+    for c in cands:
+        phi, rates = c.sx(m), c.contributions(m)
+        assert set(rates) == {"v", "w"}
+        eps = 1e-6
+        moved = ca.substitute(rhs, F, F + eps * phi)
+        f = ca.Function("f", [x, F], [(moved - rhs) / eps, ca.vertcat(0, rates["v"], 0, rates["w"])])
+        for k in range(0, 200, 40):
+            finite, analytic = (np.asarray(a).ravel() for a in f(states[k], inputs[k]))
+            assert np.allclose(finite, analytic, rtol=1e-5, atol=1e-9), (c.effect, finite, analytic)
+    assert channel_candidates(cart.model, ["v"], {"v": 0.3}, states[:, :2], inputs) == []

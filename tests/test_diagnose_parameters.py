@@ -92,10 +92,10 @@ def test_calibrated_measurement_noise_stops_at_the_sensor_resolution(sweep):
 def test_a_finding_the_joint_refit_no_longer_needs_is_flagged():
     """The Silverbox training range's limit: 5797 ± 107 in cross-validation, 225 ± 188 after the
     joint refit (the refitted stiffness takes it over); the cubic spring stays significant."""
-    from types import SimpleNamespace
-
     from skigen.diagnose import _update_findings
-    limit, cubic = (SimpleNamespace(effect=e, equation="v") for e in ("physical_limit", "cubic_stiffness"))
+    from skigen.diagnose.catalog import Additive
+    limit, cubic = (Additive(e, "v", f, "") for e, f in (("physical_limit", "-fmax(y - 0.2, 0)"),
+                                                         ("cubic_stiffness", "-y**3")))
     findings = [dict(effect="physical_limit", equation="v", kind="additive", coefficient=5797.0, std=107.0),
                 dict(effect="cubic_stiffness", equation="v", kind="additive", coefficient=6.08e5, std=3.4e3)]
     fitted = {"physical_limit_v": dict(value=224.9, std=187.8), "cubic_stiffness_v": dict(value=7.371e5, std=2.8e3)}

@@ -121,6 +121,7 @@ def _fit(spec, digest, path, tmp: Path, opt: dict, row: dict) -> None:
 
 def _diagnose(spec, digest, path, tmp: Path, final: Path, opt: dict, row: dict) -> None:
     from ..diagnose import diagnose
+    from ..diagnose.report import where
     from ..recording import load_recording
     model = _model(spec, digest)
     rec = load_recording(path, model, **opt["read"])
@@ -134,9 +135,9 @@ def _diagnose(spec, digest, path, tmp: Path, final: Path, opt: dict, row: dict) 
     row["mean_nis"] = d["consistency"]["nis_mean"]
     row["nis_expected"] = d["consistency"]["nis_expected"]
     row["mismatch"] = bool(d["mismatch_detected"])
-    row["findings"] = [f"{f['effect']} on {f['equation']} ({f['coefficient']:.4g}"
+    row["findings"] = [f"{where(f)} ({f['coefficient']:.4g}"
                        + (f" ± {f['std']:.2g})" if f.get("std") is not None else ")") for f in d["findings"]]
-    row["quantities"] = {f"{f['effect']}@{f['equation']}": [_num(f["coefficient"]),
+    row["quantities"] = {f"{f['effect']}@{f['equation']}" + (f"@{f['through']}" if f.get("through") else ""): [_num(f["coefficient"]),
                                                             _num(f["std"]) if f.get("std") is not None else None]
                          for f in d["findings"]}
 

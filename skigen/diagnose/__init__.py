@@ -46,7 +46,7 @@ from .locate import Location, locate
 from .name import Correction, basis_rms, beyond_parameters, focus_window, name_terms, shape_search
 from .plausible import screen, significant
 from .name import refit as refit_terms
-from .report import write_json, write_markdown
+from .report import where, write_json, write_markdown
 
 __all__ = ["diagnose", "detect", "Report", "DiagnosisError", "MIN_SAMPLES"]
 
@@ -196,8 +196,9 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     stage("naming: instantiating the catalog")
     scale = {n: float(np.sqrt(np.mean(loc.states[:, i] ** 2))) for i, n in enumerate(nominal.state_names)}
     rate_eqs = [e for e in loc.equations if e in C.rate_equations(nominal)] or C.rate_equations(nominal)
-    additive = beyond_parameters(declared, rec, loc.states,
-                                 C.additive_candidates(calibrated, rate_eqs, scale, loc.states)) + user_cands
+    catalog = (C.additive_candidates(calibrated, rate_eqs, scale, loc.states)
+               + C.channel_candidates(calibrated, rate_eqs, scale, loc.states, np.asarray(rec.inputs)))
+    additive = beyond_parameters(declared, rec, loc.states, catalog) + user_cands
     structural = (C.structural_candidates(calibrated, rate_eqs, np.asarray(rec.inputs))
                   + C.output_candidates(calibrated, loc.outputs or nominal.output_names, np.asarray(rec.outputs)))
     # the size of what is missing per equation: the slow disturbance located, or what the calibrated
@@ -224,7 +225,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     corr, ev, cv_after = weigh(calibrated, corr, rec, cv, alpha, rms, size)
     report.correction = corr
     meta["proposals"] = [f"round {i + 1}: best proposal {p.label} ({p.kind}), cross-validated log-likelihood "
-                         f"gain {p.gain:+.1f}" + "".join(f"; {a['effect']} on {a['equation']} set aside as compensating"
+                         f"gain {p.gain:+.1f}" + "".join(f"; {where(a)} set aside as compensating"
                                                           for a in p.set_aside)
                           + (f"; {p.note}" if p.note else "") for i, p in enumerate(history)]
     stage("weighing the findings (drop-one free runs)")
@@ -342,8 +343,7 @@ def _update_findings(findings: list[dict], names: dict, fitted: dict, alpha: flo
     """The refitted values in the findings; the std keeps the shape search's share. A finding whose
     refitted coefficient is no longer significant gets a note saying so."""
     by_target = {(c.effect, c.target, c.side): (n, c) for n, c in names.items() if isinstance(c, C.Structural)}
-    by_effect = {(c.effect, c.equation): n for n, c in names.items()
-                 if c is not None and not isinstance(c, C.Structural)}
+    by_effect = {c.key: n for n, c in names.items() if c is not None and not isinstance(c, C.Structural)}
     for f in findings:
         if f["kind"] == "structural":
             n, s = by_target.get((f["effect"], f.get("output") or f.get("input"), f.get("side", "")), (None, None))
@@ -352,7 +352,7 @@ def _update_findings(findings: list[dict], names: dict, fitted: dict, alpha: flo
                 f["coefficient"], f["std"] = fitted[n]["value"], fitted[n]["std"]
                 f["expression"], f["refit_parameter"] = s.describe(f["coefficient"]), n
             continue
-        n = by_effect.get((f["effect"], f["equation"]))
+        n = by_effect.get((f["effect"], f["equation"], f.get("through", "")))
         if n not in fitted:
             continue
         spread = f.get("shape_search", {}).get("coefficient_std_from_shape", 0.0)
@@ -461,9 +461,10 @@ def _findings(nominal: Model, corr: Correction, ev: dict, shapes: dict, worth: d
     """The findings, most needed by a simulation first (the free run without it worst), then by evidence."""
     out = []
     for c, coef, std in corr.found:
-        f = {"effect": c.effect, "equation": c.equation, "expression": c.formula,
-             "coefficient": coef, "std": std, "evidence": ev[c], "free_run_without": worth[c], "kind": "additive",
+        f = {"effect": c.effect, "equation": c.equation, "expression": c.text, "coefficient": coef, "std": std, "evidence": ev[c], "free_run_without": worth[c], "kind": "additive",
              "reading": c.reading + (f" ({c.variant})" if c.variant else "")}
+        if c.through:
+            f["through"] = c.through
         if c.shape:
             f["shape"] = dict(c.shape)
         if c in shapes:

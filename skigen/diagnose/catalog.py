@@ -3,6 +3,10 @@
 Additive effects are basis terms φ(x, u) for the rate equation of a velocity
 or rate state, written as formulas in the model's own names (``-tanh(v/0.005)``)
 so that a person can read them and a corrected model file can restate them.
+Where an input drives several equations (a force on a cart that also swings
+its pendulum), friction, an offset and a gain error of what the input moves
+are also offered *through* it: added to the input, they enter every equation
+the input enters, φ·∂(rate)/∂u, as a force does.
 Structural effects transform the model: the plant sees a delayed (by whole
 samples or a fraction of one), lagged, saturated, dead-zoned or backlashed
 version of an input, or a sensor reads a clipped output; each has one
@@ -21,7 +25,7 @@ from . import transform as T
 
 __all__ = ["Additive", "Structural", "EFFECTS", "READINGS", "evaluate", "additive_candidates",
            "structural_candidates", "output_candidates", "user_candidates", "declared_candidates", "rate_equations",
-           "kinematic_equations", "pairs", "COULOMB_WIDTHS"]
+           "kinematic_equations", "pairs", "COULOMB_WIDTHS", "channel", "channel_candidates"]
 
 VELOCITY_ROLES = ("velocity", "rate")
 POSITION_ROLES = ("position", "angle", "altitude")
@@ -71,15 +75,45 @@ class Additive:
     shape: tuple = ()         # the variant's shape parameters, (("width", 0.01),) …
     sign: int = 0             # +1: only a positive coefficient is physical (friction, drag, a limit)
     parameter: str = ""       # a declared parameter's correction (∂rate/∂p), never a finding
+    through: str = ""         # an input: the term is added to it and enters where it enters
+
+    @property
+    def key(self) -> tuple:
+        """One term per (effect, equation, input it acts through) is adopted."""
+        return self.effect, self.equation, self.through
 
     @property
     def group(self) -> tuple:
-        """Variants of one another share it: effect, equation and the non-numeric shape (a side)."""
-        return (self.effect, self.equation) + tuple(v for _, v in self.shape if isinstance(v, str))
+        """Variants of one another share it: its key and the non-numeric shape (a side)."""
+        return self.key + tuple(v for _, v in self.shape if isinstance(v, str))
+
+    @property
+    def text(self) -> str:
+        """The term as a person reads it: its formula, and the input it is added to."""
+        return f"{self.formula}, added to {self.through}" if self.through else self.formula
 
     def sx(self, model: Model) -> ca.SX:
-        """The term as SX over ``model``'s symbols."""
+        """φ as SX over ``model``'s symbols (for a term through an input, what is added to it)."""
         return self.expr if self.expr is not None else evaluate(model, self.formula)
+
+    def contributions(self, model: Model) -> dict[str, ca.SX]:
+        """{equation: its rate per unit coefficient}: φ on its equation, or, through input u,
+        φ·∂(rate)/∂u on every equation u drives (the first-order effect of u → u + c·φ)."""
+        phi = self.sx(model)
+        if not self.through:
+            return {self.equation: phi}
+        return {e: phi * g for e, g in channel(model, self.through).items()}
+
+
+def channel(model: Model, u: str) -> dict[str, ca.SX]:
+    """∂(rate)/∂u of every state equation input ``u`` enters (rate units per unit of u)."""
+    sym = T.symbols(model)[u]
+    out = {}
+    for e in model.state_names:
+        if ca.depends_on(model.rhs[e], sym):
+            g = ca.jacobian(model.rhs[e], sym)
+            out[e] = g / model.dt if model.discretization == "discrete" else g
+    return out
 
 
 @dataclass(frozen=True)
@@ -214,6 +248,49 @@ def additive_candidates(model: Model, equations, scale: dict[str, float],
                 for h in GROUND_EFFECT_HEIGHTS:
                     add("ground_effect", f"exp(-{z}/{_num(h * per_m)})*{u}", f"h = {_num(h * per_m)} {units[z]}",
                         (("height", float(_num(h * per_m))),))
+    return out
+
+
+CHANNEL_SIGN_SHARE = 0.95    # a velocity an input pushes one way on this share of the samples
+
+
+def channel_candidates(model: Model, equations, scale: dict[str, float], states: np.ndarray,
+                       inputs: np.ndarray) -> list[Additive]:
+    """Terms added to each input that enters two or more state equations, one of them listed: an
+    offset and a gain error of the input (reported on the first equation it enters), and the damping, drag and Coulomb friction of each
+    velocity it drives (the force on a cart meets the cart's friction, and both reach the
+    pendulum through the coupling). A friction's formula is oriented so that a positive
+    coefficient opposes the motion, from the sign of ∂(rate)/∂u along the trajectory; a velocity
+    the input pushes both ways gets none. ``states`` (N, nx), ``inputs`` (N, nu): the trajectory."""
+    units = {v.name: v.unit for v in model.states}
+    velocities = {v.name for v in model.states if v.role in VELOCITY_ROLES or driven(model, v.name)}
+    x = ca.vertcat(*[v.sym for v in model.states])
+    uu = ca.vertcat(*[v.sym for v in model.inputs])
+    out = []
+    for u in model.input_names:
+        gains = channel(model, u)                  # in the states' order
+        if len(gains) < 2 or not set(gains) & set(equations):
+            continue
+
+        def add(effect, eq, formula, variant="", shape=(), sign=0):
+            out.append(Additive(effect, eq, formula, f"{READINGS[effect]}, where {u} acts", variant,
+                                shape=shape, sign=sign, through=u))
+        first = next(iter(gains))                  # where an offset or a gain of u is reported
+        add("bias", first, "1")
+        add("input_gain", first, u)
+        for q in (e for e in gains if e in velocities):
+            g = np.asarray(ca.Function("g", [x, uu], [gains[q]]).map(len(states))(
+                states[:, :len(model.states)].T, inputs.T)).ravel()
+            side = np.mean(g > 0)
+            if CHANNEL_SIGN_SHARE > side > 1 - CHANNEL_SIGN_SHARE:
+                continue
+            minus = "-" if side >= CHANNEL_SIGN_SHARE else ""
+            add("viscous_damping", q, f"{minus}{q}")
+            add("quadratic_drag", q, f"{minus}{q}*abs({q})", sign=1)
+            for k in COULOMB_WIDTHS:
+                w = _num(max(k * scale.get(q, 1.0), 1e-12))
+                add("coulomb_friction", q, f"{minus}tanh({q}/{w})", f"width {w} {units[q]}".rstrip(),
+                    (("width", float(w)),), sign=1)
     return out
 
 

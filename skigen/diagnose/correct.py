@@ -58,7 +58,8 @@ def _matrix(M) -> str:
 
 def write_model_file(path, final: Model, added: dict, *, header: list[str]) -> Model:
     """Write ``final`` (the corrected model) to ``path``; ``added``: per equation, the comment of
-    each term added to the nominal rate, in order. Returns the model the file declares."""
+    each term added to the nominal rate, in order, and per input, of each term added to it (the
+    dynamics see the sum). Returns the model the file declares."""
     nominal_states = set(final.state_names[:len(final.state_names)])
     hold = f", input_hold={final.input_hold!r}" if final.input_hold != "zoh" else ""
     lines = ['"""' + header[0], ""] + header[1:] + ['"""', "import casadi as ca", "import numpy as np", "",
@@ -76,7 +77,9 @@ def write_model_file(path, final: Model, added: dict, *, header: list[str]) -> M
     for i, v in enumerate(final.states):
         lines.append(_state_line(final, i, "" if v.name in nominal_states else "added: the lagged actuator"))
     for v in final.inputs:
-        lines.append(f"{v.name} = model.input({v.name!r}, unit={v.unit!r})")
+        note = "; ".join(added.get(v.name, []))
+        lines.append(f"{v.name} = model.input({v.name!r}, unit={v.unit!r})"
+                     + (f"  # the dynamics see {v.name} plus: {note}" if note else ""))
     lags: dict[str, int] = {}
     for mm in final.memory:
         lags[mm.source] = max(lags.get(mm.source, 0), mm.lag)
@@ -131,13 +134,19 @@ def parametrised(base: Model, corr: Correction, lift: list[tuple[str, str, str]]
     limit, a width, a time constant, a sensor's bound) with that value a parameter. Returns (model,
     {parameter: finding candidate or None}, {equation: [comment per added term]})."""
     m = T.copy_model(base, unknowns=False)
-    names, notes = {}, {}
+    names, notes, added = {}, {}, {}
     for c, coef, std in corr.additive:
-        name = _unique_name(m, f"{c.effect}_{c.equation}")
+        name = _unique_name(m, "_".join(filter(None, (c.effect, c.equation, c.through))))
         p = m.parameter(name, float(coef), bounds=(0.0, np.inf) if c.sign > 0 and coef >= 0 else None)
-        m.rhs[c.equation] = m.rhs[c.equation] + T.rate(m, p * c.sx(m))
+        if c.through:                   # u → u + p·φ wherever u enters the dynamics
+            added[c.through] = added.get(c.through, 0) + p * c.sx(m)
+            notes.setdefault(c.through, []).append(f"{c.effect} on {c.equation}: + {name} × ({c.formula})")
+        else:
+            m.rhs[c.equation] = m.rhs[c.equation] + T.rate(m, p * c.sx(m))
+            notes.setdefault(c.equation, []).append(f"{c.effect}: {name} × ({c.formula})")
         names[name] = c
-        notes.setdefault(c.equation, []).append(f"{c.effect}: {name} × ({c.formula})")
+    for u, extra in added.items():
+        m = T.replace_input(m, u, T.symbols(m)[u] + extra)
     for effect, eq, formula in lift:
         name = _unique_name(m, f"{effect}_{eq}_correction")
         p = m.parameter(name, 0.0)

@@ -22,7 +22,9 @@ each part of the recording is scored on.
    with the higher cross-validated log-likelihood is kept; repeat (three
    rounds at most). A term whose refitted coefficient has a sign physics
    forbids (:func:`skigen.diagnose.plausible.compensating`) is not adopted: it
-   is set aside as compensating, and no later round is built on it. A
+   is set aside as compensating, no later round is built on it, and when a
+   round adopts nothing else the next one searches without it (an anti-drag
+   chosen by SKI over the damping a heavier cart needs). A
    further change is kept only if, under the noise recalibrated with it, it
    passes the rule :mod:`skigen.diagnose.evidence` applies to every finding
    (its gain at proposal time was measured under the noise calibrated before it).
@@ -37,6 +39,7 @@ finding is weighed afterwards (:mod:`skigen.diagnose.evidence`).
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -79,16 +82,16 @@ class Correction:
         """The nominal with these terms; ``unknown`` terms left for a filter to estimate, each
         regressor divided by its ``scales`` entry (its weight's prior variance multiplied by its square)."""
         m = T.copy_model(nominal, name, unknowns=False)
-        for c, coef, _ in self.additive:
-            m = T.add_term(m, c.equation, coef, c.sx(m))
-        if unknown:
+        for c, coef, _ in self.additive:            # through an input: its direction at the nominal
+            for eq, e in c.contributions(nominal).items():
+                m = T.add_term(m, eq, coef, e)
+        if unknown:                                 # one block per candidate: weights in their order
             r = np.ones(len(unknown)) if scales is None else np.asarray(scales, float)
-            by_eq: dict[str, list[int]] = {}
+            prior = np.broadcast_to(np.asarray(prior_variance, float), (len(unknown),))
             for i, c in enumerate(unknown):
-                by_eq.setdefault(c.equation, []).append(i)
-            for eq, idx in by_eq.items():
-                m.unknown(eq, [term(unknown[i].formula, unknown[i].sx(m) / r[i], key=f"c{i}") for i in idx],
-                          prior_variance=np.asarray(prior_variance)[idx] * r[idx] ** 2)
+                eqs, e = zip(*c.contributions(nominal).items())
+                m.unknown(list(eqs), [term(c.formula, ca.vertcat(*e) / r[i], key=f"c{i}")],
+                          prior_variance=prior[i] * r[i] ** 2)
         for s, value, _ in self.structural:
             m = s.build(m, value)
         return m
@@ -122,13 +125,17 @@ class Proposal:
     note: str = ""
 
 
-def basis_values(model: Model, rec: Recording, states: np.ndarray, cands: list[Additive]) -> np.ndarray:
-    """(m, N): each candidate along the (smoothed) trajectory."""
+def basis_values(model: Model, rec: Recording, states: np.ndarray, cands: list[Additive],
+                 equations=None) -> np.ndarray:
+    """(m, N): each candidate's rate on its equation along the (smoothed) trajectory; with
+    ``equations``, (m, len(equations)·N): its rate on each of them in turn (0 where it does not enter)."""
     x = ca.vertcat(*[v.sym for v in model.states])
     u = ca.vertcat(*[v.sym for v in model.inputs]) if model.inputs else ca.SX(0, 1)
-    phi = ca.vertcat(*[c.sx(model) for c in cands])
+    rates = [c.contributions(model) for c in cands]
+    phi = ca.vertcat(*[r[c.equation] for c, r in zip(cands, rates)] if equations is None else
+                     [r.get(eq, ca.SX(0)) for r in rates for eq in equations])
     f = ca.Function("phi", [x, u], [phi]).map(len(rec.t))
-    return np.asarray(f(states[:, :len(model.states)].T, rec.inputs.T))
+    return np.asarray(f(states[:, :len(model.states)].T, rec.inputs.T)).reshape(len(cands), -1)
 
 
 def basis_rms(model: Model, rec: Recording, states: np.ndarray, cands: list[Additive]) -> np.ndarray:
@@ -136,13 +143,13 @@ def basis_rms(model: Model, rec: Recording, states: np.ndarray, cands: list[Addi
 
 
 def restated(model: Model, rec: Recording, states: np.ndarray, cands: list[Additive]) -> dict[int, int]:
-    """{i: j}: candidate i equals (up to scale, on this trajectory, on the same equation) the
-    earlier candidate j, itself restating none — a user term that restates a catalog term."""
-    vals = basis_values(model, rec, states, cands)
+    """{i: j}: candidate i equals (up to scale, on this trajectory, in every equation it enters)
+    the earlier candidate j, itself restating none — a user term that restates a catalog term."""
+    vals = basis_values(model, rec, states, cands, model.state_names)
     unit = vals / (np.linalg.norm(vals, axis=1, keepdims=True) + 1e-300)
     keep, same = [], {}
     for i, c in enumerate(cands):
-        j = next((j for j in keep if c.equation == cands[j].equation and abs(unit[i] @ unit[j]) >= 0.9999), None)
+        j = next((j for j in keep if abs(unit[i] @ unit[j]) >= 0.9999), None)
         if j is None:
             keep.append(i)
         else:
@@ -194,23 +201,25 @@ def start_trace(model: Model, rec: Recording) -> RunResult:
 
 def beyond_parameters(model: Model, rec: Recording, states: np.ndarray, cands: list[Additive]) -> list[Additive]:
     """Candidates a declared parameter cannot already produce: one whose term, along the trajectory,
-    is proportional to ∂(rate of its equation)/∂p for a declared parameter p (a linear stiffness
-    where the model declares its stiffness k) is that parameter's job, not missing physics."""
+    is proportional to ∂(rate)/∂p, in the equations it enters, for a declared parameter p (a linear
+    stiffness where the model declares its stiffness k) is that parameter's job, not missing physics."""
     if not model.parameters or not cands:
         return cands
     x = ca.vertcat(*[v.sym for v in model.states])
     u = ca.vertcat(*[v.sym for v in model.inputs]) if model.inputs else ca.SX(0, 1)
     p = ca.vertcat(*[q.sym for q in model.parameters])
     values = np.array([q.value for q in model.parameters])
-    vals = basis_values(T.constants(model), rec, states, cands)
+    fixed = T.constants(model)
     slopes = {}                                  # equation → ∂rate/∂p along the trajectory, (parameters, N)
-    for eq in {c.equation for c in cands}:
+    for eq in {e for c in cands for e in c.contributions(fixed)}:
         J = ca.Function("J", [x, u, p], [ca.jacobian(model.rhs[eq], p)]).map(len(rec.t))
         d = np.asarray(J(states[:, :len(model.states)].T, rec.inputs.T, np.tile(values, (len(rec.t), 1)).T))
         slopes[eq] = d.reshape(len(rec.t), len(model.parameters)).T
     keep = []
-    for c, phi in zip(cands, vals):
-        d = slopes[c.equation]
+    for c in cands:
+        eqs = list(c.contributions(fixed))
+        phi = basis_values(fixed, rec, states, [c], eqs)[0]
+        d = np.hstack([slopes[eq] for eq in eqs])
         cos = np.abs(d @ phi) / (np.linalg.norm(d, axis=1) * np.linalg.norm(phi) + 1e-300)
         if not np.any(cos > 0.999):
             keep.append(c)
@@ -236,14 +245,34 @@ def _estimating(known: "Correction", nominal: Model, cands, rms, size, prior=Non
 
 
 def _kept(cands, w, sd, alpha: float, n_tests: int) -> list[tuple]:
-    """(candidate, ŵ, σ) with |ŵ| > z·σ, the best variant per (effect, equation)."""
+    """(candidate, ŵ, σ) with |ŵ| > z·σ, the best variant per key (effect, equation, input)."""
     z_min = stats.norm.isf(alpha / (2 * n_tests))
-    keep: dict[tuple[str, str], tuple] = {}
+    keep: dict[tuple, tuple] = {}
     for c, wi, si in zip(cands, w, sd):
         z = abs(wi) / max(si, 1e-300)
-        if z > z_min and (keep.get((c.effect, c.equation)) is None or z > keep[(c.effect, c.equation)][3]):
-            keep[(c.effect, c.equation)] = (c, float(wi), float(si), z)
+        if z > z_min and (keep.get(c.key) is None or z > keep[c.key][3]):
+            keep[c.key] = (c, float(wi), float(si), z)
     return [k[:3] for k in keep.values()]
+
+
+RANGE_MARGIN = 0.1     # × the span: how far beyond the recorded range a candidate is evaluated
+
+
+def within_range(model: Model, states: np.ndarray) -> Model:
+    """``model`` with each state in its unknown term's regressors held to the range the trajectory
+    ``states`` (N, nx) covers, widened by RANGE_MARGIN of its span each way. The data say nothing
+    of a term beyond that range, and the sigma points of a broad prior go far beyond it: there an
+    anti-drag w·|w| or a softening −θ³ with a wrong-signed weight several σ out diverges within one
+    step (a finite-time blow-up), and the whole selection with it."""
+    m = T.copy_model(model)
+    n = min(len(m.states), states.shape[1])       # the states a structural change adds are left free
+    xs = ca.vertcat(*[v.sym for v in m.states[:n]])
+    lo, hi = states[:, :n].min(axis=0), states[:, :n].max(axis=0)
+    pad = RANGE_MARGIN * (hi - lo)
+    held = ca.vertcat(*[ca.fmin(ca.fmax(xs[i], lo[i] - pad[i]), hi[i] + pad[i]) for i in range(xs.shape[0])])
+    for b in m.unknowns:
+        b.terms = [dataclasses.replace(t, expr=ca.substitute(t.expr, xs, held)) for t in b.terms]
+    return m
 
 
 def cv_loglik(nominal: Model, corr: Correction, rec: Recording, folds: Folds, rms: dict, size: dict) -> np.ndarray:
@@ -270,6 +299,7 @@ def _additive(nominal, current: Correction, cands, rec, folds: Folds, rms, size,
     """The SKI proposal: the terms SKI keeps on the recording (or on its samples ``focus``),
     cross-validated with the current and kept terms' coefficients refitted without each fold."""
     m, r = _estimating(current, nominal, cands, rms, size)
+    m = within_range(m, states) if states is not None else m
     piece = rec.slice(*focus) if focus else rec
     # The naming rule (z = |ŵ|/σ) was calibrated with the paper's gradient ARD; the EM update's
     # honest σ needs its own rule (not yet done), so the SKI selection keeps the gradient.
@@ -281,8 +311,12 @@ def _additive(nominal, current: Correction, cands, rec, folds: Folds, rms, size,
     new = Correction(current.additive + kept, current.structural)
     score = cv_loglik(nominal, new, rec, folds, rms, size)
     new, score = _swaps(nominal, current, new, score, cands, rec, folds, rms, size, states)
-    label = ", ".join(f"{c.effect} on {c.equation}" for c, *_ in new.additive[len(current.additive):])
+    label = ", ".join(_where(c) for c, *_ in new.additive[len(current.additive):])
     return Proposal("additive", 0.0, len(new.additive) - len(current.additive), new, label, score)
+
+
+def _where(c: Additive) -> str:
+    return f"{c.effect} on {c.equation}" + (f" through {c.through}" if c.through else "")
 
 
 SWAP_CORRELATION = 0.5
@@ -466,11 +500,11 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
     except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):
         corr = Correction()        # their corrections make the filter diverge: held as calibrated
     current = cv_loglik(nominal, corr, rec, folds, rms, size)
-    history = []
+    history, aside = [], set()
     for _ in range(MAX_ROUNDS):
         proposals = []
-        used = {(a[0].effect, a[0].equation) for a in corr.additive}
-        cands = [c for c in additive if (c.effect, c.equation) not in used]
+        used = {a[0].key for a in corr.additive} | aside
+        cands = [c for c in additive if c.key not in used]
         if cands:
             tick("SKI over the additive candidates, per fold")
             try:
@@ -507,8 +541,12 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
                 got = None
             if got is not None:
                 adopted.append(got + (cv_loglik(got[1], got[0], rec, folds, rms, size), p))
-        if not adopted:
-            break
+        if not adopted:                    # its terms compensating: the next round searches without them
+            new_aside = {(a["effect"], a["equation"], a.get("through", "")) for p in passing for a in p.set_aside}
+            if not new_aside - aside:
+                break
+            aside |= new_aside
+            continue
         new, recal, score, chosen = max(adopted, key=lambda a: np.sum(a[2]))
         history[-1] = chosen
         if len(history) > 1:               # a further change: weighed as evidence.weigh would weigh it

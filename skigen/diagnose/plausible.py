@@ -39,16 +39,17 @@ def significant(coef: float, std: float, alpha: float) -> bool:
     return bool(np.isfinite(std) and std > 0 and abs(coef) > stats.norm.isf(alpha / 2) * std)
 
 
-def nominal_damping(model: Model, eq: str, states: np.ndarray, rec: Recording) -> float:
-    """−∂(rate of eq)/∂eq, the median along the trajectory (1/s): the damping the model already has."""
+def nominal_damping(model: Model, eq: str, states: np.ndarray, rec: Recording, rate=None) -> float:
+    """−∂(rate of eq)/∂eq, the median along the trajectory (1/s): the damping the model already has,
+    or, given ``rate`` (an added term's rate on eq), the damping that term adds per unit coefficient."""
     x = ca.vertcat(*[v.sym for v in model.states])
     u = ca.vertcat(*[v.sym for v in model.inputs]) if model.inputs else ca.SX(0, 1)
     me = model.state_names.index(eq)
-    J = ca.jacobian(model.rhs[eq], x[me])
+    J = ca.jacobian(model.rhs[eq] if rate is None else rate, x[me])
     f = ca.Function("J", [x, u] + [p.sym for p in model.parameters], [J])
     vals = np.asarray(f.map(len(rec.t))(states[:, :len(model.states)].T, rec.inputs.T,
                                         *[p.value for p in model.parameters])).ravel()
-    if model.discretization == "discrete":
+    if model.discretization == "discrete" and rate is None:
         vals = (vals - 1.0) / model.dt
     return float(-np.median(vals))
 
@@ -60,8 +61,8 @@ def _signals(formula: str, model: Model) -> list[str]:
 
 def term_item(c, coef: float, std: float, note: str) -> dict:
     """An additive term as report.json lists one that is not a finding (compensating, not identifiable)."""
-    return {"effect": c.effect, "equation": c.equation, "expression": c.formula, "coefficient": coef,
-            "std": std, "note": note}
+    return {"effect": c.effect, "equation": c.equation, "expression": c.text, "coefficient": coef,
+            "std": std, "note": note} | ({"through": c.through} if c.through else {})
 
 
 def compensating(model: Model, c, coef: float, states: np.ndarray, rec: Recording) -> str | None:
@@ -70,7 +71,9 @@ def compensating(model: Model, c, coef: float, states: np.ndarray, rec: Recordin
     if c.sign > 0 and coef < 0:
         return ("fits only with a sign physics forbids (it would push the motion instead of opposing it): "
                 "compensating for something else")
-    if c.effect == "viscous_damping" and coef + nominal_damping(model, c.equation, states, rec) < 0:
+    own = 1.0 if not c.through else nominal_damping(model, c.equation, states, rec,
+                                                       c.contributions(model)[c.equation])
+    if c.effect == "viscous_damping" and coef * own + nominal_damping(model, c.equation, states, rec) < 0:
         return "would make the total damping negative: compensating for something else"
     return None
 

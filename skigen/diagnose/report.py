@@ -29,10 +29,15 @@ def write_json(path, data: dict) -> Path:
     return path
 
 
+def where(f: dict) -> str:
+    """'effect on equation', and the input it acts through (report.json's finding or term item)."""
+    return f"{f['effect']} on {f['equation']}" + (f" through {f['through']}" if f.get("through") else "")
+
+
 def finding_line(f: dict) -> str:
     """One finding in a line: effect, equation, term, coefficient ± std, evidence, free run without it."""
     free = f.get("free_run_without")
-    return (f"{f['effect']} on {f['equation']}: {f['expression']}, coefficient {f['coefficient']:.6g} ± "
+    return (f"{where(f)}: {f['expression']}, coefficient {f['coefficient']:.6g} ± "
             f"{_fmt(f['std'], '.2g')}, cross-validated evidence {f['evidence']:+.1f}, free run without it "
             f"{'diverges' if free is None or not math.isfinite(free) else format(free, '.3g')}")
 
