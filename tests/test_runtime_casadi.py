@@ -1,14 +1,16 @@
 """The casadi backend of skigen.runtime: the derived step chained by CasADi (mapaccum) over parts
-of the recording, without the guard policy. Where no step fails it equals the python backend with
-Guard.off(), step for step, across parts, output dropouts and a restart after an input hole; a part
-in which a step gives a non-finite number is redone by the python backend with the default Guard.
+of the recording, or called sample by sample when the step is too large to be worth chaining over
+the part (runtime.CHAIN_BELOW), without the guard policy. Either way, where no step fails it equals
+the python backend with Guard.off(), step for step, across parts, output dropouts and a restart
+after an input hole; a part in which a step gives a non-finite number is redone by the python
+backend with the default Guard.
 """
 import numpy as np
 import pytest
 
 from models.wingrock import build
 from models.wingrock_sim import simulate
-from skigen import derive
+from skigen import derive, runtime
 from skigen.emit import Status
 from skigen.grid import Hole
 from skigen.guard import Guard
@@ -45,8 +47,14 @@ def _close(a: RunResult, b: RunResult, trace: bool):
             np.testing.assert_allclose(getattr(a.trace, f), y, rtol=1e-10, atol=_scale(y), err_msg=f)
 
 
+@pytest.fixture(params=["chained", "direct"])
+def mode(request, monkeypatch):
+    monkeypatch.setattr(runtime, "CHAIN_BELOW", 10 ** 9 if request.param == "chained" else 0)
+    return request.param
+
+
 @pytest.mark.parametrize("kind", ["ekf", "ukf", "ski"])
-def test_casadi_equals_python_without_the_guard(rec, kind):
+def test_casadi_equals_python_without_the_guard(rec, kind, mode):
     filt = derive(build(), kind)
     init = filt.initial()
     init["z"] = init["z"] + 0.01           # a given starting state, as the diagnosis's cross-validation uses
@@ -65,7 +73,7 @@ def test_casadi_equals_python_without_the_guard(rec, kind):
     assert not np.allclose(other.std[k], one.std[k])
 
 
-def test_a_non_finite_step_falls_back_to_the_guarded_python_part(rec):
+def test_a_non_finite_step_falls_back_to_the_guarded_python_part(rec, mode):
     filt = derive(build(), "ekf")
     y = rec.outputs.copy()
     y[170] = 1e200                       # its NIS overflows: the chain's numbers are not finite
