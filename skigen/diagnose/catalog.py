@@ -257,9 +257,9 @@ CHANNEL_SIGN_SHARE = 0.95    # a velocity an input pushes one way on this share 
 def channel_candidates(model: Model, equations, scale: dict[str, float], states: np.ndarray,
                        inputs: np.ndarray) -> list[Additive]:
     """Terms added to each input that enters two or more state equations, one of them listed: an
-    offset and a gain error of the input (reported on the first equation it enters), and the damping, drag and Coulomb friction of each
-    velocity it drives (the force on a cart meets the cart's friction, and both reach the
-    pendulum through the coupling). A friction's formula is oriented so that a positive
+    offset and a gain error of the input (reported on the first rate equation it enters), and the
+    damping, drag and Coulomb friction of each velocity it drives (the force on a cart meets the
+    cart's friction, and both reach the pendulum through the coupling). A friction's formula is oriented so that a positive
     coefficient opposes the motion, from the sign of ∂(rate)/∂u along the trajectory; a velocity
     the input pushes both ways gets none. ``states`` (N, nx), ``inputs`` (N, nu): the trajectory."""
     units = {v.name: v.unit for v in model.states}
@@ -275,7 +275,8 @@ def channel_candidates(model: Model, equations, scale: dict[str, float], states:
         def add(effect, eq, formula, variant="", shape=(), sign=0):
             out.append(Additive(effect, eq, formula, f"{READINGS[effect]}, where {u} acts", variant,
                                 shape=shape, sign=sign, through=u))
-        first = next(iter(gains))                  # where an offset or a gain of u is reported
+        rates = rate_equations(model)              # an offset or a gain of u is reported on the first
+        first = next((e for e in gains if e in rates), next(iter(gains)))     # rate equation u enters
         add("bias", first, "1")
         add("input_gain", first, u)
         for q in (e for e in gains if e in velocities):
