@@ -523,6 +523,11 @@ class CasadiStepper:
 
 
 PIECE_BLOCKS = (32, 32)     # a chain: 32 blocks of 32 unrolled steps, called once per PIECE samples
+PIECE = PIECE_BLOCKS[0] * PIECE_BLOCKS[1]
+_CHAINS: dict = {}          # (kind, step structure) → chain, shared by the filters of that structure
+MAX_CHAINS = 64
+_RUNS: dict = {}            # the last chained runs: key → (records, end state), see CasadiStepper._run_key
+MAX_RUNS, MAX_RUN_BYTES = 16, 1 << 25     # runs kept, and the largest kept (32 MB)
 # Building a chain costs about 20 µs per instruction of the step (structure, with_constants, the
 # mapaccum) and is kept for the filters of the same structure; evaluating it saves about 10 µs per
 # sample over evaluating the step sample by sample (CasadiStepper._direct), at the same speed
@@ -530,11 +535,6 @@ PIECE_BLOCKS = (32, 32)     # a chain: 32 blocks of 32 unrolled steps, called on
 # yet is evaluated sample by sample (a SKI over 26 candidates, 674 558 instructions, over 1 200
 # samples: 10 s instead of 22 s, 13 of them building the chain).
 CHAIN_BELOW = 5
-PIECE = PIECE_BLOCKS[0] * PIECE_BLOCKS[1]
-_CHAINS: dict = {}          # (kind, step structure) → chain, shared by the filters of that structure
-MAX_CHAINS = 64
-_RUNS: dict = {}            # the last chained runs: key → (records, end state), see CasadiStepper._run_key
-MAX_RUNS, MAX_RUN_BYTES = 16, 1 << 25     # runs kept, and the largest kept (32 MB)
 
 
 def _call(f, args: list, outs: list[np.ndarray]) -> None:
