@@ -230,3 +230,10 @@ def test_an_input_that_drives_two_equations_is_offered_terms_added_to_it():
             finite, analytic = (np.asarray(a).ravel() for a in f(states[k], inputs[k]))
             assert np.allclose(finite, analytic, rtol=1e-5, atol=1e-9), (c.effect, finite, analytic)
     assert channel_candidates(cart.model, ["v"], {"v": 0.3}, states[:, :2], inputs) == []
+    from skigen import Model        # ∂(rate)/∂u through an input history: not evaluable on the trajectory
+    h = Model("history", dt=0.01)
+    p, v, w, u = h.state("p", role="position"), h.state("v", role="velocity"), h.state("w", role="rate"), h.input("u")
+    (u1,) = h.input_history(u, 1)
+    h.dynamics({p: v, v: u * u1 - v, w: u - w})
+    h.output("y", p, noise_std=0.1)
+    assert channel_candidates(h, ["v", "w"], {"v": 1.0, "w": 1.0}, states[:, :3], inputs) == []

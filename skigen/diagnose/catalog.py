@@ -259,9 +259,11 @@ def channel_candidates(model: Model, equations, scale: dict[str, float], states:
     """Terms added to each input that enters two or more state equations, one of them listed: an
     offset and a gain error of the input (reported on the first rate equation it enters), and the
     damping, drag and Coulomb friction of each velocity it drives (the force on a cart meets the
-    cart's friction, and both reach the pendulum through the coupling). A friction's formula is oriented so that a positive
-    coefficient opposes the motion, from the sign of ∂(rate)/∂u along the trajectory; a velocity
-    the input pushes both ways gets none. ``states`` (N, nx), ``inputs`` (N, nu): the trajectory."""
+    cart's friction, and both reach the pendulum through the coupling). A friction's formula is
+    oriented so that a positive coefficient opposes the motion, from the sign of ∂(rate)/∂u along
+    the trajectory; a velocity the input pushes both ways gets none, and an input whose ∂(rate)/∂u
+    depends on more than the states and inputs (an input history) none at all.
+    ``states`` (N, nx), ``inputs`` (N, nu): the trajectory."""
     units = {v.name: v.unit for v in model.states}
     velocities = {v.name for v in model.states if v.role in VELOCITY_ROLES or driven(model, v.name)}
     x = ca.vertcat(*[v.sym for v in model.states])
@@ -269,7 +271,8 @@ def channel_candidates(model: Model, equations, scale: dict[str, float], states:
     out = []
     for u in model.input_names:
         gains = channel(model, u)                  # in the states' order
-        if len(gains) < 2 or not set(gains) & set(equations):
+        if len(gains) < 2 or not set(gains) & set(equations) or \
+                {s.name() for g in gains.values() for s in ca.symvar(g)} - set(T.symbols(model)):
             continue
 
         def add(effect, eq, formula, variant="", shape=(), sign=0):
