@@ -409,23 +409,19 @@ class CasadiStepper:
         N = len(inputs)
         U, Y = np.asarray(inputs, float).reshape(N, -1), np.asarray(outputs, float).reshape(N, -1)
         start = self.z, self.C, self.s, self.mem, self.C_post
-        if self._chained is None and self.filt.step.n_instructions() > CHAIN_BELOW * N:
-            raw = self._direct(U, Y) if np.all(np.isfinite(U)) else None
-            if raw is None:
-                self.z, self.C, self.s, self.mem, self.C_post = start
-                return self._fallback(U, Y)
-            return raw
-        key = self._run_key(U, Y)
+        direct = self._chained is None and self.filt.step.n_instructions() > CHAIN_BELOW * N
+        key = None if direct else self._run_key(U, Y)
         if key in _RUNS:              # this very run was done before: its records and end state
             raw, (self.z, self.C, self.s, self.mem, self.C_post) = _RUNS[key]
             return {k: v.copy() for k, v in raw.items()}
-        raws = [self._piece(U[a:a + PIECE], Y[a:a + PIECE]) for a in range(0, N, PIECE)] \
+        raws = ([self._direct(U, Y)] if direct else
+                [self._piece(U[a:a + PIECE], Y[a:a + PIECE]) for a in range(0, N, PIECE)]) \
             if np.all(np.isfinite(U)) else [None]
         if any(r is None for r in raws):
             self.z, self.C, self.s, self.mem, self.C_post = start
             return self._fallback(U, Y)
         raw = {k: np.concatenate([r[k] for r in raws]) for k in raws[0]}
-        if sum(v.nbytes for v in raw.values()) <= MAX_RUN_BYTES:
+        if key is not None and sum(v.nbytes for v in raw.values()) <= MAX_RUN_BYTES:
             if len(_RUNS) >= MAX_RUNS:
                 del _RUNS[next(iter(_RUNS))]
             _RUNS[key] = {k: v.copy() for k, v in raw.items()}, (self.z, self.C, self.s, self.mem, self.C_post)

@@ -301,16 +301,16 @@ def _unnamed(user_cands, additive, data: dict, model: Model, rec, states) -> lis
     """What became of each user (or declared) candidate that is not a finding nor listed as
     compensating or not identifiable: a restated catalog term, or not kept by the naming rounds."""
     from .name import restated
-    listed = {(f["effect"], f["equation"]) for key in ("findings", "compensating", "not_identifiable")
-              for f in data[key]}
-    unlisted = [i for i, c in enumerate(additive) if c in user_cands and (c.effect, c.equation) not in listed]
+    listed = {(f["effect"], f["equation"], f.get("through", "")) for key in ("findings", "compensating",
+                                                                            "not_identifiable") for f in data[key]}
+    unlisted = [i for i, c in enumerate(additive) if c in user_cands and c.key not in listed]
     same = restated(model, rec, states, additive) if unlisted else {}
     out = []
     for i in unlisted:
         c, twin = additive[i], additive[same[i]] if i in same else None
         whose = "" if twin is None else (f"your candidate {twin.effect}" if twin in user_cands
                                          else f"the catalog's {twin.effect}")
-        out.append(_candidate(c, f"on this recording it is {whose} on {c.equation} (`{twin.formula}`), judged "
+        out.append(_candidate(c, f"on this recording it is {whose} on {c.equation} (`{twin.text}`), judged "
                                  f"as that" if twin is not None else
                               "not named: no round adopted it (a round adopts its best proposal by "
                               "cross-validated gain, SKI's selection among all additive candidates or one "

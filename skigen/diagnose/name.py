@@ -209,17 +209,18 @@ def beyond_parameters(model: Model, rec: Recording, states: np.ndarray, cands: l
     u = ca.vertcat(*[v.sym for v in model.inputs]) if model.inputs else ca.SX(0, 1)
     p = ca.vertcat(*[q.sym for q in model.parameters])
     values = np.array([q.value for q in model.parameters])
-    fixed = T.constants(model)
-    slopes = {}                                  # equation → ∂rate/∂p along the trajectory, (parameters, N)
-    for eq in {e for c in cands for e in c.contributions(fixed)}:
-        J = ca.Function("J", [x, u, p], [ca.jacobian(model.rhs[eq], p)]).map(len(rec.t))
-        d = np.asarray(J(states[:, :len(model.states)].T, rec.inputs.T, np.tile(values, (len(rec.t), 1)).T))
-        slopes[eq] = d.reshape(len(rec.t), len(model.parameters)).T
+    fixed, N = T.constants(model), len(rec.t)
+    entered = [list(c.contributions(fixed)) for c in cands]
+    eqs = [e for e in model.state_names if any(e in es for es in entered)]
+    J = ca.Function("J", [x, u, p], [ca.vertcat(*[ca.jacobian(model.rhs[e], p) for e in eqs])]).map(N)
+    d = np.asarray(J(states[:, :len(model.states)].T, rec.inputs.T, np.tile(values, (N, 1)).T))
+    P = len(model.parameters)                            # ∂rate/∂p per sample, then equations·N as vals
+    slopes = d.reshape(len(eqs), N, P).transpose(2, 0, 1).reshape(P, -1)
+    vals = basis_values(fixed, rec, states, cands, eqs)   # (candidates, equations·N), as the slopes
     keep = []
-    for c in cands:
-        eqs = list(c.contributions(fixed))
-        phi = basis_values(fixed, rec, states, [c], eqs)[0]
-        d = np.hstack([slopes[eq] for eq in eqs])
+    for c, es, phi in zip(cands, entered, vals):
+        on = np.repeat([e in es for e in eqs], N)          # the equations it enters
+        d, phi = slopes[:, on], phi[on]
         cos = np.abs(d @ phi) / (np.linalg.norm(d, axis=1) * np.linalg.norm(phi) + 1e-300)
         if not np.any(cos > 0.999):
             keep.append(c)

@@ -71,10 +71,11 @@ def compensating(model: Model, c, coef: float, states: np.ndarray, rec: Recordin
     if c.sign > 0 and coef < 0:
         return ("fits only with a sign physics forbids (it would push the motion instead of opposing it): "
                 "compensating for something else")
-    own = 1.0 if not c.through else nominal_damping(model, c.equation, states, rec,
-                                                       c.contributions(model)[c.equation])
-    if c.effect == "viscous_damping" and coef * own + nominal_damping(model, c.equation, states, rec) < 0:
-        return "would make the total damping negative: compensating for something else"
+    if c.effect == "viscous_damping":
+        own = nominal_damping(model, c.equation, states, rec, c.contributions(model)[c.equation]) \
+            if c.through else 1.0
+        if coef * own + nominal_damping(model, c.equation, states, rec) < 0:
+            return "would make the total damping negative: compensating for something else"
     return None
 
 
