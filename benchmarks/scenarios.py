@@ -206,6 +206,20 @@ def _pitch(name, effect, concealment, seconds, seed, *, model_file=PITCH_FILE, l
                     run.t, run.inputs(), run.outputs(), run.effect_acc, _strong(run.effect_acc), run)
 
 
+def _sensor(name, clean: Scenario, output: str, concealment: str, *, offset: float = 0.0,
+            gain: float = 1.0) -> Scenario:
+    """``clean`` with the sensor of ``output`` reading gain·(its column) + offset: a miscalibrated
+    sensor outside the loop (the truth's states and inputs unchanged; the noise scaled with the gain)."""
+    y = clean.outputs[output]
+    read = gain * y + offset
+    effect, truth = ("sensor_offset", offset) if offset else ("sensor_gain", gain)
+    active = np.ones(len(y), bool) if offset else _strong(read - y)
+    equation = {"alpha_vane": "alpha", "q_gyro": "q", "theta_meas": "theta", "h1_meas": "h1",
+                "h2_meas": "h2"}[output]
+    return Scenario(name, clean.system, clean.model_file, effect, equation, truth, concealment, clean.t,
+                    clean.inputs, {**clean.outputs, output: read}, np.zeros(len(y)), active, clean.run)
+
+
 def _arm_noise_only(name, seconds, seed) -> Scenario:
     """The arm's voltage, and an encoder column of white noise (0.3 rad, the size of a swing)
     unrelated to it: nothing the model can explain."""
@@ -246,6 +260,14 @@ UNSEEN = {
         s, seed, model_file="benchmarks.scenarios:ARM_MEASUREMENT_HALF", noise=ARM_NOISE,
         misdeclared="measurement_std"),
     "arm_noise_only": lambda s, seed: _arm_noise_only("arm_noise_only", s, seed),
+    "arm_encoder_offset": lambda s, seed: _sensor(
+        "arm_encoder_offset", _arm("arm_encoder_offset", None, _arm_multisine(1.2), "", s, seed), "theta_meas",
+        "the encoder was zeroed 0.05 rad (2.9°) away from the hanging position; a constant torque "
+        "on ω would also shift the resting angle", offset=0.05),
+    "tanks_level_offset": lambda s, seed: _sensor(
+        "tanks_level_offset", _tanks("tanks_level_offset", None, "", s, seed), "h1_meas",
+        "the upper level sensor reads 0.03 m high; a bias on h1's rate or a weaker outflow would "
+        "also raise the upper level", offset=0.03),
     "tanks_overflow": lambda s, seed: _tanks(
         "tanks_overflow", "physical_limit",
         "the upper level rests on the rim only during two pump bursts (a few % of the samples); "
@@ -297,6 +319,18 @@ UNSEEN = {
         "declares Mα, Mq, Mδ 30 % off, and the calibration bends Mα to absorb the break", s, seed,
         model_file="benchmarks.scenarios:PITCH_GREY"),
     "pitch_clean": lambda s, seed: _pitch("pitch_clean", None, "the nominal model is right", s, seed),
+    "pitch_vane_offset": lambda s, seed: _sensor(
+        "pitch_vane_offset", _pitch("pitch_vane_offset", None, "", s, seed), "alpha_vane",
+        "the α vane is misaligned by +0.02 rad (1.1°): its reading sits above the model's α, "
+        "as a pitch-moment offset on q would also make it", offset=0.02),
+    "pitch_gyro_bias": lambda s, seed: _sensor(
+        "pitch_gyro_bias", _pitch("pitch_gyro_bias", None, "", s, seed), "q_gyro",
+        "the pitch gyro reads 0.01 rad/s (0.6 °/s) high, 10× below its noise per sample; "
+        "a pitch-moment offset would move α instead", offset=0.01),
+    "pitch_vane_gain": lambda s, seed: _sensor(
+        "pitch_vane_gain", _pitch("pitch_vane_gain", None, "", s, seed), "alpha_vane",
+        "the α vane reads 15 % high (a local-flow upwash factor left out); a larger Mα would "
+        "also change how q follows α", gain=1.15),
 }
 
 

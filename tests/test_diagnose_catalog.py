@@ -146,6 +146,31 @@ def test_sensor_saturation_clips_only_the_output():
         output_saturation(_echo(), "z", 1.0, "upper")
 
 
+def test_sensor_offset_and_gain_change_only_the_output():
+    from skigen.diagnose.transform import output_gain, output_offset
+    u = np.random.default_rng(4).normal(size=30)
+    plain, _ = free_run(_echo(), u)
+    for m, read in ((output_offset(_echo(), "y", -0.3), lambda x: x - 0.3),
+                    (output_gain(_echo(), "y", 1.2), lambda x: 1.2 * x)):
+        states, y = free_run(m, u)
+        assert np.array_equal(states, plain) and np.allclose(y[:, 0], read(states[:, 0]))
+    with pytest.raises(ValueError, match="output 'y': a sensor gain is positive"):
+        output_gain(_echo(), "y", 0.0)
+
+
+def test_sensor_candidates_scale_with_the_recorded_output():
+    """The offset is searched on both sides of zero (never at it) in proportion to the output's
+    RMS, so a level sensor in metres and a vane in radians get grids of their own size."""
+    from skigen.diagnose.catalog import SENSOR_OFFSETS, output_candidates
+    y = 0.25 + 0.01 * np.random.default_rng(5).normal(size=400)
+    cands = {c.effect: c for c in output_candidates(_echo(), ["y"], y[:, None])}
+    grid = np.array(cands["sensor_offset"].grid)
+    rms = np.sqrt(np.mean(y ** 2))
+    assert 0 not in grid and np.allclose(grid[grid > 0], np.array(SENSOR_OFFSETS) * rms, rtol=2e-3)  # 3 digits
+    assert np.allclose(-grid[grid < 0][::-1], grid[grid > 0])
+    assert cands["sensor_gain"].log and min(cands["sensor_gain"].grid) < 1 < max(cands["sensor_gain"].grid)
+
+
 def test_a_width_whose_profile_has_no_maximum_is_not_identifiable():
     """A structural change's continuous parameter without a likelihood maximum in the searched
     range (no std) is not identifiable; a delay of whole samples is a choice and needs no std."""

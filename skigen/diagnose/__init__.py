@@ -474,7 +474,7 @@ def _findings(nominal: Model, corr: Correction, ev: dict, shapes: dict, worth: d
         f = {"effect": s.effect, "equation": "+".join(_acted_on(nominal, s)), "expression": s.describe(value),
              "coefficient": value, "std": std, "evidence": ev[s], "free_run_without": worth[s], "kind": "structural",
              "parameter": s.parameter, "unit": s.unit, "reading": s.reading}
-        f.update({"output": s.output, "shape": {"bound": value, "side": s.side, "output": s.output}}
+        f.update({"output": s.output, "shape": {s.parameter: value, "side": s.side, "output": s.output}}
                  if s.output else {"input": s.input})
         if s.side:
             f["side"] = s.side

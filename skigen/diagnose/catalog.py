@@ -9,8 +9,8 @@ are also offered *through* it: added to the input, they enter every equation
 the input enters, φ·∂(rate)/∂u, as a force does.
 Structural effects transform the model: the plant sees a delayed (by whole
 samples or a fraction of one), lagged, saturated, dead-zoned or backlashed
-version of an input, or a sensor reads a clipped output; each has one
-parameter searched over a grid.
+version of an input, or a sensor reads its output offset, scaled or clipped;
+each has one parameter searched over a grid.
 """
 from __future__ import annotations
 
@@ -51,6 +51,9 @@ READINGS = {
                         "samples and a fraction of one)",
     "backlash": "play between command and plant (gear backlash, hysteresis): after a reversal the command "
                 "must cross the play before the plant sees it move",
+    "sensor_offset": "a sensor that reads the quantity plus a constant (a misaligned vane, an encoder zeroed "
+                     "away from its reference, a gyro's bias)",
+    "sensor_gain": "a sensor that reads the quantity times a constant (a scale-factor or calibration error)",
     "sensor_saturation": "a sensor whose range ends at a bound: it reads the bound while the quantity "
                          "itself goes on",
 }
@@ -197,6 +200,8 @@ def _num(x: float) -> str:
 COULOMB_WIDTHS = (0.005, 0.02, 0.08)         # × the RMS rate: the smoothing of sign(v)
 LIMIT_QUANTILES = (0.8, 0.9, 0.95, 0.99)    # where a bound may sit, on the state's own distribution
 SENSOR_QUANTILES = (0.7, 0.8, 0.9, 0.95, 0.99, 1.0)   # where a sensor's range may end (1: never reached)
+SENSOR_OFFSETS = (0.003, 0.01, 0.03, 0.1, 0.3, 1.0)    # × the recorded output's RMS, both signs
+SENSOR_GAINS = (0.8, 0.9, 0.95, 0.98, 1.02, 1.05, 1.1, 1.25)
 # fractional delays (samples): quarter samples up to 4, then half samples like the integer delay's grid
 FRACTIONAL_DELAYS = tuple(n + a for n in range(4) for a in (0.25, 0.5, 0.75)) + (5.5, 7.5, 10.5, 14.5)
 
@@ -420,8 +425,10 @@ def _describe_fraction(u: str, samples: float, dt: float) -> str:
 
 
 def output_candidates(model: Model, outputs, recorded: np.ndarray) -> list[Structural]:
-    """A sensor saturation, upper and lower, of each listed output: the bound searched over the
-    recorded output's quantiles (SENSOR_QUANTILES, its extremes included). ``recorded``: (N, ny)."""
+    """Per listed output, what its sensor may do: read an offset (searched over ± SENSOR_OFFSETS ×
+    the recorded output's RMS), a gain (SENSOR_GAINS, on a log scale), or saturate, upper and lower
+    (the bound over the recorded output's quantiles SENSOR_QUANTILES, its extremes included).
+    ``recorded``: (N, ny)."""
     out = []
     for y in outputs:
         j = model.output_names.index(y)
@@ -429,6 +436,17 @@ def output_candidates(model: Model, outputs, recorded: np.ndarray) -> list[Struc
         if len(x) < 2:                   # never measured: no range to search
             continue
         unit = model.outputs[j].unit
+        size = float(np.sqrt(np.mean(x ** 2)))
+        if size > 0:
+            offsets = tuple(sorted(float(_num(sign * k * size)) for k in SENSOR_OFFSETS for sign in (-1, 1)))
+            out.append(Structural(
+                "sensor_offset", "", "offset", unit, offsets, False, False,
+                lambda m, b, y=y: T.output_offset(m, y, b), lambda b, y=y: f"{y} {'-' if b < 0 else '+'} {_num(abs(b))}",
+                READINGS["sensor_offset"], output=y))
+        out.append(Structural(
+            "sensor_gain", "", "gain", "", SENSOR_GAINS, False, True,
+            lambda m, g, y=y: T.output_gain(m, y, g), lambda g, y=y: f"{_num(g)}·{y}",
+            READINGS["sensor_gain"], output=y))
         for side, qs in (("upper", SENSOR_QUANTILES), ("lower", [1 - a for a in SENSOR_QUANTILES])):
             grid = tuple(sorted({float(_num(v)) for v in np.quantile(x, qs)}))
             out.append(Structural(

@@ -19,7 +19,7 @@ from ..model import Model, Variable
 
 __all__ = ["copy_model", "constants", "symbols", "formula", "rate", "add_term", "add_state", "replace_input",
            "input_delay", "fractional_delay", "actuator_lag", "input_saturation", "dead_zone", "smooth_dead_zone",
-           "backlash", "output_saturation",
+           "backlash", "output_offset", "output_gain", "output_saturation",
            "with_disturbance", "memory_values", "load_model_file"]
 
 
@@ -223,17 +223,35 @@ def backlash(model: Model, u: str, width: float, initial: float = 0.0) -> Model:
     return m
 
 
+def output_offset(model: Model, y: str, offset: float) -> Model:
+    """The sensor of output ``y`` reads its expression plus ``offset`` (output unit): a misaligned
+    vane, an encoder zeroed away from its reference, a gyro's bias."""
+    return _read(model, y, lambda h: h + _number(offset))
+
+
+def output_gain(model: Model, y: str, gain: float) -> Model:
+    """The sensor of output ``y`` reads ``gain`` (> 0) times its expression: a scale-factor error."""
+    if not isinstance(gain, ca.SX) and not float(gain) > 0:
+        raise ValueError(f"output '{y}': a sensor gain is positive, got {gain}")
+    return _read(model, y, lambda h: _number(gain) * h)
+
+
 def output_saturation(model: Model, y: str, bound: float, side: str) -> Model:
     """The sensor of output ``y`` reads no more than ``bound`` (side "upper") or no less ("lower"),
     in the output's unit: its expression clipped, the quantity itself unbounded."""
     if side not in ("upper", "lower"):
         raise ValueError(f"output '{y}': a saturation side is 'upper' or 'lower', got {side!r}")
+    clip = ca.fmin if side == "upper" else ca.fmax
+    return _read(model, y, lambda h: clip(h, _number(bound)))
+
+
+def _read(model: Model, y: str, reading) -> Model:
+    """A copy whose output ``y`` reads ``reading(h)`` instead of its expression h."""
     m = copy_model(model)
     i = next((j for j, v in enumerate(m.outputs) if v.name == y), None)
     if i is None:
         raise ValueError(f"model '{model.name}' has no output '{y}' (outputs: {', '.join(m.output_names)})")
-    clip = ca.fmin if side == "upper" else ca.fmax
-    m.outputs[i] = dataclasses.replace(m.outputs[i], sym=clip(ca.SX(m.outputs[i].sym), _number(bound)))
+    m.outputs[i] = dataclasses.replace(m.outputs[i], sym=ca.SX(reading(ca.SX(m.outputs[i].sym))))
     return m
 
 
