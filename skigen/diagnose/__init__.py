@@ -227,10 +227,13 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     meta["proposals"] = [f"round {i + 1}: best proposal {p.label} ({p.kind}), cross-validated log-likelihood "
                          f"gain {p.gain:+.1f}" + "".join(f"; {where(a)} set aside as compensating"
                                                           for a in p.set_aside)
-                          + (f"; {p.note}" if p.note else "") for i, p in enumerate(history)]
+                          + (f"; {p.note}" if p.note else "")
+                          + "".join(f"; as good: {_said(a)}, {a['cv_loglik_behind']:.1f} behind" for a in p.as_good)
+                          for i, p in enumerate(history)]
     stage("weighing the findings (drop-one free runs)")
     free_all, worth = simulation_worth(calibrated, corr, rec, window)
     data["findings"] = _findings(nominal, corr, ev, shapes, worth)
+    _as_good(data["findings"], history)
     data["free_run_with_all_findings"] = free_all
     _flag_one_step_only(data["findings"], free_all)
     set_aside = [item for p in history for item in p.set_aside]
@@ -474,12 +477,36 @@ def _findings(nominal: Model, corr: Correction, ev: dict, shapes: dict, worth: d
         f = {"effect": s.effect, "equation": "+".join(_acted_on(nominal, s)), "expression": s.describe(value),
              "coefficient": value, "std": std, "evidence": ev[s], "free_run_without": worth[s], "kind": "structural",
              "parameter": s.parameter, "unit": s.unit, "reading": s.reading}
-        f.update({"output": s.output, "shape": {s.parameter: value, "side": s.side, "output": s.output}}
+        f.update({"output": s.output, "shape": {s.parameter: value, **({"side": s.side} if s.side else {}),
+                                                "output": s.output}}
                  if s.output else {"input": s.input})
         if s.side:
             f["side"] = s.side
         out.append(f)
     return sorted(out, key=lambda f: (-f["free_run_without"], -f["evidence"]))
+
+
+def _signal(item: dict) -> tuple:
+    """What a finding or a proposal's item acts on: its output or input, else its equation."""
+    return item["effect"], item.get("output") or item.get("input") or item["equation"], item.get("through", "")
+
+
+def _said(item: dict) -> str:
+    on = "on" if "equation" in item else "of"
+    return f"{item['effect']} {on} {_signal(item)[1]}" + (f" through {item['through']}" if item.get("through") else "") \
+        + f" (`{item['expression']}`)"
+
+
+def _as_good(findings: list[dict], history) -> None:
+    """Each finding that a naming round adopted over a finalist explaining the recording as well
+    (cross-validated log-likelihood within what a finding must add) lists it under ``as_good``: the
+    recording cannot tell them apart (a constant force on a linear spring and an offset of its
+    position sensor)."""
+    for p in history:
+        adopted = {_signal(a) for a in p.adopted}
+        for f in findings:
+            if p.as_good and _signal(f) in adopted:
+                f["as_good"] = p.as_good
 
 
 def _acted_on(nominal: Model, s) -> list[str]:

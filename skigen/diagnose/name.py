@@ -123,6 +123,8 @@ class Proposal:
     folds: np.ndarray | None = None     # per-fold cross-validated log-likelihood
     set_aside: list = field(default_factory=list)   # its terms not adopted as compensating (report items)
     note: str = ""
+    adopted: list = field(default_factory=list)     # what it added, when adopted (report items)
+    as_good: list = field(default_factory=list)     # another finalist the recording cannot tell from it
 
 
 def basis_values(model: Model, rec: Recording, states: np.ndarray, cands: list[Additive],
@@ -550,6 +552,11 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
             continue
         new, recal, score, chosen = max(adopted, key=lambda a: np.sum(a[2]))
         history[-1] = chosen
+        chosen.adopted = added(corr, new)
+        for other, _, other_score, p in adopted:      # a finalist within what a finding must add: a tie
+            behind = float(np.sum(score) - np.sum(other_score))
+            if p is not chosen and behind < evidence_threshold(alpha):
+                chosen.as_good += [item | {"cv_loglik_behind": behind} for item in added(corr, other)]
         if len(history) > 1:               # a further change: weighed as evidence.weigh would weigh it
             ev, total = _share(recal, corr, new, score, rec, folds, rms, size)
             if ev < max(evidence_threshold(alpha), MIN_SHARE * total):
@@ -560,6 +567,16 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
         if chosen.kind == "structural" and _label(corr.structural[-1][0]) != chosen.label:
             chosen.label += f", adopted as {_label(corr.structural[-1][0])}"   # a fractional delay, whole
     return corr, history, rms, size, nominal
+
+
+def added(before: Correction, after: Correction) -> list[dict]:
+    """What ``after`` adds to ``before``, as report items (effect, equation or signal, expression,
+    coefficient)."""
+    terms = [{k: v for k, v in term_item(c, coef, std, "").items() if k != "note"}
+             for c, coef, std in after.found[len(before.found):]]
+    return terms + [{"effect": s.effect, **({"output": s.output} if s.output else {"input": s.input}),
+                     "expression": s.describe(value), "coefficient": value, "std": std}
+                    for s, value, std in after.structural[len(before.structural):]]
 
 
 def evidence_threshold(alpha: float) -> float:

@@ -175,6 +175,11 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
             L.append("")
             for f in data["findings"]:
                 L.append(f"- **{f['effect']}**: {f['reading']}." + (f" *Note: {f['note']}.*" if f.get("note") else ""))
+                for a in f.get("as_good", []):
+                    L.append(f"  **Not told apart** from {a['effect']} on `{a.get('output') or a.get('input') or a['equation']}` "
+                             f"(`{a['expression']}`, {_pm(a['coefficient'], a['std'])}): it explains the recording "
+                             f"as well (cross-validated log-likelihood {a['cv_loglik_behind']:.1f} behind, less than "
+                             f"a finding must add); another recording, or a measurement of one of them, decides.")
             L.append("")
         else:
             L += ["No catalog or user candidate explains the mismatch significantly.", ""]
