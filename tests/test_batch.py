@@ -193,15 +193,15 @@ def test_cli_batch_on_its_own_two_workers(fleet, tmp_path):
 def test_diagnose_each_log_lists_its_findings(client, tmp_path):
     from benchmarks.scenarios import make
     (tmp_path / "logs").mkdir()
-    for name, seconds in (("cart_clean", 10.0), ("cart_bias", 20.0)):
+    for name, seconds in (("cart_clean", 10.0), ("cart_coulomb", 20.0)):
         sc = make(name, seconds, 1)
         sc.write_csv(tmp_path / "logs" / f"{name}.csv")
     res = batch(sc.model_file, str(tmp_path / "logs" / "*.csv"), tmp_path / "out", mode="diagnose", client=client,
                 show_progress=False, figures=False)
     rows = _summary(tmp_path / "out")
     assert rows["cart_clean"]["mismatch"] == "False" and rows["cart_clean"]["findings"] == ""
-    assert rows["cart_bias"]["mismatch"] == "True" and rows["cart_bias"]["findings"].startswith("bias on v (")
-    assert float(rows["cart_bias"]["bias@v"]) > 5 * float(rows["cart_bias"]["std_bias@v"])
-    report = json.loads((tmp_path / "out" / "cart_bias" / "report.json").read_text())
-    assert report["corrected_model"] == str(tmp_path / "out" / "cart_bias" / "corrected_model.py")
+    assert rows["cart_coulomb"]["mismatch"] == "True" and rows["cart_coulomb"]["findings"].startswith("coulomb_friction on v (")
+    assert float(rows["cart_coulomb"]["coulomb_friction@v"]) > 5 * float(rows["cart_coulomb"]["std_coulomb_friction@v"])
+    report = json.loads((tmp_path / "out" / "cart_coulomb" / "report.json").read_text())
+    assert report["corrected_model"] == str(tmp_path / "out" / "cart_coulomb" / "corrected_model.py")
     assert Path(report["corrected_model"]).exists() and res.counts["ok"] == 2
