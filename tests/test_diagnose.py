@@ -96,6 +96,7 @@ def test_a_force_bias_on_a_spring_is_not_told_from_an_encoder_offset(diagnosed):
     assert pair["bias"]["coefficient"] == pytest.approx(sc.truth, rel=CONCEALED["cart_bias"])
     assert pair["sensor_offset"]["coefficient"] == pytest.approx(sc.truth * cart.M / cart.K, rel=CONCEALED["cart_bias"])
     assert 0 <= top["as_good"][0]["cv_loglik_behind"] < 0.5 * stats.chi2.isf(0.01, 1)
+    assert "**Not told apart** from" in (r["out"] / "report.md").read_text()
 
 
 def test_a_user_candidate_in_any_units_is_named_the_same(diagnosed, tmp_path):

@@ -228,7 +228,8 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
                          f"gain {p.gain:+.1f}" + "".join(f"; {where(a)} set aside as compensating"
                                                           for a in p.set_aside)
                           + (f"; {p.note}" if p.note else "")
-                          + "".join(f"; as good: {_said(a)}, {a['cv_loglik_behind']:.1f} behind" for a in p.as_good)
+                          + "".join(f"; as good: {where(a)} (`{a['expression']}`), {a['cv_loglik_behind']:.1f} behind"
+                                  for a in p.as_good)
                           for i, p in enumerate(history)]
     stage("weighing the findings (drop-one free runs)")
     free_all, worth = simulation_worth(calibrated, corr, rec, window)
@@ -489,12 +490,6 @@ def _findings(nominal: Model, corr: Correction, ev: dict, shapes: dict, worth: d
 def _signal(item: dict) -> tuple:
     """What a finding or a proposal's item acts on: its output or input, else its equation."""
     return item["effect"], item.get("output") or item.get("input") or item["equation"], item.get("through", "")
-
-
-def _said(item: dict) -> str:
-    on = "on" if "equation" in item else "of"
-    return f"{item['effect']} {on} {_signal(item)[1]}" + (f" through {item['through']}" if item.get("through") else "") \
-        + f" (`{item['expression']}`)"
 
 
 def _as_good(findings: list[dict], history) -> None:

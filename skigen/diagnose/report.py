@@ -30,8 +30,10 @@ def write_json(path, data: dict) -> Path:
 
 
 def where(f: dict) -> str:
-    """'effect on equation', and the input it acts through (report.json's finding or term item)."""
-    return f"{f['effect']} on {f['equation']}" + (f" through {f['through']}" if f.get("through") else "")
+    """'effect on equation' (or on the output or input a structural item acts on), and the input it
+    acts through (report.json's finding or term item)."""
+    on = f.get("equation") or f.get("output") or f.get("input")
+    return f"{f['effect']} on {on}" + (f" through {f['through']}" if f.get("through") else "")
 
 
 def finding_line(f: dict) -> str:
@@ -39,7 +41,9 @@ def finding_line(f: dict) -> str:
     free = f.get("free_run_without")
     return (f"{where(f)}: {f['expression']}, coefficient {f['coefficient']:.6g} ± "
             f"{_fmt(f['std'], '.2g')}, cross-validated evidence {f['evidence']:+.1f}, free run without it "
-            f"{'diverges' if free is None or not math.isfinite(free) else format(free, '.3g')}")
+            f"{'diverges' if free is None or not math.isfinite(free) else format(free, '.3g')}"
+            + "".join(f"; not told apart from {where(a)} ({a['expression']}, {a['coefficient']:.6g}): it explains "
+                      f"the recording as well" for a in f.get("as_good", [])))
 
 
 def _fmt(x, spec=".4g"):
@@ -176,8 +180,8 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
             for f in data["findings"]:
                 L.append(f"- **{f['effect']}**: {f['reading']}." + (f" *Note: {f['note']}.*" if f.get("note") else ""))
                 for a in f.get("as_good", []):
-                    L.append(f"  **Not told apart** from {a['effect']} on `{a.get('output') or a.get('input') or a['equation']}` "
-                             f"(`{a['expression']}`, {_pm(a['coefficient'], a['std'])}): it explains the recording "
+                    L.append(f"  **Not told apart** from {where(a)} (`{a['expression']}`, "
+                             f"{_pm(a['coefficient'], a['std'])}): it explains the recording "
                              f"as well (cross-validated log-likelihood {a['cv_loglik_behind']:.1f} behind, less than "
                              f"a finding must add); another recording, or a measurement of one of them, decides.")
             L.append("")
@@ -215,9 +219,9 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
         if not rem.get("mismatch"):
             L.append("The corrected model, refitted with calibrated noise, is consistent with the recording.")
         else:
-            where = rem.get("where") or {}
-            L.append("**A mismatch remains** " + (f"in `{'`, `'.join(where.get('equations', []))}`" if where else "")
-                     + (f", {where['regime']}" if where.get("regime") else "") + ".")
+            at = rem.get("where") or {}
+            L.append("**A mismatch remains** " + (f"in `{'`, `'.join(at.get('equations', []))}`" if at else "")
+                     + (f", {at['regime']}" if at.get("regime") else "") + ".")
             if rem.get("explained_by"):
                 L.append(f"What is left follows `{rem['explained_by']}` best (weighted R² {rem['r2']:.2f} for "
                          f"`{rem['shape']}`); to test it: `--candidate '{rem['suggested_candidate']}'`.")
