@@ -84,10 +84,12 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import casadi as ca
 import numpy as np
 
 from models import cart, motor_pendulum as arm, short_period as pitch, two_tanks as tanks
 from skigen.diagnose import diagnose
+from skigen.modelfile import load_model
 from skigen.recording import Recording, write_recording
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -226,8 +228,9 @@ def _sensor(name, clean: str, output: str, concealment: str, seconds, seed, *, o
     read = gain * y + offset
     effect, truth = ("sensor_offset", offset) if offset else ("sensor_gain", gain)
     active = np.ones(len(y), bool) if offset else _strong(np.nan_to_num(read - y))
-    equation = {"alpha_vane": "alpha", "q_gyro": "q", "theta_meas": "theta", "h1_meas": "h1",
-                "h2_meas": "h2"}[output]
+    model = load_model(clean.model_file)
+    reads = next(v.sym for v in model.outputs if v.name == output)
+    equation = "+".join(v.name for v in model.states if ca.depends_on(reads, v.sym))   # as the report says it
     return Scenario(name, clean.system, clean.model_file, effect, equation, truth, concealment, clean.t,
                     clean.inputs, {**clean.outputs, output: read}, np.zeros(len(y)), active, clean.run)
 
