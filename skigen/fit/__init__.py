@@ -43,7 +43,7 @@ _IPOPT_WORDS = {
     "Invalid_Number_Detected": "met a non-finite value (the simulation diverges for some trial "
                                "parameters: add bounds, or use shorter shooting intervals)",
     "Solved_To_Negligible_Step": "converged: Fisher scoring puts the optimum within 0.02 standard errors "
-                                 "of every estimate",
+                                 "of every estimate, or its last steps moved none by more",
     "Diverging_Iterates": "diverged (a parameter grew without bound: is it identifiable? add bounds)",
 }
 
@@ -151,9 +151,10 @@ class _Progress(ca.Callback):
         self.construct("fit_progress", {})
 
     def start(self, label: str | None, negligible=None):
-        """negligible(ξ) → True where the remaining gain is negligible: IPOPT then stops."""
+        """negligible(ξ, recent iterates) → True where the remaining gain is negligible: IPOPT then stops."""
         self.label, self.iteration, self.t0 = label, 0, time.perf_counter()
         self.negligible, self.history, self.next_check, self.stopped = negligible, [], 0, False
+        self.iterates = []
 
     def get_n_in(self):
         return ca.nlpsol_n_out()
@@ -184,10 +185,11 @@ class _Progress(ca.Callback):
                  f"({time.perf_counter() - self.t0:.1f} s)")
         self.iteration += 1
         self.history.append(f)
+        self.iterates = self.iterates[-STALL:] + [np.asarray(arg[0]).ravel()]
         if (self.negligible and len(self.history) > STALL and self.iteration >= self.next_check
                 and self.history[-STALL - 1] - f < STALL_GAIN):
             self.next_check = self.iteration + STALL
-            if self.negligible(np.asarray(arg[0]).ravel()):
+            if self.negligible(self.iterates[-1], self.iterates):
                 self.stopped = True
                 return [1]
         return [0]
@@ -298,10 +300,16 @@ NEGLIGIBLE_MOVE = 0.02         # standard errors: what a step to the optimum mus
 NEGLIGIBLE_STATUS = "Solved_To_Negligible_Step"
 
 
-def _negligible_gain(prob: Problem, inputs: dict, xi: np.ndarray) -> bool:
-    """Whether Fisher scoring puts the optimum within the bounds less than NEGLIGIBLE_MOVE of a
-    standard error from ``xi`` in every estimate (the bounded quadratic model's step against the
-    inverse Fisher information, the fit's own error bars).
+def _negligible_gain(prob: Problem, inputs: dict, xi: np.ndarray, recent=()) -> bool:
+    """Whether the fit has nothing left worth a step, in one of two ways, measured against the
+    inverse Fisher information (the fit's own error bars) in every estimate:
+
+    - Fisher scoring puts the optimum within the bounds less than NEGLIGIBLE_MOVE of a standard
+      error from ``xi`` (the bounded quadratic model's step);
+    - or the line search cannot follow that model: the ``recent`` iterates (the last STALL + 1,
+      which gained less than STALL_GAIN together) each moved every estimate by less than
+      NEGLIGIBLE_MOVE of a standard error. IPOPT then halves its step dozens of times per
+      iteration (a likelihood with kinks, or rounding in a sum of 10⁴ terms) for no gain.
 
     The noise scales enter as variances s = e^λ, not as their logs: the likelihood is smooth in s
     down to s = 0 (a Q scale's information is constant there and vanishes in λ), so the quadratic
@@ -322,10 +330,13 @@ def _negligible_gain(prob: Problem, inputs: dict, xi: np.ndarray) -> bool:
     g, H = g * dxi_ds, H * np.outer(dxi_ds, dxi_ds)
     d = np.sqrt(np.where(np.diag(H) > 0, np.diag(H), 1.0))
     g, H, lo, hi = g / d, H / np.outer(d, d), lo * d, hi * d
+    std = np.sqrt(np.clip(np.diag(np.linalg.pinv(H, hermitian=True)), 0, None))
+    moved = [np.abs(b - a) / dxi_ds * d for a, b in zip(recent[:-1], recent[1:])]
+    if len(moved) >= STALL and all(np.all(m <= NEGLIGIBLE_MOVE * std) for m in moved):
+        return True
     quadratic = lambda z: (g @ z + 0.5 * z @ H @ z, g + H @ z)
     step = minimize(quadratic, np.zeros(len(g)), jac=True, method="L-BFGS-B",
                     bounds=[(a if np.isfinite(a) else None, b if np.isfinite(b) else None) for a, b in zip(lo, hi)]).x
-    std = np.sqrt(np.clip(np.diag(np.linalg.pinv(H, hermitian=True)), 0, None))
     moves = np.abs(step) > NEGLIGIBLE_MOVE * std
     return not moves.any()
 
@@ -364,7 +375,7 @@ def _scales(prob: Problem, theta0: np.ndarray, data: np.ndarray) -> np.ndarray:
 
 def _noise_start(prob: Problem, inputs: dict) -> np.ndarray:
     """IPOPT's start with the log scales of R, then of Q, then of R again each shifted together to
-    the likelihood's best at the starting parameters (a bounded 1-D search to half an e-fold).
+    the likelihood's best at the starting parameters (:func:`_best_shift`).
 
     Fisher scoring in a log-variance λ steps by r − 1 where r = ē²/S is the innovations' excess:
     from a start whose innovations are 20× their predicted variance, λ overshoots by ~20 e-folds
@@ -375,17 +386,33 @@ def _noise_start(prob: Problem, inputs: dict) -> np.ndarray:
     def nll(rows, shift):
         y = x.copy()
         y[rows] = np.clip(x[rows] + shift, lo[rows], hi[rows])
-        v = float(np.sum(np.asarray(prob.residuals(y, inputs["p"])[1])))
+        v = float(prob.objective(y, inputs["p"]))
         return v if np.isfinite(v) else np.inf
 
     groups = [[i for i, n in enumerate(V.names) if V.kinds[i] == "noise" and n.startswith(g)]
               for g in ("R_scale_", "Q_scale_", "R_scale_")]
+    at_x = None
     for rows in filter(None, groups):
-        best = minimize_scalar(functools.partial(nll, rows), bounds=(-LOG_SCALE_BOUND, LOG_SCALE_BOUND),
-                               method="bounded", options=dict(xatol=0.5))
-        if best.fun < nll(rows, 0.0):
-            x[rows] = np.clip(x[rows] + best.x, lo[rows], hi[rows])
+        shift, at_x = _best_shift(functools.partial(nll, rows), LOG_SCALE_BOUND, at_x)
+        x[rows] = np.clip(x[rows] + shift, lo[rows], hi[rows])
     return x
+
+
+def _best_shift(f, bound: float, f0: float | None = None, xatol: float = 0.5) -> tuple[float, float]:
+    """(s, f(s)) near the minimum of ``f`` over [−bound, bound]: from 0 (where f is ``f0`` if
+    known), steps of 1, 2, 4, … e-folds downhill until f rises, then Brent's bounded search in
+    that bracket to ``xatol``. A start better than 0 is never given up for a worse one."""
+    seen = {0.0: f(0.0) if f0 is None else f0}
+    at = lambda s: seen[s] if s in seen else seen.setdefault(s, f(s))
+    step = 1.0 if at(1.0) < seen[0.0] else -1.0
+    a, b, c = -step, 0.0, step
+    while at(c) < at(b) and abs(c) < bound:      # b is the best so far: march on until f rises
+        a, b, c = b, c, float(np.clip(2 * c, -bound, bound))
+    if at(b) <= min(at(a), at(c)):
+        minimize_scalar(lambda s: at(float(s)), bounds=(min(a, c), max(a, c)), method="bounded",
+                        options=dict(xatol=xatol))
+    s = min(seen, key=seen.get)
+    return s, seen[s]
 
 
 def _dense(M) -> np.ndarray:

@@ -88,6 +88,7 @@ class Problem:
     shooting: int                  # samples per shooting interval (output error)
     progress: object = None        # the solver's iteration callback
     decrement: ca.Function = None  # (ξ, data) → gradient of −log L, its Fisher information
+    objective: ca.Function = None  # (ξ, data) → −log L (with the priors): the NLP's f alone
 
 
 def _scale_of(value: float, std: float | None) -> float:
@@ -258,7 +259,8 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
                    ca.Function("residuals", [xi, p], [rho, nll]),
                    ca.Function("fisher", [xi, p], [J, prior_prec]),
                    ca.Function("predict", [xi, p], [ca.horzcat(*yhat_all)]),
-                   filtered, list(lengths), shooting or max(lengths), decrement=decrement)
+                   filtered, list(lengths), shooting or max(lengths), decrement=decrement,
+                   objective=ca.Function("objective", [xi, p], [f]))
 
 
 NOISE_DAMPING = 0.5     # curvature added to each log noise scale: one sample's Fisher information about
