@@ -244,9 +244,8 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
         weighted = _weighted_by_free_run(model, rho0)      # a free run strays far beyond the sensor noise
         prob, solver, jac_g = _problem(weighted, lengths, method, estimate, shooting, max_iter, tol)
         V = prob.variables
-    scale = _scales(prob, theta0, data)
+    scale, J0, prior = _scales(prob, theta0, data)
     p = np.r_[scale, data]
-    J0, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(theta0 / scale, p))
     lost = unidentified(J0, prior.ravel(), V.names, _dense(jac_g(theta0 / scale, p)))
     if lost:
         raise FitError(f"the recordings cannot identify every quantity of '{model.name}': " + "; ".join(lost)
@@ -357,9 +356,10 @@ def _weighted_by_free_run(model: Model, rho0: np.ndarray) -> Model:
     return weighted
 
 
-def _scales(prob: Problem, theta0: np.ndarray, data: np.ndarray) -> np.ndarray:
+def _scales(prob: Problem, theta0: np.ndarray, data: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """IPOPT's unit of each unknown: its magnitude, or where it starts at 0, one standard
-    error as the Fisher information at the start sees it."""
+    error as the Fisher information at the start sees it; and that information in those units
+    (J_ρ and the prior precision at θ0: ∂ρ/∂ξ scales with the unit, the precision with its square)."""
     V = prob.variables
     nominal = np.array(V.scale)
     J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(theta0 / nominal, np.r_[nominal, data]))
@@ -368,9 +368,8 @@ def _scales(prob: Problem, theta0: np.ndarray, data: np.ndarray) -> np.ndarray:
     for i, kind in enumerate(V.kinds):
         if kind in ("parameter", "weight") and theta0[i] == 0 and info[i] > 0:
             scale[i] = nominal[i] / np.sqrt(info[i])
-    return scale
-
-
+    ratio = scale / nominal
+    return scale, J * ratio, prior * ratio.reshape(prior.shape) ** 2
 
 
 def _noise_start(prob: Problem, inputs: dict) -> np.ndarray:

@@ -82,8 +82,8 @@ class Problem:
     residuals: ca.Function         # (ξ, data) → ρ (pseudo-residuals, one column per sample), nll per sample
     fisher: ca.Function            # (ξ, data) → J_ρ (rows: samples × residuals), prior precision
     predict: ca.Function           # (ξ, data) → predicted outputs, one column per sample
-    filtered: ca.Function          # (θ, data per recording) → the EKF's posterior state, one column per
-                                   #   sample, recordings one after another
+    filtered: ca.Function | None   # output error: (θ, data per recording) → the EKF's posterior state,
+                                   #   one column per sample, recordings one after another
     lengths: list[int]             # samples per recording
     shooting: int                  # samples per shooting interval (output error)
     progress: object = None        # the solver's iteration callback
@@ -191,7 +191,8 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
     s0 = ca.DM(np.r_[model.x0, np.ravel(model.initial_covariance(), order="F")])
     th_sym = ca.MX.sym("theta", n_theta)
     filtered = ca.Function("filtered", [th_sym, *data], [ca.horzcat(*[
-        ekf.mapaccum("filter", n, [0], [0])(s0, d, th_sym, 0)[5] for n, d in zip(lengths, data)])])
+        ekf.mapaccum("filter", n, [0], [0])(s0, d, th_sym, 0)[5] for n, d in zip(lengths, data)])]) \
+        if method == "output-error" else None
     if method == "output-error":
         step = _output_error_step(aug, x, theta)
         M = shooting or max(lengths)
