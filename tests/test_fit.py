@@ -228,6 +228,7 @@ def test_a_line_search_that_cannot_move_stops_the_fit_and_one_that_moves_does_no
     assert negligible(x0, step(1e-3))
     assert not negligible(x0, step(1.0))
 
+
 def slow_plant(a, b, q=0.0, r=0.02):
     """First-order lag x' = −a x + b u (dt = 1 s), x measured."""
     m = Model("slow", dt=1.0)
