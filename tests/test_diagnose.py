@@ -24,7 +24,7 @@ from skigen.diagnose import MIN_SAMPLES, diagnose
 from skigen.diagnose import transform as T
 from skigen.diagnose.correct import same_model
 from skigen.diagnose.source import to_python
-from skigen.emit.c import compile_shared
+from skigen.emit.c import Status, compile_shared
 from skigen.recording import Recording, write_recording
 from skigen.runtime import run
 
@@ -377,6 +377,40 @@ def test_a_fold_never_sees_its_own_data():
             assert np.max(np.abs(w2 - w)) > 1e-3 * np.abs(w).max()
     whole, _ = fit_without(model, "ukf", rec, Folds.of(len(rec.t), 1), None, None)
     np.testing.assert_allclose(whole, run(derive(model, "ukf"), rec, backend="casadi", show_progress=False).weights[-1], rtol=1e-12)
+
+
+def _lag(name, extra=0.0):
+    from skigen import Model
+    m = Model(name, dt=0.1)
+    x = m.state("x", std=1.0, process_std=0.05)
+    u = m.input("u")
+    m.dynamics({x: -x + u + extra * ca.sqrt(x + 1.5)})      # extra ≠ 0: not finite below x = −1.5
+    m.output("y", x, noise_std=2.0)
+    return m
+
+
+def test_a_model_whose_filter_fails_scores_minus_infinity_not_zero():
+    """Scoring runs are strict. With a sensor std of 2 every sample's predictive log density is
+    about −2.1; the broken model's step is not finite on the 10 samples where x < −1.5, and the
+    guarded run (those samples rejected, 0 each) would rank it above the right model: measured
+    −828.8 against −848.5."""
+    from skigen.diagnose.cv import Folds, fold_loglik, loglik
+    rng = np.random.default_rng(0)
+    N = 400
+    U = np.repeat(rng.normal(size=N // 20), 20)[:, None]
+    x, X = 0.0, np.empty(N)
+    for k in range(N):
+        X[k] = x
+        x += 0.1 * (-x + U[k, 0])
+    rec = Recording("lag", np.arange(N) * 0.1, U, (X + 2.0 * rng.normal(size=N))[:, None], ("u",), ("y",))
+    folds = Folds.of(N, 4)
+    right, broken = fold_loglik(_lag("right"), rec, folds), fold_loglik(_lag("broken", 1e-3), rec, folds)
+    assert np.all(np.isfinite(right)) and np.all(right / np.diff(folds.edges) < -1.5), right
+    assert np.all(broken == -np.inf), broken
+    assert loglik(_lag("broken", 1e-3), rec) == -np.inf
+    guarded = run(derive(_lag("broken", 1e-3), "ekf"), rec, backend="casadi", show_progress=False)
+    assert np.sum(guarded.code == Status.NUMERICAL_FAILURE) == 10
+    assert np.sum(guarded.loglik) > np.sum(right)     # what the scores were before they were strict
 
 
 def test_focus_window_is_where_the_disturbance_is():

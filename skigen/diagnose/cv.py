@@ -67,18 +67,21 @@ class Folds:
 
 
 def fold_loglik(model: Model, rec: Recording, folds: Folds) -> np.ndarray:
-    """Per-fold summed predictive log-likelihood of ``model``'s EKF over ``rec`` (−inf if it diverges)."""
+    """Per-fold summed predictive log-likelihood of ``model``'s EKF over ``rec`` (−inf if it diverges:
+    a step that gives a non-finite number anywhere; see :func:`loglik`)."""
     try:
-        return folds.sums(ekf_run(model, rec).loglik)
+        return folds.sums(ekf_run(model, rec, strict=True).loglik)
     except (FloatingPointError, RuntimeError):
         return np.full(len(folds), -np.inf)
 
 
 def loglik(model: Model, rec: Recording, start: int = 0) -> float:
     """Summed predictive log-likelihood of the model's EKF over ``rec`` from sample ``start``
-    on (the filter runs from the beginning); −inf if it diverges."""
+    on (the filter runs from the beginning); −inf if it diverges. Strict: a guarded rerun (gate,
+    restarts) would be another predictor, and one that rejects every reading as an outlier
+    scores 0 per sample, above a right model wherever the noise makes densities below 1."""
     try:
-        return float(np.sum(ekf_run(model, rec).loglik[start:]))
+        return float(np.sum(ekf_run(model, rec, strict=True).loglik[start:]))
     except (FloatingPointError, RuntimeError):
         return -np.inf
 

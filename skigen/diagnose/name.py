@@ -376,7 +376,7 @@ def _structural(base: Model, s: Structural, rec: Recording, folds: Folds):
         per_fold(g)
     xs = np.array(sorted(table))
     L = np.array([table[x] for x in xs])                     # (grid, folds)
-    others = L.sum(axis=1, keepdims=True) - L
+    others = np.where(~np.eye(len(folds), dtype=bool), L[:, None, :], 0.0).sum(axis=2)   # no −inf − (−inf)
     cv = L[np.argmax(others, axis=0), np.arange(len(folds))]
     value, _, std = _profile(lambda v: per_fold(v).sum(), s, xs)
     return value, std, cv
