@@ -143,3 +143,36 @@ def test_guard_keeps_ski_finite_where_widening_removes_information():
     em = run(derive(model, "ski"), rec, show_progress=False)
     assert np.all(em.code == Status.OK)
     assert np.all(np.isfinite(em.mean)) and np.abs(em.weights).max() < 10
+
+
+def _damped(a):
+    from skigen import Model
+    m = Model("damped", dt=0.05)
+    x = m.state("x", std=1.0, process_std=0.01)
+    v = m.state("v", std=1.0, process_std=0.05)
+    u = m.input("u")
+    k = m.parameter("k", a, bounds=(0, 100))
+    m.dynamics({x: v, v: -k * x - 0.3 * v * ca.fabs(v) + u})
+    m.output("pos", x, noise_std=0.02)
+    return m
+
+
+@pytest.mark.parametrize("kind", ["ekf", "ukf"])
+def test_a_filter_at_other_parameter_values_runs_as_one_derived_with_them(kind):
+    """DerivedFilter.at shares the tunable step (no second derivation) and runs to the bit as
+    the filter derived from the model declared with those values."""
+    rng = np.random.default_rng(3)
+    N = 300
+    rec = Recording("d", np.arange(N) * 0.05, rng.normal(size=(N, 1)), 0.1 * rng.normal(size=(N, 1)), ("u",), ("pos",))
+    base = derive(_damped(2.0), kind)
+    moved = base.at(k=5.5)
+    assert moved.tunable is base.tunable and moved.aug.model.parameter_named("k").value == 5.5
+    assert base.aug.model.parameter_named("k").value == 2.0
+    for backend in ("casadi", "python"):
+        a = run(moved, rec, backend=backend, show_progress=False)
+        b = run(derive(_damped(5.5), kind), rec, backend=backend, show_progress=False)
+        np.testing.assert_array_equal(a.mean, b.mean)
+        np.testing.assert_array_equal(a.loglik, b.loglik)
+    assert not np.array_equal(run(base, rec, backend="casadi", show_progress=False).mean, a.mean)
+    with pytest.raises(ValueError, match="no fixed parameter 'c' .fixed: k."):
+        base.at(c=1.0)

@@ -17,7 +17,8 @@ built on first use: the looped C emitter needs only the model's functions.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import copy
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import casadi as ca
@@ -63,6 +64,24 @@ class DerivedFilter:
         ins = [ca.SX.sym(name, t.size_in(i)) for i, name in enumerate(self.names_in)]
         return ca.Function(t.name(), ins, t.call(ins + [ca.DM(v) for v in self.settings().values()]),
                            self.names_in, self.names_out)
+
+    def at(self, **values: float) -> "DerivedFilter":
+        """The filter of the same model with declared parameters it does not estimate at other
+        ``values`` (name=value): the tunable step is shared, not derived again, and the steps
+        differ only in constants, so chained runs share one chain (:mod:`skigen.runtime`)."""
+        aug, names = self.aug, self.aug.fixed_names
+        unknown = [n for n in values if n not in names]
+        if unknown:
+            raise ValueError(f"model '{aug.model.name}' has no fixed parameter {', '.join(map(repr, unknown))} "
+                             f"(fixed: {', '.join(names) or 'none'})")
+        model = copy.copy(aug.model)
+        model.parameters = list(aug.model.parameters)
+        model.set_parameters(values)
+        fixed = np.array([values.get(n, v) for n, v in zip(names, aug.fixed_values)], float)
+        f, h = (ca.substitute(e, aug.fixed, ca.DM(fixed)) for e in (aug.f_free, aug.h_free))
+        new = replace(self, aug=replace(aug, model=model, fixed_values=fixed, f=f, h=h))
+        new.__dict__["tunable"] = self.tunable            # a cached_property: the shared derivation
+        return new
 
     def settings(self) -> dict[str, np.ndarray]:
         """The declared values of the tunable step's settings: the lower Cholesky factors Q_sqrt

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..derive import FilterOptions, derive
+from ..derive import DerivedFilter, FilterOptions, derive
 from ..derive.augment import memory_values
 from ..model import Model
 from ..recording import Recording
@@ -31,10 +31,11 @@ DEFAULT_FOLDS = 5
 MIN_SEGMENT = 20          # samples: a shorter piece of a split is skipped when fitting
 
 
-def ekf_run(model: Model, rec: Recording, **options) -> RunResult:
-    """``model``'s EKF over the whole recording, unguarded (the CasADi backend of
-    :func:`skigen.runtime.run`; ``options``: its trace, strict, init)."""
-    return run(derive(model, "ekf"), rec, backend="casadi", show_progress=False, **options)
+def ekf_run(model: Model | DerivedFilter, rec: Recording, **options) -> RunResult:
+    """``model``'s EKF (or the derived filter given) over the whole recording, unguarded (the CasADi
+    backend of :func:`skigen.runtime.run`; ``options``: its trace, strict, init)."""
+    filt = model if isinstance(model, DerivedFilter) else derive(model, "ekf")
+    return run(filt, rec, backend="casadi", show_progress=False, **options)
 
 
 @dataclass(frozen=True)
@@ -66,7 +67,7 @@ class Folds:
         return float(t[self.edges[f]]), float(t[self.edges[f + 1] - 1])
 
 
-def fold_loglik(model: Model, rec: Recording, folds: Folds) -> np.ndarray:
+def fold_loglik(model: Model | DerivedFilter, rec: Recording, folds: Folds) -> np.ndarray:
     """Per-fold summed predictive log-likelihood of ``model``'s EKF over ``rec`` (−inf if it diverges:
     a step that gives a non-finite number anywhere; see :func:`loglik`)."""
     try:
@@ -75,7 +76,7 @@ def fold_loglik(model: Model, rec: Recording, folds: Folds) -> np.ndarray:
         return np.full(len(folds), -np.inf)
 
 
-def loglik(model: Model, rec: Recording, start: int = 0) -> float:
+def loglik(model: Model | DerivedFilter, rec: Recording, start: int = 0) -> float:
     """Summed predictive log-likelihood of the model's EKF over ``rec`` from sample ``start``
     on (the filter runs from the beginning); −inf if it diverges. Strict: a guarded rerun (gate,
     restarts) would be another predictor, and one that rejects every reading as an outlier

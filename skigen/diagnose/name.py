@@ -47,7 +47,7 @@ import numpy as np
 from scipy import stats
 from scipy.optimize import minimize_scalar
 
-from ..derive import FilterOptions
+from ..derive import FilterOptions, derive
 from ..library import term
 from ..model import Model
 from ..recording import Recording
@@ -352,16 +352,33 @@ def _swaps(nominal, current: Correction, new: Correction, score, cands, rec, fol
     return new, score
 
 
+def filters_of(base: Model, s: Structural):
+    """v → the EKF of ``s.build(base, v)``. A continuous change (``s.refit``: a limit, a width, a time
+    constant, a sensor's offset, gain or bound) is built and derived once, its value a declared
+    parameter, and each v sets it (:meth:`DerivedFilter.at`: the steps differ in a constant and share
+    one chain); a whole or fractional delay or a play changes the model's structure and is built per v."""
+    if s.refit:
+        m = T.copy_model(base)
+        name = T._unique(m, f"{s.effect}_value")
+        try:
+            filt = derive(s.build(m, m.parameter(name, float(s.grid[0]))), "ekf")
+            return lambda v: filt.at(**{name: float(v)})
+        except (ValueError, TypeError, NotImplementedError):     # a transformation that needs a number
+            pass
+    return lambda v: derive(s.build(base, v), "ekf")
+
+
 def _structural(base: Model, s: Structural, rec: Recording, folds: Folds):
     """(value refined on the whole recording, its std, per-fold cross-validated log-likelihood):
     per fold, the grid point best on the other folds."""
     table: dict[float, np.ndarray] = {}
+    filt = filters_of(base, s)
 
     def per_fold(v):
         v = float(round(v)) if s.integer else float(_num(v))
         if v not in table:
             try:
-                table[v] = fold_loglik(s.build(base, v), rec, folds)
+                table[v] = fold_loglik(filt(v), rec, folds)
             except ValueError:            # a parameter the transformation refuses
                 table[v] = np.full(len(folds), -np.inf)
         return table[v]
@@ -642,11 +659,11 @@ def coarsened(nominal: Model, corr: Correction, rec: Recording, alpha: float) ->
 def reprofiled(nominal: Model, corr: Correction, rec: Recording) -> Correction:
     """The last structural change's parameter profiled again on the whole recording."""
     s, _, _ = corr.structural[-1]
-    base = Correction(corr.additive, corr.structural[:-1]).build(nominal)
+    filt = filters_of(Correction(corr.additive, corr.structural[:-1]).build(nominal), s)
 
     def total(v):
         try:
-            return loglik(s.build(base, v), rec)
+            return loglik(filt(v), rec)
         except ValueError:                # a parameter the transformation refuses
             return -np.inf
     grid = s.grid if not s.integer else range(int(min(s.grid)), int(max(s.grid)) + 1)
