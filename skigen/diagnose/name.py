@@ -352,7 +352,7 @@ def _swaps(nominal, current: Correction, new: Correction, score, cands, rec, fol
     return new, score
 
 
-def filters_of(base: Model, s: Structural):
+def _filters_of(base: Model, s: Structural):
     """v → the EKF of ``s.build(base, v)``. A continuous change (``s.refit``: a limit, a width, a time
     constant, a sensor's offset, gain or bound) is built and derived once, its value a declared
     parameter, and each v sets it (:meth:`DerivedFilter.at`: the steps differ in a constant and share
@@ -372,7 +372,7 @@ def _structural(base: Model, s: Structural, rec: Recording, folds: Folds):
     """(value refined on the whole recording, its std, per-fold cross-validated log-likelihood):
     per fold, the grid point best on the other folds."""
     table: dict[float, np.ndarray] = {}
-    filt = filters_of(base, s)
+    filt = _filters_of(base, s)
 
     def per_fold(v):
         v = float(round(v)) if s.integer else float(_num(v))
@@ -659,7 +659,7 @@ def coarsened(nominal: Model, corr: Correction, rec: Recording, alpha: float) ->
 def reprofiled(nominal: Model, corr: Correction, rec: Recording) -> Correction:
     """The last structural change's parameter profiled again on the whole recording."""
     s, _, _ = corr.structural[-1]
-    filt = filters_of(Correction(corr.additive, corr.structural[:-1]).build(nominal), s)
+    filt = _filters_of(Correction(corr.additive, corr.structural[:-1]).build(nominal), s)
 
     def total(v):
         try:
