@@ -268,7 +268,7 @@ class PythonStepper:
 
     def _run(self, u, y, valid):
         """The derived step on the prior: (its results, whether every one is finite). Evaluated
-        through the Function's buffer (no DM conversions, 10× faster than a call): CasADi reads
+        through the Function's buffer (no DM conversions: the whole step 2× faster): CasADi reads
         and writes column-major, so a matrix enters as its transpose and leaves as one."""
         if not hasattr(self, "_evaluate"):
             f = self.filt.step

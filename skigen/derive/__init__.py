@@ -78,7 +78,8 @@ class DerivedFilter:
         model.parameters = list(aug.model.parameters)
         model.set_parameters(values)
         fixed = np.array([values.get(n, v) for n, v in zip(names, aug.fixed_values)], float)
-        f, h = (ca.substitute(e, aug.fixed, ca.DM(fixed)) for e in (aug.f_free, aug.h_free))
+        f, h = (ca.substitute(_or(free, e), aug.fixed, ca.DM(fixed))
+                for free, e in ((aug.f_free, aug.f), (aug.h_free, aug.h)))
         new = replace(self, aug=replace(aug, model=model, fixed_values=fixed, f=f, h=h))
         new.__dict__["tunable"] = self.tunable            # a cached_property: the shared derivation
         return new

@@ -79,8 +79,8 @@ def fold_loglik(model: Model | DerivedFilter, rec: Recording, folds: Folds) -> n
 def loglik(model: Model | DerivedFilter, rec: Recording, start: int = 0) -> float:
     """Summed predictive log-likelihood of the model's EKF over ``rec`` from sample ``start``
     on (the filter runs from the beginning); −inf if it diverges. Strict: a guarded rerun (gate,
-    restarts) would be another predictor, and one that rejects every reading as an outlier
-    scores 0 per sample, above a right model wherever the noise makes densities below 1."""
+    restarts) would be another predictor, which scores each rejected or failed sample 0: above a
+    right model wherever the predictive densities are below 1."""
     try:
         return float(np.sum(ekf_run(model, rec, strict=True).loglik[start:]))
     except (FloatingPointError, RuntimeError):
