@@ -356,16 +356,14 @@ def _filters_of(base: Model, s: Structural):
     """v → the EKF of ``s.build(base, v)``. A continuous change (``s.refit``: a limit, a width, a time
     constant, a sensor's offset, gain or bound) is built and derived once, its value a declared
     parameter, and each v sets it (:meth:`DerivedFilter.at`: the steps differ in a constant and share
-    one chain); a whole or fractional delay or a play changes the model's structure and is built per v."""
-    if s.refit:
-        m = T.copy_model(base)
-        name = T._unique(m, f"{s.effect}_value")
-        try:
-            filt = derive(s.build(m, m.parameter(name, float(s.grid[0]))), "ekf")
-            return lambda v: filt.at(**{name: float(v)})
-        except (ValueError, TypeError, NotImplementedError):     # a transformation that needs a number
-            pass
-    return lambda v: derive(s.build(base, v), "ekf")
+    one chain; ``s.refit`` promises that its build takes a parameter, as the joint refit's does); a
+    whole or fractional delay or a play changes the model's structure and is built per v."""
+    if not s.refit:
+        return lambda v: derive(s.build(base, v), "ekf")
+    m = T.copy_model(base)
+    name = T._unique(m, f"{s.effect}_value")
+    filt = derive(s.build(m, m.parameter(name, float(s.grid[0]))), "ekf")
+    return lambda v: filt.at(**{name: float(v)})
 
 
 def _structural(base: Model, s: Structural, rec: Recording, folds: Folds):
