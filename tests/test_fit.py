@@ -174,6 +174,32 @@ def test_filter_error_recovers_parameters_and_noise_with_honest_error_bars(syste
     assert abs(r_scale.mean() - 1) < 0.05
 
 
+@pytest.mark.parametrize("n", [21, 16 * 3 + 5, 16 * 4])
+def test_a_chained_recording_computes_what_the_step_by_step_accumulation_does(n):
+    """The fit's NLP chains the EKF step over a recording by inlined blocks (problem._chained): its
+    outputs, and their derivatives in the parameters and noise scales (what IPOPT's gradient and
+    Fisher scoring see), equal mapaccum's step by step — with a partial last block and without any
+    block. Measured: equal to the bit (the bound allows rounding in another order)."""
+    from skigen.fit import problem as P
+    model = pendulum(PENDULUM, q=(0.01, 0.03))
+    aug, x, theta = P._plant(model, model.parameter_names)
+    lam_q, lam_r = ca.SX.sym("lq", 2), ca.SX.sym("lr", 1)
+    step = P._filter_error_step(model, aug, x, theta, lam_q, lam_r, [0, 1])
+    rng = np.random.default_rng(4)
+    U = smooth_noise(rng, n, 8, 2.0)[:, None]
+    _, Y = simulate(model, U, np.array([0.1, 0.0]), rng, q_std=(0.01, 0.03))
+    D = P.data_matrix(model, recording(model, U, Y))
+    s0 = np.r_[model.x0, np.ravel(model.initial_covariance(), order="F")]
+    th, lam = ca.MX.sym("th", theta.shape[0]), ca.MX.sym("lam", 3)
+    point = [np.array(list(PENDULUM.values())), np.array([0.3, -0.2, 0.1])]
+    for reference, chained in zip(step.mapaccum("f", n, [0], [0])(s0, D, th, lam),
+                                  P._chained(step, n, "f")(s0, D, th, lam)):
+        for a, b in [(reference, chained), *[(ca.jacobian(reference, v), ca.jacobian(chained, v)) for v in (th, lam)]]:
+            a, b = (np.asarray(ca.Function("g", [th, lam], [e])(*point)) for e in (a, b))
+            assert a.shape == b.shape
+            assert np.max(np.abs(a - b)) <= 1e-14 * max(np.max(np.abs(a)), 1.0)
+
+
 def test_filter_error_on_a_noise_free_truth_stops_once_the_estimates_no_longer_move(monkeypatch):
     """A pendulum recorded without process noise (1500 samples, seed 0): every Q scale's optimum is
     0, where the likelihood is flat in its log. IPOPT's own test walked the log-scales towards

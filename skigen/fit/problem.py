@@ -154,6 +154,37 @@ def _filter_error_step(model, aug, x, theta, lam_q, lam_r, q_rows):
                        [ca.vertcat(x_next, ca.vec(P_next)), e, ca.vec(Pyy), -loglik, y_hat, x_post])
 
 
+BLOCK = 16     # steps inlined per block of a chained recording (see _chained)
+
+
+def _chained(step: ca.Function, n: int, name: str) -> ca.Function:
+    """What ``step.mapaccum(name, n, [0], [0])`` computes — the first input carried to the first
+    output over n samples, the second input one column per sample, the others held — by blocks of
+    BLOCK steps inlined into one SX Function, carried on by a mapaccum. Evaluating a step costs a
+    call's overhead, and its derivatives an MX sweep, per sample; inside a block both are SX.
+    Measured on the quadrotor's 10 000-sample noise calibration (16 iterations): the fit takes
+    8.9 s instead of 14.3 s (8 steps a block: 3.5 s on the cart, 16: 2.9 s, 24: 3.5 s, each step
+    alone: 5.6 s)."""
+    if n < 2 * BLOCK:
+        return step.mapaccum(name, n, [0], [0])
+    ins = [ca.SX.sym(f"i{j}", step.sparsity_in(j)) for j in range(step.n_in())]
+    cols = ca.SX.sym("d", step.size1_in(1), BLOCK)
+    cur, outs = ins[0], []
+    for k in range(BLOCK):
+        res = step(cur, cols[:, k], *ins[2:])
+        cur = res[0]
+        outs.append(res)
+    block = ca.Function("block", [ins[0], cols, *ins[2:]], [cur] + [ca.horzcat(*o) for o in zip(*outs)])
+    K, rest = divmod(n, BLOCK)
+    args = [ca.MX.sym(f"a{j}", step.sparsity_in(j)) for j in range(step.n_in())]
+    args[1] = ca.MX.sym("data", step.size1_in(1), n)
+    res = block.mapaccum(name, K, [0], [0])(args[0], args[1][:, :K * BLOCK], *args[2:])[1:]
+    if rest:
+        tail = step.mapaccum(name, rest, [0], [0])(res[0][:, -1], args[1][:, K * BLOCK:], *args[2:])
+        res = [ca.horzcat(a, b) for a, b in zip(res, tail)]
+    return ca.Function(name, args, res)
+
+
 def _pseudo_residuals(ny: int) -> ca.Function:
     """(e, vec S, vec L̄) → [L̄⁻¹ e; vec(L̄⁻¹ S L̄⁻ᵀ)/√2]: their Gram matrix is the Fisher information."""
     e, S, L = ca.SX.sym("e", ny), ca.SX.sym("S", ny * ny), ca.SX.sym("L", ny * ny)
@@ -191,7 +222,7 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
     s0 = ca.DM(np.r_[model.x0, np.ravel(model.initial_covariance(), order="F")])
     th_sym = ca.MX.sym("theta", n_theta)
     filtered = ca.Function("filtered", [th_sym, *data], [ca.horzcat(*[
-        ekf.mapaccum("filter", n, [0], [0])(s0, d, th_sym, 0)[5] for n, d in zip(lengths, data)])]) \
+        _chained(ekf, n, "filter")(s0, d, th_sym, 0)[5] for n, d in zip(lengths, data)])]) \
         if method == "output-error" else None
     if method == "output-error":
         step = _output_error_step(aug, x, theta)
@@ -211,7 +242,7 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
             offset += K * nx
             D = ca.horzcat(data[r], ca.repmat(ca.vertcat(data[r][:-2 * ny, -1], ca.DM.zeros(2 * ny)),
                                                1, K * M - n)) if K * M > n else data[r]
-            sim = step.mapaccum("sim", M, [0], [0]).map(K, "thread", 2)
+            sim = _chained(step, M, "sim").map(K, "thread", 2)
             X_next, rho, nll, y_hat = sim(X0, D, th)
             X_end = X_next[:, M - 1::M]                  # the state after each interval's last sample
             g += [X0[:, 1:] - X_end[:, :-1]] if K > 1 else []
@@ -228,7 +259,7 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
         lam = xi[n_theta:] * sc[n_theta:]
         rho_fn, chol_fn = _pseudo_residuals(ny), _chol_function(ny)
         for r, n in enumerate(lengths):
-            _, e, S, nll, y_hat, _ = ekf.mapaccum("filter", n, [0], [0])(s0, data[r], th, lam)
+            _, e, S, nll, y_hat, _ = _chained(ekf, n, "filter")(s0, data[r], th, lam)
             L = ca.stop_diff(chol_fn.map(n)(S), 1)
             rho_all.append(rho_fn.map(n)(e, S, L))
             nll_all.append(nll)
