@@ -97,7 +97,7 @@ def _problem(model, lengths, method, estimate, shooting, max_iter, tol=1e-8) -> 
                 "ipopt.sb": "yes", "ipopt.tol": tol, "ipopt.mu_strategy": "adaptive",
                 "ipopt.acceptable_tol": 100 * tol, "ipopt.acceptable_iter": 2,
                 "ipopt.acceptable_obj_change_tol": 1e-12}
-        scoring = ca.nlpsol("fit_scoring", "ipopt", nlp, {**opts, "hess_lag": prob.nlp["hess"],
+        scoring = ca.nlpsol("fit_scoring", "ipopt", nlp, {**opts, "hess_lag": prob.nlp["hess"], "grad_f": prob.nlp["grad"],
                                                           "ipopt.max_iter": min(max_iter, SCORING_ITERATIONS)})
         newton = lambda: ca.nlpsol("fit_newton", "ipopt", nlp, {**opts, "ipopt.max_iter": max_iter})
         solver = (scoring, functools.lru_cache(maxsize=1)(newton))
