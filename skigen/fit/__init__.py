@@ -96,7 +96,7 @@ def _problem(model, lengths, method, estimate, shooting, max_iter, tol=1e-8) -> 
         opts = {"print_time": False, "iteration_callback": prob.progress, "ipopt.print_level": 0,
                 "ipopt.sb": "yes", "ipopt.tol": tol, "ipopt.mu_strategy": "adaptive",
                 "ipopt.acceptable_tol": 100 * tol, "ipopt.acceptable_iter": 2,
-                "ipopt.acceptable_obj_change_tol": 1e-12}
+                "ipopt.acceptable_obj_change_tol": 1e-12, "calc_lam_p": False, "no_nlp_grad": True}
         scoring = ca.nlpsol("fit_scoring", "ipopt", nlp, {**opts, "hess_lag": prob.nlp["hess"], "grad_f": prob.nlp["grad"],
                                                           "ipopt.max_iter": min(max_iter, SCORING_ITERATIONS)})
         newton = lambda: ca.nlpsol("fit_newton", "ipopt", nlp, {**opts, "ipopt.max_iter": max_iter})
