@@ -164,11 +164,13 @@ def _chained(step: ca.Function, n: int, name: str) -> ca.Function:
     """What ``step.mapaccum(name, n, [0], [0])`` computes — the first input carried to the first
     output over n samples, the second input one column per sample, the others held — by blocks of
     BLOCK steps inlined into one SX Function, carried on by a mapaccum. Evaluating a step costs a
-    call's overhead, and its derivatives an MX sweep, per sample; inside a block both are SX.
-    Measured on the quadrotor's 10 000-sample noise calibration (16 iterations): the fit takes
-    8.9 s instead of 14.3 s (8 steps a block: 3.5 s on the cart, 16: 2.9 s, 24: 3.5 s, each step
-    alone: 5.6 s)."""
-    if n < 2 * BLOCK:
+    call's overhead, and its derivatives an MX sweep, per sample; inside a block both are SX. The
+    quadrotor's 10 000-sample noise calibration (16 iterations) takes 8.9 s instead of 14.3 s, the
+    cart's 2.9 s instead of 5.6 s (8 steps a block: 3.5 s, 24: 3.5 s). A step of more than
+    :data:`skigen.runtime.INLINE_BELOW` instructions, for which the call costs little and the
+    inlined block much to build, is accumulated step by step."""
+    from ..runtime import INLINE_BELOW
+    if n < 2 * BLOCK or step.n_instructions() > INLINE_BELOW:
         return step.mapaccum(name, n, [0], [0])
     ins = [ca.SX.sym(f"i{j}", step.sparsity_in(j)) for j in range(step.n_in())]
     cols = ca.SX.sym("d", step.size1_in(1), BLOCK)
