@@ -221,7 +221,8 @@ def test_the_scoring_gradient_from_the_residual_jacobian_is_the_objectives_gradi
     V = prob.variables
     for trial in range(3):
         point = np.array(V.initial) / np.array(V.scale) + 0.05 * rng.normal(size=len(V))
-        args = (point, np.r_[V.scale, data])
+        start = np.r_[model.x0, np.ravel(model.initial_covariance(), order="F")] if method == "filter-error" else []
+        args = (point, np.r_[V.scale, data, start])
         a, b = (np.asarray(v).ravel() for v in (exact(*args), prob.decrement(*args)[0]))
         assert np.max(np.abs(a - b)) <= 1e-14 * np.max(np.abs(a)), (trial, a, b)
 
@@ -521,6 +522,24 @@ def _linear(name="lin", **kw):
     v = m.state("v", std=0.2)
     u = m.input("u")
     return m, y, v, u
+
+
+def test_a_bad_filter_start_is_named():
+    """fit(starts=...) takes per recording (mean, covariance) or None; a wrong size, a non-finite
+    number or a start for output error is refused, naming the recording and the states."""
+    model = pendulum(PENDULUM)
+    rng = np.random.default_rng(8)
+    U = smooth_noise(rng, 100, 8, 2.0)[:, None]
+    _, Y = simulate(model, U, np.array([0.1, 0.0]), rng)
+    rec = recording(model, U, Y, path="swing.csv")
+    for starts in ([(np.zeros(3), np.eye(2))], [(np.zeros(2), np.full((2, 2), np.nan))], [None, None]):
+        with pytest.raises(ValueError, match="swing.csv.*theta, w|2 given for 1 recordings"):
+            fit(model, [rec], method="filter-error", starts=starts, show_progress=False)
+    with pytest.raises(ValueError, match="starts applies to filter error"):
+        fit(model, [rec], method="output-error", starts=[None], show_progress=False)
+    free = fit(model, [rec], method="filter-error", starts=[None], estimate=[], show_progress=False)
+    same = fit(model, [rec], method="filter-error", estimate=[], show_progress=False)
+    assert free.noise["scales"] == same.noise["scales"]          # None: the model's own start
 
 
 def test_parameter_declaration_errors_name_the_parameter():

@@ -197,7 +197,7 @@ class _Progress(ca.Callback):
 
 def fit(model: Model, recordings, *, method: str = "output-error", estimate=None,
         shooting: int | None = None, max_iter: int = 200, tol: float = 1e-8,
-        show_progress: bool = True) -> FitResult:
+        starts=None, show_progress: bool = True) -> FitResult:
     """Fit ``model`` to ``recordings`` (Recording objects, or paths and DataFrames read onto the
     model's grid with :func:`skigen.recording.load_recording`) by ``method``.
 
@@ -205,7 +205,10 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     them); the rest stay at their declared values (weights at 0). shooting:
     output error only, samples per shooting interval (default: one simulation
     per recording; give a few hundred samples when a free run diverges). tol: IPOPT's
-    convergence tolerance.
+    convergence tolerance. starts: filter error only, per recording the filter's state before its
+    first sample, (mean (nx,), covariance (nx, nx)), or None for the model's initial state and
+    covariance (the default for every recording): a recording cut from a longer one starts where
+    a filter run over that one stood.
     """
     t0 = time.perf_counter()
     if method not in METHODS:
@@ -226,6 +229,10 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     V = prob.variables
     blocks = [data_matrix(model, r) for r in recs]
     data = np.concatenate([np.ravel(b, order="F") for b in blocks])
+    if method == "filter-error":                 # the NLP's parameter: [scale; data; starts]
+        data = np.r_[data, _starts(model, recs, starts)]
+    elif starts is not None:
+        raise ValueError("starts applies to filter error (output error estimates the initial states)")
     theta0 = np.array(prob.solver_inputs["x0"], float)
     if method == "output-error":
         X = _filtered_states(prob, theta0, blocks)
@@ -292,6 +299,22 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     Y = np.asarray(prob.predict(xi, p)).T
     return _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_at,
                    nll, Y, stats, status, time.perf_counter() - t0, float(sol["f"]), info, robust)
+
+
+def _starts(model: Model, recs: list[Recording], starts) -> np.ndarray:
+    """Each recording's filter start [x; vec P] (see :func:`fit`'s ``starts``), checked."""
+    nx = len(model.states)
+    starts = [None] * len(recs) if starts is None else list(starts)
+    if len(starts) != len(recs):
+        raise ValueError(f"starts: {len(starts)} given for {len(recs)} recordings")
+    out = []
+    for rec, st in zip(recs, starts):
+        x, P = (model.x0, model.initial_covariance()) if st is None else (np.asarray(v, float) for v in st)
+        if np.shape(x) != (nx,) or np.shape(P) != (nx, nx) or not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
+            raise ValueError(f"starts for '{rec.path}': a finite mean of {nx} states ({', '.join(model.state_names)}) "
+                             f"and a {nx}×{nx} covariance are needed")
+        out.append(np.r_[x, np.ravel(P, order="F")])
+    return np.concatenate(out)
 
 
 STALL, STALL_GAIN = 3, 0.01    # iterations whose summed gain in −log L (nat) below STALL_GAIN triggers the check below

@@ -81,7 +81,8 @@ class Problem:
     method: str
     variables: Variables
     solver_inputs: dict            # lbx, ubx, lbg, ubg, x0 (unscaled)
-    nlp: dict                      # x (scaled), p = [scale; data], f, g (MX)
+    nlp: dict                      # x (scaled), p = [scale; data; (filter error) each recording's
+                                   #   start [x; vec P]], f, g (MX)
     residuals: ca.Function         # (ξ, data) → ρ (pseudo-residuals, one column per sample), nll per sample
     fisher: ca.Function            # (ξ, data) → J_ρ (rows: samples × residuals), prior precision
     predict: ca.Function           # (ξ, data) → predicted outputs, one column per sample
@@ -223,7 +224,7 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
     n_theta = len(theta_names)
 
     data = [ca.MX.sym(f"data{r}", nd, n) for r, n in enumerate(lengths)]
-    g, rho_all, weights_all, nll_all, yhat_all = [], [], [], [], []
+    g, rho_all, weights_all, nll_all, yhat_all, starts = [], [], [], [], [], []
     q_rows = [i for i in range(nx) if model.process_noise()[i, i] > 0]
     lam_q, lam_r = ca.SX.sym("lam_q", len(q_rows)), ca.SX.sym("lam_r", ny)
     ekf = _filter_error_step(model, aug, x, theta, lam_q, lam_r, q_rows)
@@ -266,9 +267,10 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
         xi, sc = ca.MX.sym("xi", len(V)), ca.MX.sym("scale", len(V))
         th = xi[:n_theta] * sc[:n_theta]
         lam = xi[n_theta:] * sc[n_theta:]
+        starts = [ca.MX.sym(f"start{r}", s0.shape[0]) for r in range(len(lengths))]
         rho_fn, chol_fn = _pseudo_residuals(ny), _chol_function(ny)
         for r, n in enumerate(lengths):
-            _, e, S, nll, y_hat, _ = _chained(ekf, n, "filter")(s0, data[r], th, lam)
+            _, e, S, nll, y_hat, _ = _chained(ekf, n, "filter")(starts[r], data[r], th, lam)
             L = ca.stop_diff(chol_fn.map(n)(S), 1)
             rho_r, weights_r = rho_fn.map(n)(e, S, L)
             rho_all.append(rho_r)
@@ -281,7 +283,7 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
     prior_res = (xi[prior_idx] * sc[prior_idx] - ca.DM([V.initial[i] for i in prior_idx])) / prior_sd \
         if prior_idx else ca.MX(0, 1)
     f = ca.sum2(nll) + 0.5 * ca.sumsqr(prior_res)
-    p = ca.vertcat(sc, *[ca.vec(d) for d in data])
+    p = ca.vertcat(sc, *[ca.vec(d) for d in data], *(starts if method == "filter-error" else []))
     gg = ca.vertcat(*[ca.vec(c) for c in g]) if g else ca.MX(0, 1)
     J = ca.jacobian(ca.vec(rho), xi)
     prior_prec = ca.MX.zeros(len(V))
