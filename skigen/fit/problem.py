@@ -40,6 +40,7 @@ from ..derive.common import innovation_stats, masked_noise_factor
 from ..derive.ekf import ekf_predict, ekf_update
 from ..derive.linalg import chol, forward
 from ..model import Model
+from ..runtime import INLINE_BELOW
 
 __all__ = ["METHODS", "Variables", "Problem", "build_problem", "data_matrix"]
 
@@ -170,7 +171,6 @@ def _chained(step: ca.Function, n: int, name: str) -> ca.Function:
     cart's 2.9 s instead of 5.6 s (8 steps a block: 3.5 s, 24: 3.5 s). A step of more than
     :data:`skigen.runtime.INLINE_BELOW` instructions, for which the call costs little and the
     inlined block much to build, is accumulated step by step."""
-    from ..runtime import INLINE_BELOW
     if n < 2 * BLOCK or step.n_instructions() > INLINE_BELOW:
         return step.mapaccum(name, n, [0], [0])
     ins = [ca.SX.sym(f"i{j}", step.sparsity_in(j)) for j in range(step.n_in())]
@@ -283,16 +283,14 @@ def build_problem(model: Model, lengths: list[int], method: str, estimate: list[
     prior_res = (xi[prior_idx] * sc[prior_idx] - ca.DM([V.initial[i] for i in prior_idx])) / prior_sd \
         if prior_idx else ca.MX(0, 1)
     f = ca.sum2(nll) + 0.5 * ca.sumsqr(prior_res)
-    p = ca.vertcat(sc, *[ca.vec(d) for d in data], *(starts if method == "filter-error" else []))
+    p = ca.vertcat(sc, *[ca.vec(d) for d in data], *starts)          # starts: filter error only
     gg = ca.vertcat(*[ca.vec(c) for c in g]) if g else ca.MX(0, 1)
     J = ca.jacobian(ca.vec(rho), xi)
-    prior_prec = ca.MX.zeros(len(V))
+    prior_prec, prior_grad = ca.MX.zeros(len(V)), ca.MX.zeros(len(V))
     for j, i in enumerate(prior_idx):
         prior_prec[i] = (sc[i] / prior_sd[j]) ** 2
-    fisher = ca.mtimes(J.T, J) + ca.diag(prior_prec)
-    prior_grad = ca.MX.zeros(len(V))
-    for j, i in enumerate(prior_idx):
         prior_grad[i] = prior_res[j] * sc[i] / prior_sd[j]
+    fisher = ca.mtimes(J.T, J) + ca.diag(prior_prec)
     scores = ca.Function("scores", [xi, p], [f, ca.mtimes(J.T, ca.vec(ca.horzcat(*weights_all))) + prior_grad, fisher])
     lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", gg.shape[0])
     cached = _LastPoint(scores)              # IPOPT asks for the gradient, then the Hessian, at each iterate
