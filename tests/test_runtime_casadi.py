@@ -94,3 +94,47 @@ def test_the_casadi_backend_takes_no_guard(rec):
         run(filt, rec, backend="jax", show_progress=False)
     with pytest.raises(ValueError, match="init and trace"):
         run(filt, rec, backend="c", trace=True, show_progress=False)
+
+
+@pytest.fixture
+def fresh_chains(monkeypatch):
+    monkeypatch.setattr(runtime, "CHAIN_BELOW", 10 ** 9)
+    monkeypatch.setattr(runtime, "_CHAINS", {})
+    monkeypatch.setattr(runtime, "_RUNS", {})
+    monkeypatch.setattr(runtime, "_JIT", {"works": True})
+
+
+def _identical(a: RunResult, b: RunResult):
+    for f in FIELDS:
+        np.testing.assert_array_equal(getattr(a, f), getattr(b, f), err_msg=f)
+    for f in TRACE:
+        np.testing.assert_array_equal(getattr(a.trace, f), getattr(b.trace, f), err_msg=f)
+
+
+@pytest.mark.parametrize("kind", ["ekf", "ukf", "ski"])
+def test_a_chain_is_compiled_once_its_runs_cost_a_compilation_and_gives_the_same_numbers(rec, kind, fresh_chains):
+    """runtime._Chain: CasADi's VM until the seconds its runs took exceed a compilation's expected
+    cost, then C compiled by CasADi's JIT, with the VM's numbers to the bit (no fused
+    multiply-add)."""
+    filt = derive(build(), kind)
+    vm = run(filt, rec, backend="casadi", trace=True, show_progress=False)
+    chain = next(iter(runtime._CHAINS.values()))
+    assert not chain.native and 0 < chain.spent < chain.cost      # 200 samples: far from paying for it
+    vm_function = chain.f
+    chain.cost = chain.spent                 # as if its runs had now cost a compilation
+    runtime._RUNS.clear()
+    _identical(run(filt, rec, backend="casadi", trace=True, show_progress=False), vm)
+    assert chain.native and chain.f is not vm_function
+    runtime._RUNS.clear()
+    _identical(run(filt, rec, backend="casadi", trace=True, show_progress=False), vm)
+
+
+def test_without_a_working_compiler_the_chain_stays_in_the_vm(rec, fresh_chains, monkeypatch):
+    monkeypatch.setattr(runtime, "JIT_FLAGS", ["-no-such-flag"])
+    filt = derive(build(), "ekf")
+    vm = run(filt, rec, backend="casadi", trace=True, show_progress=False)
+    chain = next(iter(runtime._CHAINS.values()))
+    vm_function, chain.cost = chain.f, 0.0
+    runtime._RUNS.clear()
+    _identical(run(filt, rec, backend="casadi", trace=True, show_progress=False), vm)
+    assert chain.native and chain.f is vm_function and not runtime._JIT["works"]

@@ -52,8 +52,7 @@ BLOCKS = 5
 
 
 def blocks(rec: Recording, max_samples: int = MAX_SAMPLES, n: int = BLOCKS) -> list[Recording]:
-    """``rec`` itself, or ``n`` contiguous blocks of max_samples/n samples spread evenly over it
-    (each filtered from the model's initial state)."""
+    """``rec`` itself, or ``n`` contiguous blocks of max_samples/n samples spread evenly over it."""
     N = len(rec.t)
     if N <= max_samples:
         return [rec]
@@ -61,19 +60,40 @@ def blocks(rec: Recording, max_samples: int = MAX_SAMPLES, n: int = BLOCKS) -> l
     return [rec.slice(int(a), int(a) + size) for a in np.linspace(0, N - size, n)]
 
 
+def block_starts(model: Model, rec: Recording, pieces: list[Recording]) -> list | None:
+    """Where ``model``'s EKF over the whole of ``rec`` stood before each of its ``pieces``
+    (:func:`skigen.fit`'s ``starts``): a block cut from the middle of a swing, filtered from the
+    model's initial state instead, begins with a transient its process noise must absorb. None for
+    ``rec`` itself, or when that EKF fails (the blocks then start from the initial state)."""
+    if len(pieces) == 1 and pieces[0] is rec:
+        return None
+    from .cv import ekf_run
+    try:
+        trace = ekf_run(model, rec, trace=True, strict=True).trace
+    except (ValueError, ArithmeticError):          # FloatingPointError: the EKF diverged
+        return None
+    nx = len(model.states)
+    at = [int(np.searchsorted(rec.t, p.t[0])) for p in pieces]
+    return [None if a == 0 else (trace.z_next[a - 1, :nx], trace.C_next[a - 1, :nx, :nx]) for a in at]
+
+
 def calibrate(model: Model, recs: list[Recording], show_progress: bool = False,
               max_samples: int = MAX_SAMPLES) -> tuple[Model, Noise]:
     """(``model`` with its calibrated Q and R, the :class:`Noise` record). A recording longer than
-    ``max_samples`` is calibrated on evenly spread blocks of it (:func:`blocks`)."""
-    recs = [b for r in recs for b in blocks(r, max_samples)]
+    ``max_samples`` is calibrated on evenly spread blocks of it (:func:`blocks`), each started
+    where the model's EKF over the whole recording stood (:func:`block_starts`)."""
+    pieces = [blocks(r, max_samples) for r in recs]
+    starts = [s for r, b in zip(recs, pieces) for s in (block_starts(model, r, b) or [None] * len(b))]
+    recs = [b for bs in pieces for b in bs]
     res, note = None, ""
     if model.parameters:               # the user's uncertain constants are the model's to fit, not findings
         try:
-            res = fit(model, recs, method="filter-error", show_progress=show_progress)
+            res = fit(model, recs, method="filter-error", starts=starts, show_progress=show_progress)
         except FitError as exc:
             note = f"declared parameters held at their values ({exc})"
     try:
-        res = res or fit(model, recs, method="filter-error", estimate=[], show_progress=show_progress)
+        res = res or fit(model, recs, method="filter-error", estimate=[], starts=starts,
+                         show_progress=show_progress)
     except FitError as exc:
         raise DiagnosisError(f"could not calibrate the noise of '{model.name}' on this recording: {exc}") from None
     noise = res.noise

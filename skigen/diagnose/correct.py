@@ -21,7 +21,7 @@ from ..derive import augment, derive
 from ..model import Model
 from . import catalog as C
 from . import transform as T
-from .calibrate import blocks
+from .calibrate import block_starts, blocks
 from .name import Correction
 from .source import to_python
 
@@ -205,7 +205,8 @@ def refit_jointly(nominal: Model, calibrated: Model, corr: Correction, rec, equa
             info["note"] = "not refitted (refit=False): coefficients from the cross-validated search"
             return model, names, notes, info
         try:
-            res = fit(model, pieces, method="filter-error", show_progress=False)
+            res = fit(model, pieces, method="filter-error", starts=block_starts(model, rec, pieces),
+                      show_progress=False)
         except FitError as exc:
             info["note"] += (f"joint refit with {len(attempt)} lifted corrections"
                              + (", the calibration's std as prior," if start is anchored else "")
@@ -253,7 +254,8 @@ def polish_for_simulation(fitted: Model, rec, pieces, window: int | None = None)
                                             dtype=float) / spread))
     try:
         res = fit(start, pieces, method="output-error", estimate=names, show_progress=False)
-        polished = fit(res.model, pieces, method="filter-error", estimate=[], show_progress=False).model
+        polished = fit(res.model, pieces, method="filter-error", estimate=[],
+                       starts=block_starts(res.model, rec, pieces), show_progress=False).model
         before, after = score(fitted), score(polished)
     except (FitError, TypeError, ValueError) as exc:
         return fitted, {"adopted": False, "note": f"output-error polish failed: {exc}"}

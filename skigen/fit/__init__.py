@@ -267,6 +267,7 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     negligible = None if prob.nlp["g"].shape[0] else functools.partial(_negligible_gain, prob, inputs)
     prob.progress.start(f"fit {model.name}" if show_progress else None, negligible)
     scoring, newton = solver
+    prob.nlp["secant"].reset()
     sol = scoring(**inputs)
     stats = scoring.stats()
     iterations, status = stats["iter_count"], stats["return_status"]
