@@ -541,10 +541,11 @@ INLINE_BELOW = 2000    # instructions of a step inlined into its chain (see _bui
 
 
 JIT_INSTRUCTIONS = 2000        # a compiled block holds about this many instructions: 1 to 8 steps
-JIT_FLAGS = ["-O1", "-ffp-contract=off"]      # no fused multiply-add: the VM's numbers to the bit
-JIT_SECONDS = (0.15, 1.5e-4)   # compiling a block: about this many seconds, plus this per instruction
+JIT_FLAGS = ["-Og", "-ffp-contract=off"]      # -O1's speed, built faster; no fused multiply-add: the VM's numbers
 JIT_LARGEST = 50_000           # instructions of the largest step compiled
-_JIT = {"works": True}         # False once a compilation failed (no C compiler): the VM from then on
+# whether compiling works (False once it failed: no C compiler), and what a compilation costs: about
+# this many seconds plus this many per instruction of the block (the latter the running average)
+_JIT = {"works": True, "seconds": 0.15, "per_instruction": 1e-4}
 
 
 class _Chain:
@@ -562,7 +563,7 @@ class _Chain:
         n = step.n_instructions()
         self.block = 1 << int(np.clip(np.log2(JIT_INSTRUCTIONS / max(n, 1)), 0, 3))   # 1, 2, 4 or 8 steps
         self.native, self.spent = False, 0.0          # seconds its runs spent in the VM
-        self.cost = JIT_SECONDS[0] + JIT_SECONDS[1] * self.block * n if n <= JIT_LARGEST else np.inf
+        self.cost = _JIT["seconds"] + _JIT["per_instruction"] * self.block * n if n <= JIT_LARGEST else np.inf
 
     def __call__(self, args: list, outs: list[np.ndarray]) -> None:
         t0 = perf_counter()
@@ -576,11 +577,27 @@ class _Chain:
         """The chain with its blocks compiled, or None where that fails (no C compiler)."""
         if not _JIT["works"]:
             return None
+        t0 = perf_counter()
         try:
-            return _build_chain(self.filt, self.step, self.block, PIECE // self.block, jit=True)
+            f = _build_chain(self.filt, self.step, self.block, PIECE // self.block, jit=True)
         except RuntimeError:
             _JIT["works"] = False
             return None
+        per = max(perf_counter() - t0 - _JIT["seconds"], 0.0) / (self.block * self.step.n_instructions())
+        _JIT["per_instruction"] = 0.8 * _JIT["per_instruction"] + 0.2 * per
+        return f
+
+
+def _jit_directory() -> str:
+    """This process's directory for the JIT's sources and libraries (not the user's working
+    directory), removed at exit (with its files: CasADi does not clean up after itself there)."""
+    if "directory" not in _JIT:
+        import atexit
+        import shutil
+        import tempfile
+        _JIT["directory"] = tempfile.mkdtemp(prefix="skigen-jit-")
+        atexit.register(shutil.rmtree, _JIT["directory"], True)
+    return _JIT["directory"] + "/"
 
 
 def _call(f, args: list, outs: list[np.ndarray]) -> None:
@@ -620,7 +637,9 @@ def _build_chain(filt: DerivedFilter, step, B: int, blocks: int, jit: bool = Fal
                          out["z_next"], out["mem_next"])
         cols.append([rec, Cp, Cn, mem])
         cur = [out["z_next"], Cn] + sn + [out["mem_next"]]
-    opts = {"jit": True, "compiler": "shell", "jit_options": {"flags": JIT_FLAGS, "verbose": False}} if jit else {}
+    opts = {"jit": True, "jit_cleanup": False, "compiler": "shell",       # _jit_directory removes the files
+            "jit_options": {"flags": JIT_FLAGS, "verbose": False, "directory": _jit_directory(),
+                            "cleanup": False}} if jit else {}
     block = ca.Function("block", acc + [U, Y, V, c], cur + [ca.horzcat(*col) for col in zip(*cols)], opts)
     chain = block.mapaccum("chain", blocks, len(acc), {"base": -1})
     ins = [ca.MX.sym("acc", a.sparsity()) for a in acc] + \

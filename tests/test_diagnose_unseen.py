@@ -262,27 +262,25 @@ def test_overflow_named_on_another_noise_seed(tmp_path):
     assert d["remaining"]["mismatch"] is False, d["remaining"]
 
 
-def test_blocks_of_a_long_recording_fitted_from_where_the_filter_stood_calibrate_as_the_whole(tmp_path):
+def test_blocks_of_a_long_recording_calibrate_as_the_whole_from_where_the_filter_stood(tmp_path):
     """The diagnosis calibrates a recording longer than calibrate.MAX_SAMPLES on five blocks spread
-    over it, each filtered from the model's initial state. A block cut from the middle of the
-    arm's swing (30 000 clean samples, seed 1) then begins with a transient that the process
-    noise absorbs; started where the EKF over the whole recording stood (``fit(starts=...)``), it
-    does not. Measured Q scale: 1.168 ± 0.075 from the initial state, 0.916 ± 0.059 from the
-    filter's state, 0.935 ± 0.035 on the whole recording. (The diagnosis does not start its
-    blocks so yet: README, calibration.)"""
+    over it. A block cut from the middle of the arm's swing (30 000 clean samples, seed 1) and
+    filtered from the model's initial state begins with a transient that the process noise
+    absorbs; calibrate() starts each block where the EKF over the whole recording stood
+    (calibrate.block_starts, ``fit(starts=...)``), and does not. Measured Q scale: 1.168 ± 0.075
+    from the initial state, 0.916 ± 0.059 from the filter's state, 0.935 ± 0.035 on the whole
+    recording."""
     from skigen.diagnose import load
     from skigen.diagnose import transform as T
-    from skigen.diagnose.calibrate import blocks
+    from skigen.diagnose.calibrate import blocks, calibrate
     from skigen.fit import fit
     sc = make("arm_clean", 150.0, 1)
     _, _, rec = load(sc.model_file, sc.write_csv(tmp_path / "arm.csv"))
     model = T.copy_model(load_model(sc.model_file), unknowns=False)
-    pieces = blocks(rec)
-    trace = run(derive(model, "ekf"), rec, backend="casadi", trace=True, show_progress=False).trace
-    at = [int(np.searchsorted(rec.t, p.t[0])) for p in pieces]
-    starts = [None if a == 0 else (trace.z_next[a - 1], trace.C_next[a - 1]) for a in at]
-    q = lambda recs, **kw: fit(model, recs, method="filter-error", estimate=[], show_progress=False,
-                               **kw).noise["scales"]["Q_scale_omega"]
-    whole, from_filter, from_x0 = q([rec]), q(pieces, starts=starts), q(pieces)
+    q = lambda recs: fit(model, recs, method="filter-error", estimate=[], show_progress=False,
+                         ).noise["scales"]["Q_scale_omega"]
+    whole, from_x0 = q([rec]), q(blocks(rec))
+    from_filter = calibrate(model, [rec])[1].scales["Q_scale_omega"]
+    assert len(blocks(rec)) == 5
     assert abs(from_filter["value"] - whole["value"]) < 0.05, (from_filter, whole)      # measured 0.019
     assert from_x0["value"] - whole["value"] > 3 * from_filter["std"], (from_x0, whole)   # measured 0.233

@@ -101,7 +101,7 @@ def fresh_chains(monkeypatch):
     monkeypatch.setattr(runtime, "CHAIN_BELOW", 10 ** 9)
     monkeypatch.setattr(runtime, "_CHAINS", {})
     monkeypatch.setattr(runtime, "_RUNS", {})
-    monkeypatch.setattr(runtime, "_JIT", {"works": True})
+    monkeypatch.setattr(runtime, "_JIT", dict(runtime._JIT, works=True))
 
 
 def _identical(a: RunResult, b: RunResult):
