@@ -553,7 +553,7 @@ class _Chain:
     the time spent there exceeds what compiling it is expected to cost; then compiled by the C
     compiler (CasADi's JIT, blocks of up to :data:`JIT_INSTRUCTIONS`) and evaluated natively:
     about 1.4 ns an instruction against the VM's 8 (Silverbox's 246-instruction EKF, 8 steps a
-    block: 0.35 µs a sample against 1.9, compiled in 0.4 s). The rule is the ski-rental one: a
+    block: 0.33 µs a sample against 1.9, compiled in 0.3 s). The rule is the ski-rental one: a
     structure run a few times never pays for a compilation, one run many times over a long
     recording pays for it once, and the total is at most about twice the better of never and at
     once. The numbers are the VM's to the bit (tested)."""

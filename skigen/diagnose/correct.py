@@ -198,7 +198,8 @@ def refit_jointly(nominal: Model, calibrated: Model, corr: Correction, rec, equa
     tries = [(calibrated, a) for a in ([lift, []] if lift else [[]])] + ([(anchored, [])] if anchored else [])
     pieces = blocks(rec)
     info = {"method": "filter-error", "lifted": [], "note": "" if len(pieces) == 1 else
-            f"on {len(pieces)} blocks of {len(pieces[0].t)} samples spread over the recording. "}
+            f"on {len(pieces)} blocks of {len(pieces[0].t)} samples spread over the recording, each started "
+            f"where the EKF over the whole recording stood. "}
     for start, attempt in tries:
         model, names, notes = parametrised(start, corr, attempt)
         if not enabled:
