@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass
+from pathlib import Path
 from time import perf_counter
 
 import numpy as np
@@ -590,14 +591,31 @@ class _Chain:
 
 def _jit_directory() -> str:
     """This process's directory for the JIT's sources and libraries (not the user's working
-    directory), removed at exit (with its files: CasADi does not clean up after itself there)."""
+    directory), removed at exit with its files (CasADi does not clean up after itself there), and
+    those of processes that ended without running their exit handlers (pool workers) removed now."""
     if "directory" not in _JIT:
         import atexit
+        import os
         import shutil
         import tempfile
-        _JIT["directory"] = tempfile.mkdtemp(prefix="skigen-jit-")
+        for old in Path(tempfile.gettempdir()).glob("skigen-jit-*-*"):
+            pid = old.name.split("-")[2]
+            if pid.isdigit() and not _alive(int(pid)):
+                shutil.rmtree(old, ignore_errors=True)
+        _JIT["directory"] = tempfile.mkdtemp(prefix=f"skigen-jit-{os.getpid()}-")
         atexit.register(shutil.rmtree, _JIT["directory"], True)
     return _JIT["directory"] + "/"
+
+
+def _alive(pid: int) -> bool:
+    import os
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:                   # another user's process
+        return True
+    return True
 
 
 def _call(f, args: list, outs: list[np.ndarray]) -> None:

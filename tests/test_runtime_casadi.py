@@ -138,3 +138,22 @@ def test_without_a_working_compiler_the_chain_stays_in_the_vm(rec, fresh_chains,
     runtime._RUNS.clear()
     _identical(run(filt, rec, backend="casadi", trace=True, show_progress=False), vm)
     assert chain.native and chain.f is vm_function and not runtime._JIT["works"]
+
+
+def test_the_jit_directories_of_ended_processes_are_removed(monkeypatch, tmp_path):
+    """A pool worker ends without its exit handlers: its JIT directory is removed by the next
+    process that compiles; a live process's is kept."""
+    import os
+    import subprocess
+    import tempfile
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    monkeypatch.setattr(runtime, "_JIT", {k: v for k, v in runtime._JIT.items() if k != "directory"})
+    ended = subprocess.Popen(["true"])
+    ended.wait()
+    stale, alive = tmp_path / f"skigen-jit-{ended.pid}-abc", tmp_path / f"skigen-jit-{os.getppid()}-def"
+    for d in (stale, alive):
+        d.mkdir()
+        (d / "chain.so").write_bytes(b"")
+    mine = runtime._jit_directory()
+    assert not stale.exists() and alive.exists()
+    assert mine.startswith(str(tmp_path / f"skigen-jit-{os.getpid()}-")) and os.path.isdir(mine)
