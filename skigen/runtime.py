@@ -22,6 +22,7 @@ other backends.
 from __future__ import annotations
 
 import hashlib
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from time import perf_counter
@@ -595,7 +596,6 @@ def _jit_directory() -> str:
     those of processes that ended without running their exit handlers (pool workers) removed now."""
     if "directory" not in _JIT:
         import atexit
-        import os
         import shutil
         import tempfile
         for old in Path(tempfile.gettempdir()).glob("skigen-jit-*-*"):
@@ -608,13 +608,12 @@ def _jit_directory() -> str:
 
 
 def _alive(pid: int) -> bool:
-    import os
     try:
-        os.kill(pid, 0)
+        os.kill(pid, 0)               # signal 0: only asks whether the process exists
     except ProcessLookupError:
         return False
-    except OSError:                   # another user's process
-        return True
+    except PermissionError:           # another user's process
+        pass
     return True
 
 

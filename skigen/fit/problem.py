@@ -366,7 +366,7 @@ class _Secant(ca.Callback):
         self.construct("secant", {})
 
     def reset(self):
-        self.S, self.last, self.used = np.zeros((self.n, self.n)), None, np.zeros((self.n, self.n))
+        self.S, self.last = np.zeros((self.n, self.n)), None
 
     def get_n_in(self):
         return 4
@@ -398,14 +398,15 @@ class _Secant(ca.Callback):
                 v = y_sharp - S @ s
                 self.S = S + (np.outer(v, y) + np.outer(y, v)) / ys - float(v @ s) * np.outer(y, y) / ys ** 2
         self.last = xi, f, g, F
-        self.used = np.zeros((self.n, self.n))
-        if augmented:
-            try:
-                np.linalg.cholesky(F + self.S + self.damping)
-                self.used = self.S
-            except np.linalg.LinAlgError:
-                pass
-        return [self.used]
+        return [self.S if augmented and _positive_definite(F + self.S + self.damping) else np.zeros_like(F)]
+
+
+def _positive_definite(H: np.ndarray) -> bool:
+    try:
+        np.linalg.cholesky(H)
+    except np.linalg.LinAlgError:
+        return False
+    return True
 
 
 NOISE_DAMPING = 0.5     # curvature added to each log noise scale: one sample's Fisher information about
