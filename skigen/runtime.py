@@ -539,10 +539,11 @@ MAX_RUNS, MAX_RUN_BYTES = 16, 1 << 25     # runs kept, and the largest kept (32 
 # yet is evaluated sample by sample (a SKI over 26 candidates, 674 558 instructions, over 1 200
 # samples: 10 s instead of 22 s, 13 of them building the chain).
 CHAIN_BELOW = 5
-INLINE_BELOW = 2000    # instructions of a step inlined into its chain (see _build_chain)
+INLINE_BELOW = 2000    # instructions of a step inlined into its chain (see _block)
 
 
 JIT_INSTRUCTIONS = 2000        # a compiled block holds about this many instructions: 1 to 8 steps
+JIT_COMPILER = "gcc"           # any C compiler: the VM's numbers need only no contraction (below)
 JIT_FLAGS = ["-Og", "-ffp-contract=off"]      # -O1's speed, built faster; no fused multiply-add: the VM's numbers
 JIT_LARGEST = 50_000           # instructions of the largest step compiled
 # whether compiling works (False once it failed: no C compiler), and what a compilation costs: about
@@ -551,43 +552,56 @@ _JIT = {"works": True, "seconds": 0.15, "per_instruction": 1e-4}
 
 
 class _Chain:
-    """A step structure's chain (:func:`_build_chain`), evaluated by CasADi's virtual machine until
-    the time spent there exceeds what compiling it is expected to cost; then compiled by the C
-    compiler (CasADi's JIT, blocks of up to :data:`JIT_INSTRUCTIONS`) and evaluated natively:
-    about 1.4 ns an instruction against the VM's 8 (Silverbox's 246-instruction EKF, 8 steps a
-    block: 0.33 µs a sample against 1.9, compiled in 0.3 s). The rule is the ski-rental one: a
-    structure run a few times never pays for a compilation, one run many times over a long
-    recording pays for it once, and the total is at most about twice the better of never and at
-    once. The numbers are the VM's to the bit (tested)."""
+    """A step structure's chain (:func:`_block`, :func:`_chain_of`), evaluated by CasADi's virtual
+    machine until the time spent there exceeds what compiling it is expected to cost; then its
+    blocks (of up to
+    :data:`JIT_INSTRUCTIONS`) are compiled by the C compiler beside the runs, which go on in the VM
+    and switch to the native code at the first call after the compiler finished: about 1.4 ns an
+    instruction against the VM's 8 (Silverbox's 246-instruction EKF, 8 steps a block: 0.33 µs a
+    sample against 1.9, compiled in 0.3 s). The rule is the ski-rental one: a structure run a few
+    times never pays for a compilation, one run many times over a long recording pays for it once,
+    and the total is at most about twice the better of never and at once (the compiler's time now
+    on another core where there is one). The numbers are the VM's to the bit (tested)."""
 
     def __init__(self, filt: DerivedFilter, step):
-        self.filt, self.step, self.f = filt, step, _build_chain(filt, step, *PIECE_BLOCKS)
+        self.filt, self.step = filt, step
         n = step.n_instructions()
         self.block = 1 << int(np.clip(np.log2(JIT_INSTRUCTIONS / max(n, 1)), 0, 3))   # 1, 2, 4 or 8 steps
-        self.native, self.spent = False, 0.0          # seconds its runs spent in the VM
+        self.f = _chain_of(_block(filt, step, PIECE_BLOCKS[0]), PIECE_BLOCKS[1])
+        self.native, self.spent, self.compiling = False, 0.0, None     # spent: seconds its runs took in the VM
         self.cost = _JIT["seconds"] + _JIT["per_instruction"] * self.block * n if n <= JIT_LARGEST else np.inf
 
     def __call__(self, args: list, outs: list[np.ndarray]) -> None:
+        if self.compiling is not None and self.compiling.done():
+            self.wait()
         t0 = perf_counter()
         _call(self.f, args, outs)
-        if not self.native:
+        if not self.native and self.compiling is None:
             self.spent += perf_counter() - t0
             if self.spent > self.cost:
-                self.f, self.native = self.compiled() or self.f, True     # compiled, or never
+                self.compile()
 
-    def compiled(self):
-        """The chain with its blocks compiled, or None where that fails (no C compiler)."""
+    def compile(self) -> None:
+        """Start compiling the chain's blocks beside the runs (the VM's code stays where that fails)."""
         if not _JIT["works"]:
-            return None
-        t0 = perf_counter()
-        try:
-            f = _build_chain(self.filt, self.step, self.block, PIECE // self.block, jit=True)
-        except RuntimeError:
+            self.native = True                       # never
+            return
+        block = _block(self.filt, self.step, self.block, f"block{id(self)}")
+        self.compiling = _background(_compile, _generate(block, _jit_directory()), block.name(),
+                                     block.n_instructions())
+
+    def wait(self) -> None:
+        """Wait for the compiler, then evaluate the compiled blocks (or stay in the VM where it failed)."""
+        if self.compiling is None:
+            return
+        library, name, per = self.compiling.result()
+        self.compiling, self.native = None, True
+        if library is None:
             _JIT["works"] = False
-            return None
-        per = max(perf_counter() - t0 - _JIT["seconds"], 0.0) / (self.block * self.step.n_instructions())
+            return
+        import casadi as ca
         _JIT["per_instruction"] = 0.8 * _JIT["per_instruction"] + 0.2 * per
-        return f
+        self.f = _chain_of(ca.external(name, str(library)), PIECE // self.block)
 
 
 def _jit_directory() -> str:
@@ -628,17 +642,15 @@ def _call(f, args: list, outs: list[np.ndarray]) -> None:
     evaluate()
 
 
-def _build_chain(filt: DerivedFilter, step, B: int, blocks: int, jit: bool = False):
-    """``step`` (the derived step with its constants as a last input c) chained over B·blocks samples:
-    B steps in one SX Function, its blocks carried on by a mapaccum. A step of at most
-    :data:`INLINE_BELOW` instructions is inlined, a larger one called (a call costs about 0.8 µs:
-    the quadrotor's 208-instruction EKF takes 2.1 µs a sample inlined against 2.9 µs called; the
-    spiral's 39 000-instruction SKI the same 215 µs either way, and its chain builds in 1.3 s
-    called against 2.2 s inlined). The step's constants are an input, not numbers, so none folds
-    across steps: the chain's numbers are the step's (tested against the python backend). ``jit``:
-    the blocks compiled by the C compiler (CasADi's JIT; see :class:`_Chain`).
-    (z, C, [s], mem, U, Y, valid, c) → per step: [z_post; e; diag Pyy; nis; loglik; [s_next]; z_next;
-    mem_next], C_post, C_next, mem."""
+def _block(filt: DerivedFilter, step, B: int, name: str = "block"):
+    """``step`` (the derived step with its constants as a last input c) over B samples, inlined into
+    one SX Function when it has at most :data:`INLINE_BELOW` instructions, else called (a call
+    costs about 0.8 µs: the quadrotor's 208-instruction EKF takes 2.1 µs a sample inlined against
+    2.9 µs called; the spiral's 39 000-instruction SKI the same 215 µs either way, and its chain
+    builds in 1.3 s called against 2.2 s inlined). The step's constants are an input, not numbers,
+    so none folds across steps: the block's numbers are the step's (tested against the python
+    backend). (z, C, [s], mem, U, Y, valid, c) → the carried (z, C, [s], mem) and per step:
+    [z_post; e; diag Pyy; nis; loglik; [s_next]; z_next; mem_next], C_post, C_next, mem."""
     import casadi as ca
     ski, d = filt.has_ard, filt.aug.shapes
     acc = [ca.SX.sym("z", d["n"]), ca.SX.sym("C", d["n"], d["n"])] + ([ca.SX.sym("s", d["nw"])] if ski else []) \
@@ -654,14 +666,66 @@ def _build_chain(filt: DerivedFilter, step, B: int, blocks: int, jit: bool = Fal
                          out["z_next"], out["mem_next"])
         cols.append([rec, Cp, Cn, mem])
         cur = [out["z_next"], Cn] + sn + [out["mem_next"]]
-    opts = {"jit": True, "jit_cleanup": False, "compiler": "shell",       # _jit_directory removes the files
-            "jit_options": {"flags": JIT_FLAGS, "verbose": False, "directory": _jit_directory(),
-                            "cleanup": False}} if jit else {}
-    block = ca.Function("block", acc + [U, Y, V, c], cur + [ca.horzcat(*col) for col in zip(*cols)], opts)
-    chain = block.mapaccum("chain", blocks, len(acc), {"base": -1})
-    ins = [ca.MX.sym("acc", a.sparsity()) for a in acc] + \
-        [ca.MX.sym("in", v.size1(), B * blocks) for v in (U, Y, V)] + [ca.MX.sym("c", c.sparsity())]
-    return ca.Function("chain", ins, chain(*ins[:-1], ca.repmat(ins[-1], 1, blocks))[len(acc):])
+    return ca.Function(name, acc + [U, Y, V, c], cur + [ca.horzcat(*col) for col in zip(*cols)])
+
+
+def _chain_of(block, blocks: int):
+    """``block`` (:func:`_block`, or its compiled library) carried on over ``blocks`` blocks by a
+    mapaccum: (z, C, [s], mem, U, Y, valid, c) → per step the block's records, C_post, C_next, mem."""
+    import casadi as ca
+    n_acc = block.n_in() - 4
+    chain = block.mapaccum("chain", blocks, n_acc, {"base": -1})
+    ins = [ca.MX.sym("acc", block.sparsity_in(i)) for i in range(n_acc)] + \
+        [ca.MX.sym("in", block.size1_in(i), block.size2_in(i) * blocks) for i in range(n_acc, n_acc + 3)] + \
+        [ca.MX.sym("c", block.sparsity_in(n_acc + 3))]
+    return ca.Function("chain", ins, chain(*ins[:-1], ca.repmat(ins[-1], 1, blocks))[n_acc:])
+
+
+def _generate(f, directory: str) -> Path:
+    """The C source of the Function ``f`` written into ``directory`` (its name: f's)."""
+    import casadi as ca
+    cg = ca.CodeGenerator(f"{f.name()}.c")
+    cg.add(f)
+    return Path(cg.generate(directory))
+
+
+def _compiler():
+    """This process's compiler lock: one compilation at a time (a forked child makes its own, as
+    its copy may be held)."""
+    if _JIT.get("pid") != os.getpid():
+        import threading
+        _JIT["lock"], _JIT["pid"] = threading.Lock(), os.getpid()
+    return _JIT["lock"]
+
+
+def _background(fn, *args):
+    """``fn(*args)`` on a daemon thread, one at a time per process (a Future)."""
+    import threading
+    from concurrent.futures import Future
+    future, lock = Future(), _compiler()
+
+    def work():
+        with lock:
+            try:
+                future.set_result(fn(*args))
+            except BaseException as exc:       # handed to whoever waits for it
+                future.set_exception(exc)
+    threading.Thread(target=work, name="skigen-jit", daemon=True).start()
+    return future
+
+
+def _compile(source: Path, name: str, instructions: int) -> tuple:
+    """(the shared library built from ``source``, or None where the compiler fails; the function's
+    name; the seconds the compilation took per instruction beyond its fixed cost)."""
+    import subprocess
+    library, t0 = source.with_suffix(".so"), perf_counter()
+    try:
+        ok = subprocess.run([JIT_COMPILER, *JIT_FLAGS, "-fPIC", "-shared", str(source), "-o", str(library), "-lm"],
+                            capture_output=True).returncode == 0
+    except OSError:
+        ok = False
+    per = max(perf_counter() - t0 - _JIT["seconds"], 0.0) / max(instructions, 1)
+    return (library if ok else None), name, per
 
 
 def structure(f) -> tuple[tuple, np.ndarray]:

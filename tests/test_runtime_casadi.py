@@ -114,8 +114,8 @@ def _identical(a: RunResult, b: RunResult):
 @pytest.mark.parametrize("kind", ["ekf", "ukf", "ski"])
 def test_a_chain_is_compiled_once_its_runs_cost_a_compilation_and_gives_the_same_numbers(rec, kind, fresh_chains):
     """runtime._Chain: CasADi's VM until the seconds its runs took exceed a compilation's expected
-    cost, then C compiled by CasADi's JIT, with the VM's numbers to the bit (no fused
-    multiply-add)."""
+    cost, then C compiled beside the runs (they go on in the VM meanwhile), with the VM's numbers
+    to the bit (no fused multiply-add)."""
     filt = derive(build(), kind)
     vm = run(filt, rec, backend="casadi", trace=True, show_progress=False)
     chain = next(iter(runtime._CHAINS.values()))
@@ -123,7 +123,9 @@ def test_a_chain_is_compiled_once_its_runs_cost_a_compilation_and_gives_the_same
     vm_function = chain.f
     chain.cost = chain.spent                 # as if its runs had now cost a compilation
     runtime._RUNS.clear()
-    _identical(run(filt, rec, backend="casadi", trace=True, show_progress=False), vm)
+    _identical(run(filt, rec, backend="casadi", trace=True, show_progress=False), vm)   # compiling meanwhile
+    assert chain.compiling is not None and not chain.native and chain.f is vm_function
+    chain.wait()
     assert chain.native and chain.f is not vm_function
     runtime._RUNS.clear()
     _identical(run(filt, rec, backend="casadi", trace=True, show_progress=False), vm)
@@ -135,6 +137,9 @@ def test_without_a_working_compiler_the_chain_stays_in_the_vm(rec, fresh_chains,
     vm = run(filt, rec, backend="casadi", trace=True, show_progress=False)
     chain = next(iter(runtime._CHAINS.values()))
     vm_function, chain.cost = chain.f, 0.0
+    runtime._RUNS.clear()
+    _identical(run(filt, rec, backend="casadi", trace=True, show_progress=False), vm)
+    chain.wait()
     runtime._RUNS.clear()
     _identical(run(filt, rec, backend="casadi", trace=True, show_progress=False), vm)
     assert chain.native and chain.f is vm_function and not runtime._JIT["works"]
