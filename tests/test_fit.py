@@ -54,16 +54,14 @@ def simulate(model, U, x0, rng, q_std=None):
     state (process noise) and the declared measurement noise: x[k+1] = f(x[k], u) + w[k]."""
     aug = augment(model)
     nx = len(model.states)
-    F = ca.Function("f", [aug.z, aug.u], [aug.f])
-    H = ca.Function("h", [aug.z, aug.u], [aug.h])
-    Us = step_inputs(model, U)
     q = np.zeros(nx) if q_std is None else np.asarray(q_std, float)
     r = np.sqrt(np.diag(model.measurement_noise()))
-    X, Y = np.zeros((len(Us), nx)), np.zeros((len(Us), len(model.outputs)))
-    x = np.asarray(x0, float)
-    for k in range(len(Us)):
-        X[k], Y[k] = x, np.asarray(H(x, Us[k])).ravel()
-        x = np.asarray(F(x, Us[k])).ravel() + q * rng.normal(size=nx)
+    Us = np.asarray(step_inputs(model, U), float).reshape(len(U), -1)
+    W = rng.normal(size=(len(Us), nx))                    # the kicks, drawn sample by sample
+    w = ca.SX.sym("w", nx)
+    step = ca.Function("step", [aug.z, ca.vertcat(aug.u, w)], [aug.f + q * w, aug.h])
+    X_next, Y = (np.asarray(v).T for v in step.mapaccum("sim", len(Us))(np.asarray(x0, float), np.hstack([Us, W]).T))
+    X = np.vstack([np.asarray(x0, float)[None, :], X_next[:-1]])
     return X, Y + r * rng.normal(size=Y.shape)
 
 
