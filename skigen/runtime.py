@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import threading
 from dataclasses import dataclass
 from pathlib import Path
 from time import perf_counter
@@ -632,14 +633,52 @@ def _alive(pid: int) -> bool:
 
 
 def _call(f, args: list, outs: list[np.ndarray]) -> None:
-    """Evaluate the CasADi Function ``f`` on NumPy arrays (no conversion), its results into ``outs``."""
+    """Evaluate the CasADi Function ``f`` on NumPy arrays (no conversion), its results into ``outs``;
+    beside the other threads of :func:`parallel`."""
     buf, evaluate = f.buffer()
     args = [np.ascontiguousarray(a, float) for a in args]        # alive until evaluated
     for i, a in enumerate(args):
         buf.set_arg(i, memoryview(a))
     for i, r in enumerate(outs):
         buf.set_res(i, memoryview(r))
-    evaluate()
+    if getattr(_TASK, "holds", False):
+        _ONE_AT_A_TIME.release()
+        try:
+            evaluate()
+        finally:
+            _ONE_AT_A_TIME.acquire()
+    else:
+        evaluate()
+
+
+THREADS = min(4, len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1)
+_ONE_AT_A_TIME = threading.Lock()
+_TASK = threading.local()
+
+
+def parallel(fn, items) -> list:
+    """``[fn(x) for x in items]``, the items on up to :data:`THREADS` threads. CasADi releases the
+    GIL while it evaluates, so the chains' evaluations (:func:`_call`) run side by side; everything
+    else ``fn`` does — Python, and CasADi's symbolic operations, which are not thread-safe — runs
+    one task at a time, under one lock. The results are the loop's (each task's numbers do not
+    depend on the others'); the first exception raised is raised. Nested calls run as the loop."""
+    items = list(items)
+    if min(THREADS, len(items)) < 2 or getattr(_TASK, "holds", False):
+        return [fn(x) for x in items]
+
+    def task(x):
+        with _ONE_AT_A_TIME:
+            _TASK.holds = True
+            try:
+                return fn(x)
+            finally:
+                _TASK.holds = False
+    from concurrent.futures import ThreadPoolExecutor
+    pool = ThreadPoolExecutor(min(THREADS, len(items)), thread_name_prefix="skigen")
+    try:
+        return list(pool.map(task, items))
+    finally:                        # after an exception (or ^C) the tasks not yet started are cancelled
+        pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _block(filt: DerivedFilter, step, B: int, name: str = "block"):
@@ -693,14 +732,12 @@ def _compiler():
     """This process's compiler lock: one compilation at a time (a forked child makes its own, as
     its copy may be held)."""
     if _JIT.get("pid") != os.getpid():
-        import threading
         _JIT["lock"], _JIT["pid"] = threading.Lock(), os.getpid()
     return _JIT["lock"]
 
 
 def _background(fn, *args):
     """``fn(*args)`` on a daemon thread, one at a time per process (a Future)."""
-    import threading
     from concurrent.futures import Future
     future, lock = Future(), _compiler()
 

@@ -162,3 +162,56 @@ def test_the_jit_directories_of_ended_processes_are_removed(monkeypatch, tmp_pat
     mine = runtime._jit_directory()
     assert not stale.exists() and alive.exists()
     assert mine.startswith(str(tmp_path / f"skigen-jit-{os.getpid()}-")) and os.path.isdir(mine)
+
+
+def test_parallel_tasks_evaluate_side_by_side_and_return_the_loops_results(monkeypatch):
+    """runtime.parallel: the tasks' CasADi evaluations (runtime._call) overlap — two evaluations
+    that each wait for the other both finish — while the rest of each task runs under one lock; the
+    results come in the items' order; the first exception is raised."""
+    import threading
+
+    import casadi as ca
+    monkeypatch.setattr(runtime, "THREADS", 2)
+    meeting = threading.Barrier(2, timeout=10)
+
+    class Meet(ca.Callback):
+        def __init__(self):
+            ca.Callback.__init__(self)
+            self.construct("meet", {})
+
+        def get_n_in(self):
+            return 1
+
+        def get_n_out(self):
+            return 1
+
+        def eval(self, arg):
+            meeting.wait()              # the other task's evaluation is under way too, or this times out
+            return [2 * arg[0]]
+    meet = Meet()
+
+    def task(x):
+        out = np.empty(1)
+        runtime._call(meet, [np.array([x])], [out])
+        assert runtime._TASK.holds      # the lock is this task's again
+        return float(out[0])
+    assert runtime.parallel(task, [1.0, 2.0]) == [2.0, 4.0]
+    with pytest.raises(ZeroDivisionError):
+        runtime.parallel(lambda x: 1 / x, [1.0, 0.0, 2.0])
+
+
+def test_runs_on_threads_equal_the_runs_one_after_another(rec, monkeypatch):
+    monkeypatch.setattr(runtime, "CHAIN_BELOW", 10 ** 9)
+    filt = derive(build(), "ski")
+    starts = []
+    for shift in (0.0, 0.01, -0.02, 0.03):
+        init = filt.initial()
+        init["z"] = init["z"] + shift
+        starts.append(init)
+    go = lambda init: run(filt, rec, backend="casadi", init=init, trace=True, show_progress=False)
+    monkeypatch.setattr(runtime, "THREADS", 1)
+    alone = runtime.parallel(go, starts)
+    monkeypatch.setattr(runtime, "THREADS", 2)
+    runtime._RUNS.clear()
+    for a, b in zip(runtime.parallel(go, starts), alone):
+        _identical(a, b)

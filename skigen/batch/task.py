@@ -170,6 +170,8 @@ def run_log(spec: str, path: str, out_dir: str, name: str, options: dict) -> dic
                seconds=None, mean_nis=None, nis_expected=None, quantities={}, findings=[], mismatch=None,
                fingerprint=options["fingerprint"])
     spec, digest, mode = options["spec"], options["digest"], options["mode"]
+    from .. import runtime
+    threads, runtime.THREADS = runtime.THREADS, 1      # the batch's worker processes share out the cores
     try:
         if mode == "run":
             _run(spec, digest, path, tmp, options, row)
@@ -182,6 +184,8 @@ def run_log(spec: str, path: str, out_dir: str, name: str, options: dict) -> dic
     except Exception as exc:   # a bad log is a row, never the end of the batch
         row.update(status="failed", message=_one_line(exc))
         (tmp / "error.txt").write_text(traceback.format_exc())
+    finally:
+        runtime.THREADS = threads
     row["seconds"] = time.perf_counter() - t0
     if row["status"] != "failed":
         (tmp / MARKER).write_text(json.dumps(row, indent=1, default=_json) + "\n")

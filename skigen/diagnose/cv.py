@@ -23,7 +23,7 @@ from ..derive import DerivedFilter, FilterOptions, derive
 from ..derive.augment import memory_values
 from ..model import Model
 from ..recording import Recording
-from ..runtime import RunResult, iter_run, run
+from ..runtime import RunResult, iter_run, parallel, run
 
 __all__ = ["Folds", "ekf_run", "fold_loglik", "loglik", "fit_without", "fits_without"]
 
@@ -125,13 +125,13 @@ def fits_without(model: Model, kind: str, rec: Recording, folds: Folds, start: R
     filt = derive(model, kind)
     ends = sorted({b for f in range(len(folds)) for a, b in folds.outside(f) if a == 0})
     ahead = _ahead(filt, rec, ends) if ends else None
-    out = []
-    for f in range(len(folds)):
+
+    def without(f):
         try:
-            out.append(_fit(filt, rec, folds.outside(f), start, ahead))
+            return _fit(filt, rec, folds.outside(f), start, ahead)
         except (FloatingPointError, RuntimeError, np.linalg.LinAlgError) as exc:
-            out.append(exc)
-    return out
+            return exc
+    return parallel(without, range(len(folds)))
 
 
 def _fit(filt, rec: Recording, pieces, start: RunResult, ahead=None) -> tuple[np.ndarray, np.ndarray]:

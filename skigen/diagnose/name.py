@@ -51,7 +51,7 @@ from ..derive import FilterOptions, derive
 from ..library import term
 from ..model import Model
 from ..recording import Recording
-from ..runtime import RunResult
+from ..runtime import RunResult, parallel
 from . import transform as T
 from .catalog import Additive, Structural, _num
 from .cv import Folds, ekf_run, fit_without, fits_without, fold_loglik, loglik
@@ -286,15 +286,14 @@ def cv_loglik(nominal: Model, corr: Correction, rec: Recording, folds: Folds, rm
     cands = [a[0] for a in corr.additive]
     m, r = _estimating(base, nominal, cands, rms, size)
     start = start_trace(base.build(nominal), rec)
-    out = np.empty(len(folds))
-    for f, fitted in enumerate(fits_without(m, "ekf", rec, folds, start)):
+
+    def held_out(f, fitted) -> float:
         if isinstance(fitted, Exception):        # diverged
-            out[f] = -np.inf
-            continue
+            return -np.inf
         w, sd = fitted[0] / r, fitted[1] / r
         fold_corr = Correction([(c, float(wi), float(si)) for c, wi, si in zip(cands, w, sd)], corr.structural)
-        out[f] = fold_loglik(fold_corr.build(nominal), rec, folds)[f]
-    return out
+        return fold_loglik(fold_corr.build(nominal), rec, folds)[f]
+    return np.array(parallel(lambda a: held_out(*a), enumerate(fits_without(m, "ekf", rec, folds, start))))
 
 
 def _additive(nominal, current: Correction, cands, rec, folds: Folds, rms, size, alpha,
@@ -384,11 +383,10 @@ def _structural(base: Model, s: Structural, rec: Recording, folds: Folds):
     grid = list(s.grid)
     if s.integer:
         coarse = sorted({g for g in grid if g & (g - 1) == 0} | {grid[-1]})
-        totals = [per_fold(g).sum() for g in coarse]
+        totals = [t.sum() for t in parallel(per_fold, coarse)]
         i = int(np.argmax(totals))
         grid = list(range(int(coarse[max(i - 1, 0)]), int(coarse[min(i + 1, len(coarse) - 1)]) + 1))
-    for g in grid:
-        per_fold(g)
+    parallel(per_fold, grid)
     xs = np.array(sorted(table))
     L = np.array([table[x] for x in xs])                     # (grid, folds)
     others = np.where(~np.eye(len(folds), dtype=bool), L[:, None, :], 0.0).sum(axis=2)   # no −inf − (−inf)
