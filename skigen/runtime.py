@@ -555,10 +555,9 @@ _JIT = {"works": True, "seconds": 0.15, "per_instruction": 1e-4}
 class _Chain:
     """A step structure's chain (:func:`_block`, :func:`_chain_of`), evaluated by CasADi's virtual
     machine until the time spent there exceeds what compiling it is expected to cost; then its
-    blocks (of up to
-    :data:`JIT_INSTRUCTIONS`) are compiled by the C compiler beside the runs, which go on in the VM
-    and switch to the native code at the first call after the compiler finished: about 1.4 ns an
-    instruction against the VM's 8 (Silverbox's 246-instruction EKF, 8 steps a block: 0.33 µs a
+    blocks (of up to :data:`JIT_INSTRUCTIONS`) are compiled by the C compiler beside the runs,
+    which go on in the VM and switch to the native code at the first call after the compiler
+    finished: about 1.4 ns an instruction against the VM's 8 (Silverbox's 246-instruction EKF, 8 steps a block: 0.33 µs a
     sample against 1.9, compiled in 0.3 s). The rule is the ski-rental one: a structure run a few
     times never pays for a compilation, one run many times over a long recording pays for it once,
     and the total is at most about twice the better of never and at once (the compiler's time now
@@ -585,7 +584,7 @@ class _Chain:
     def compile(self) -> None:
         """Start compiling the chain's blocks beside the runs (the VM's code stays where that fails)."""
         if not _JIT["works"]:
-            self.native = True                       # never
+            self.native = True                       # settled: never compiled
             return
         block = _block(self.filt, self.step, self.block, f"block{id(self)}")
         self.compiling = _background(_compile, _generate(block, _jit_directory()), block.name(),
