@@ -93,6 +93,7 @@ class RunResult:
     holes: tuple = ()         # grid.Hole of the recording
     notes: tuple = ()         # what reading the recording decided
     trace: Trace | None = None   # with run(..., trace=True)
+    next_prior: tuple | None = None   # (z, C): the prior for the sample after the last (C as in Trace)
 
     def __post_init__(self):
         if self.measured is None:
@@ -144,7 +145,7 @@ class RunResult:
         return cls(first.filter, cat("t"), cat("mean"), cat("std"), cat("innovation"), cat("innovation_var"),
                    cat("nis"), cat("loglik"), cat("prior_var"), cat("code"), last.final_cov, cat("measured"),
                    first.holes, first.notes,
-                   Trace.concat([p.trace for p in parts]) if first.trace is not None else None)
+                   Trace.concat([p.trace for p in parts]) if first.trace is not None else None, last.next_prior)
 
 
 EVENTS = (Status.OUTLIER_REJECTED, Status.SENSOR_STUCK, Status.BAD_INPUT, Status.NUMERICAL_FAILURE,
@@ -844,6 +845,7 @@ def _steps(filt, stepper, backend, pieces, again, path, time_at, holes=(), notes
         part = _part(filt, t, y, raw, holes, notes)
         C = np.asarray(stepper.C_post, float)
         part.final_cov = C @ C.T if filt.square_root else C
+        part.next_prior = np.array(stepper.z, float).ravel(), np.array(stepper.C, float)
         yield part
 
 

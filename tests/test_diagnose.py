@@ -354,16 +354,16 @@ def test_the_equation_that_absorbs_the_error_is_the_right_one(tmp_path):
 def test_a_fold_never_sees_its_own_data():
     """fit_without(f): the weights estimated without fold f do not change when fold f's
     measurements do, and do change when another fold's do. (The physical states restart after
-    the gap from the given trace, here the original recording's: the one thing a fold lends.)"""
+    the gap from the given priors, here the original recording's: the one thing a fold lends.)"""
     from skigen.diagnose.catalog import additive_candidates
     from skigen.diagnose.cv import Folds, fit_without
-    from skigen.diagnose.name import Correction, start_trace
+    from skigen.diagnose.name import Correction, start_priors
     rec = make("cart_coulomb", 20.0, SEED).recording()
     nominal = T.copy_model(cart.model, unknowns=False)
     cands = [c for c in additive_candidates(nominal, ["v"], {"v": 0.1}) if c.effect in ("coulomb_friction", "bias")]
     model = Correction().build(nominal, unknown=cands, prior_variance=np.ones(len(cands)))
     folds = Folds.of(len(rec.t), 4)
-    start = start_trace(nominal, rec)
+    start = start_priors(nominal, rec, folds)
     w, sd = fit_without(model, "ukf", rec, folds, 1, start)
     a, b = folds.edges[1], folds.edges[2]
     for k, same in ((slice(a, b), True), (slice(folds.edges[3], None), False)):

@@ -215,3 +215,25 @@ def test_runs_on_threads_equal_the_runs_one_after_another(rec, monkeypatch):
     runtime._RUNS.clear()
     for a, b in zip(runtime.parallel(go, starts), alone):
         _identical(a, b)
+
+
+@pytest.mark.parametrize("backend", ["python", "casadi"])
+def test_the_prior_after_a_part_is_the_traces(rec, backend):
+    """RunResult.next_prior, the state a run stands in after a part (what the diagnosis restarts
+    from, without keeping a trace), equals the trace's z_next, C_next at the part's last sample,
+    before the restart after the input hole as well."""
+    from skigen.diagnose.cv import ekf_priors
+    model = build()
+    filt = derive(model, "ekf")
+    full = run(filt, rec, backend=backend, trace=True, show_progress=False)
+    cuts = [37, 125, 126, 180]
+    k = 0
+    for part in iter_run(filt, rec, backend=backend, cuts=cuts, show_progress=False):
+        k += len(part.t)
+        np.testing.assert_array_equal(part.next_prior[0], full.trace.z_next[k - 1])
+        np.testing.assert_array_equal(part.next_prior[1], full.trace.C_next[k - 1])
+    if backend == "casadi":
+        priors = ekf_priors(model, rec, [0, *cuts, len(rec.t)])
+        assert sorted(priors) == cuts
+        for c in cuts:
+            np.testing.assert_array_equal(priors[c][1], full.trace.C_next[c - 1])

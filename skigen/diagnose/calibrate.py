@@ -67,14 +67,14 @@ def block_starts(model: Model, rec: Recording, pieces: list[Recording]) -> list 
     ``rec`` itself, or when that EKF fails (the blocks then start from the initial state)."""
     if len(pieces) == 1 and pieces[0] is rec:
         return None
-    from .cv import ekf_run
+    from .cv import ekf_priors
+    at = [int(np.searchsorted(rec.t, p.t[0])) for p in pieces]
     try:
-        trace = ekf_run(model, rec, trace=True, strict=True).trace
+        prior = ekf_priors(model, rec, at)
     except (ValueError, ArithmeticError):          # FloatingPointError: the EKF diverged
         return None
     nx = len(model.states)
-    at = [int(np.searchsorted(rec.t, p.t[0])) for p in pieces]
-    return [None if a == 0 else (trace.z_next[a - 1, :nx], trace.C_next[a - 1, :nx, :nx]) for a in at]
+    return [None if a == 0 else (prior[a][0][:nx], prior[a][1][:nx, :nx]) for a in at]
 
 
 def calibrate(model: Model, recs: list[Recording], show_progress: bool = False,

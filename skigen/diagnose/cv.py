@@ -25,7 +25,7 @@ from ..model import Model
 from ..recording import Recording
 from ..runtime import RunResult, iter_run, parallel, run
 
-__all__ = ["Folds", "ekf_run", "fold_loglik", "loglik", "fit_without", "fits_without"]
+__all__ = ["Folds", "ekf_run", "ekf_priors", "fold_loglik", "loglik", "fit_without", "fits_without"]
 
 DEFAULT_FOLDS = 5
 MIN_SEGMENT = 20          # samples: a shorter piece of a split is skipped when fitting
@@ -67,6 +67,19 @@ class Folds:
         return float(t[self.edges[f]]), float(t[self.edges[f + 1] - 1])
 
 
+def ekf_priors(model: Model, rec: Recording, samples) -> dict[int, tuple]:
+    """k → (mean, covariance): the prior of ``model``'s strict EKF run over ``rec`` for sample k (where
+    it stands after sample k − 1), for each k of ``samples`` inside the recording; the trace's
+    z_next[k − 1], C_next[k − 1] without keeping a trace. Raises what the run raises."""
+    want, k, out = {int(k) for k in samples if 0 < k < len(rec.t)}, 0, {}
+    for part in iter_run(derive(model, "ekf"), rec, backend="casadi", strict=True, show_progress=False,
+                         cuts=sorted(want)):
+        k += len(part.t)
+        if k in want:
+            out[k] = part.next_prior
+    return out
+
+
 def fold_loglik(model: Model | DerivedFilter, rec: Recording, folds: Folds) -> np.ndarray:
     """Per-fold summed predictive log-likelihood of ``model``'s EKF over ``rec`` (−inf if it diverges:
     a step that gives a non-finite number anywhere; see :func:`loglik`)."""
@@ -87,16 +100,17 @@ def loglik(model: Model | DerivedFilter, rec: Recording, start: int = 0) -> floa
         return -np.inf
 
 
-def _restart(filt, start: RunResult, rec: Recording, k: int, w: np.ndarray, Pw: np.ndarray, s) -> dict:
+def _restart(filt, start: dict, rec: Recording, k: int, w: np.ndarray, Pw: np.ndarray, s) -> dict:
     """The augmented filter's state before sample k: the physical states' prior from ``start``
-    (the current model's EKF), the weights' posterior carried from the previous piece."""
+    (the current model's EKF, :func:`ekf_priors`), the weights' posterior carried from the previous piece."""
     aug = filt.aug
     nx = len(aug.model.states)
     init = filt.initial()
     P = init["C"] @ init["C"].T if filt.square_root else init["C"].copy()
     if k > 0:
-        init["z"][:nx] = start.trace.z_next[k - 1, :nx]
-        P[:nx, :nx] = start.trace.C_next[k - 1][:nx, :nx]
+        z, C = start[k]
+        init["z"][:nx] = z[:nx]
+        P[:nx, :nx] = C[:nx, :nx]
         P[:nx, nx:] = P[nx:, :nx] = 0.0
     if w is not None:
         idx = aug.w_index
@@ -110,15 +124,15 @@ def _restart(filt, start: RunResult, rec: Recording, k: int, w: np.ndarray, Pw: 
 
 
 def fit_without(model: Model, kind: str, rec: Recording, folds: Folds, f: int | None,
-                start: RunResult, options: FilterOptions | None = None) -> tuple[np.ndarray, np.ndarray]:
+                start: dict | None, options: FilterOptions | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(weights, their std) of ``model``'s unknown term estimated by filter ``kind`` ("ekf", "ukf" or "ski")
-    from every fold but f (f = None: the whole recording). ``start``: the current model's EKF run with its trace,
-    where each piece after a gap restarts; ``options``: the filter's (default FilterOptions()).
+    from every fold but f (f = None: the whole recording). ``start``: the current model's EKF priors at the folds'
+    edges (:func:`ekf_priors`), where each piece after a gap restarts; ``options``: the filter's (default FilterOptions()).
     Raises FloatingPointError if the filter diverges."""
     return _fit(derive(model, kind, options), rec, folds.outside(f), start)
 
 
-def fits_without(model: Model, kind: str, rec: Recording, folds: Folds, start: RunResult) -> list:
+def fits_without(model: Model, kind: str, rec: Recording, folds: Folds, start: dict) -> list:
     """:func:`fit_without` for every fold: per fold (weights, std), or the exception its fit raised.
     The filter's runs from the start of the recording to each fold are one run, stopped at each fold
     (the filter is causal: the same numbers)."""
@@ -134,7 +148,7 @@ def fits_without(model: Model, kind: str, rec: Recording, folds: Folds, start: R
     return parallel(without, range(len(folds)))
 
 
-def _fit(filt, rec: Recording, pieces, start: RunResult, ahead=None) -> tuple[np.ndarray, np.ndarray]:
+def _fit(filt, rec: Recording, pieces, start: dict | None, ahead=None) -> tuple[np.ndarray, np.ndarray]:
     """The weights' posterior after the filter has run over ``pieces`` in turn, each after the first
     restarting from ``start`` (see :func:`_restart`); ``ahead(b)``: the carried values of the run over [0, b)."""
     w = Pw = s = None

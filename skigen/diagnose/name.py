@@ -51,14 +51,14 @@ from ..derive import FilterOptions, derive
 from ..library import term
 from ..model import Model
 from ..recording import Recording
-from ..runtime import RunResult, parallel
+from ..runtime import parallel
 from . import transform as T
 from .catalog import Additive, Structural, _num
-from .cv import Folds, ekf_run, fit_without, fits_without, fold_loglik, loglik
+from .cv import Folds, ekf_priors, ekf_run, fit_without, fits_without, fold_loglik, loglik
 from .errors import DiagnosisError
 from .plausible import compensating, significant, term_item
 
-__all__ = ["Correction", "Proposal", "name_terms", "refit", "basis_rms", "distinct", "start_trace",
+__all__ = ["Correction", "Proposal", "name_terms", "refit", "basis_rms", "distinct", "start_priors",
            "focus_window", "recalibrated", "significant"]
 
 MAX_ROUNDS = 3
@@ -196,9 +196,9 @@ def focus_window(strength: np.ndarray, n: int = SKI_MAX_SAMPLES) -> tuple[int, i
     return a, a + n
 
 
-def start_trace(model: Model, rec: Recording) -> RunResult:
-    """The EKF run of ``model``, with its trace: where a fit without a fold restarts after the gap."""
-    return ekf_run(model, rec, trace=True, strict=True)
+def start_priors(model: Model, rec: Recording, folds: Folds) -> dict:
+    """The priors of ``model``'s EKF at the folds' edges: where a fit without a fold restarts after the gap."""
+    return ekf_priors(model, rec, folds.edges[1:-1])
 
 
 def beyond_parameters(model: Model, rec: Recording, states: np.ndarray, cands: list[Additive]) -> list[Additive]:
@@ -285,7 +285,7 @@ def cv_loglik(nominal: Model, corr: Correction, rec: Recording, folds: Folds, rm
     base = Correction([], corr.structural)
     cands = [a[0] for a in corr.additive]
     m, r = _estimating(base, nominal, cands, rms, size)
-    start = start_trace(base.build(nominal), rec)
+    start = start_priors(base.build(nominal), rec, folds)
 
     def held_out(f, fitted) -> float:
         if isinstance(fitted, Exception):        # diverged
