@@ -558,11 +558,12 @@ class _Chain:
     machine until the time spent there exceeds what compiling it is expected to cost; then its
     blocks (of up to :data:`JIT_INSTRUCTIONS`) are compiled by the C compiler beside the runs,
     which go on in the VM and switch to the native code at the first call after the compiler
-    finished: about 1.4 ns an instruction against the VM's 8 (Silverbox's 246-instruction EKF, 8 steps a block: 0.33 µs a
-    sample against 1.9, compiled in 0.3 s). The rule is the ski-rental one: a structure run a few
-    times never pays for a compilation, one run many times over a long recording pays for it once,
-    and the total is at most about twice the better of never and at once (the compiler's time now
-    on another core where there is one). The numbers are the VM's to the bit (tested)."""
+    finished: about 1.4 ns an instruction against the VM's 8 (Silverbox's 246-instruction EKF,
+    8 steps a block: 0.33 µs a sample against 1.9, compiled in 0.3 s). The rule is the ski-rental
+    one: a structure run a few times never pays for a compilation, one run many times over a long
+    recording pays for it once, and the total is at most about twice the better of never and at
+    once (the compiler's time now on another core where there is one). The numbers are the VM's to
+    the bit (tested)."""
 
     def __init__(self, filt: DerivedFilter, step):
         self.filt, self.step = filt, step
@@ -627,8 +628,8 @@ def _alive(pid: int) -> bool:
         os.kill(pid, 0)               # signal 0: only asks whether the process exists
     except ProcessLookupError:
         return False
-    except PermissionError:           # another user's process
-        pass
+    except PermissionError:           # another user's process: it exists
+        return True
     return True
 
 
@@ -728,7 +729,7 @@ def _generate(f, directory: str) -> Path:
     return Path(cg.generate(directory))
 
 
-def _compiler():
+def _compile_lock():
     """This process's compiler lock: one compilation at a time (a forked child makes its own, as
     its copy may be held)."""
     if _JIT.get("pid") != os.getpid():
@@ -739,7 +740,7 @@ def _compiler():
 def _background(fn, *args):
     """``fn(*args)`` on a daemon thread, one at a time per process (a Future)."""
     from concurrent.futures import Future
-    future, lock = Future(), _compiler()
+    future, lock = Future(), _compile_lock()
 
     def work():
         with lock:

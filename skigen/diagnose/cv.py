@@ -126,8 +126,9 @@ def _restart(filt, start: dict, rec: Recording, k: int, w: np.ndarray, Pw: np.nd
 def fit_without(model: Model, kind: str, rec: Recording, folds: Folds, f: int | None,
                 start: dict | None, options: FilterOptions | None = None) -> tuple[np.ndarray, np.ndarray]:
     """(weights, their std) of ``model``'s unknown term estimated by filter ``kind`` ("ekf", "ukf" or "ski")
-    from every fold but f (f = None: the whole recording). ``start``: the current model's EKF priors at the folds'
-    edges (:func:`ekf_priors`), where each piece after a gap restarts; ``options``: the filter's (default FilterOptions()).
+    from every fold but f (f = None: the whole recording). ``start``: the current model's EKF priors
+    at the folds' edges (:func:`ekf_priors`), where each piece after a gap restarts; ``options``:
+    the filter's (default FilterOptions()).
     Raises FloatingPointError if the filter diverges."""
     return _fit(derive(model, kind, options), rec, folds.outside(f), start)
 
