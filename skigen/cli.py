@@ -8,7 +8,7 @@ from pathlib import Path
 
 
 from .derive import FILTERS
-from .emit.c import AUTO_LOOPS_ABOVE_N, LOOPS_KINDS, STYLES
+from .emit.c import AUTO_LOOPS_ABOVE_OPERATIONS, LOOPS_KINDS, STYLES
 from .model import Model, ModelError
 from .modelfile import ModelFileError, canonical_spec, load_model as _load_model
 from .recording import RecordingError
@@ -274,7 +274,7 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--style", choices=STYLES, default="auto",
                    help="kernel: 'unrolled' (flat scalar code, fastest for small models), 'loops' "
                         f"(filter algebra as loops; {', '.join(LOOPS_KINDS)}; small code at any size) or "
-                        f"'auto' (loops above {AUTO_LOOPS_ABOVE_N} augmented states)")
+                        f"'auto' (loops above {AUTO_LOOPS_ABOVE_OPERATIONS} unrolled operations)")
     g.add_argument("--prefix", help="C prefix of every symbol and file (default <model>_<filter>): "
                                     "builds under different prefixes link into one binary")
     g.add_argument("--out", required=True, help="output directory")

@@ -13,7 +13,7 @@ from models.wingrock import W_TRUE
 from models.wingrock_sim import simulate
 from skigen import derive
 from skigen.emit import Status, emit_c
-from skigen.emit.c import choose_style, load_c, single_precision_options
+from skigen.emit.c import AUTO_LOOPS_ABOVE_OPERATIONS, choose_style, load_c, single_precision_options
 from skigen.reference import filters as ref
 from skigen.reference.quadrotor import spiral_f, spiral_h
 from skigen.reference.wingrock import wingrock_delay_f, wingrock_h
@@ -94,6 +94,9 @@ def test_looped_delay_ski_equals_python_runtime(tmp_path):
 def test_style_choice_and_errors(tmp_path):
     small, wide = derive(wingrock_delay.model, "ski"), derive(wingrock_delay.wide, "ski")
     assert choose_style(small) == "unrolled" and choose_style(wide) == "loops"
+    spiral = derive(quadrotor_spiral.model, "ukf")          # n = 14, but 28 800 operations unrolled
+    assert spiral.tunable.n_instructions() > AUTO_LOOPS_ABOVE_OPERATIONS >= small.tunable.n_instructions()
+    assert choose_style(spiral) == "loops" and choose_style(spiral, "unrolled") == "unrolled"
     assert choose_style(derive(wingrock_delay.wide, "ekf")) == "unrolled"      # no looped EKF
     with pytest.raises(ValueError, match="style 'unrolled'"):
         choose_style(derive(wingrock_delay.model, "ekf"), "loops")

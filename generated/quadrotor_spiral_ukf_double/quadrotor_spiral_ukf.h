@@ -82,7 +82,7 @@ typedef double quadrotor_spiral_ukf_real;
 #define QUADROTOR_SPIRAL_UKF_SZ_ARG 9
 #define QUADROTOR_SPIRAL_UKF_SZ_RES 9
 #define QUADROTOR_SPIRAL_UKF_SZ_IW 0
-#define QUADROTOR_SPIRAL_UKF_SZ_W 0
+#define QUADROTOR_SPIRAL_UKF_SZ_W 1577
 
 /* Run-time settings: quadrotor_spiral_ukf_init sets the declared values; change them between steps. */
 typedef struct {
@@ -120,7 +120,7 @@ typedef struct {
     long reject_run; /* samples in a row whose measurement was rejected */
     long since_update; /* samples since a measurement was last used */
     int iw[1]; /* kernel work */
-    quadrotor_spiral_ukf_real w[1]; /* kernel work */
+    quadrotor_spiral_ukf_real w[1577]; /* kernel work */
 } quadrotor_spiral_ukf_state;
 
 /* Names of the augmented state entries, the inputs and the outputs, in order. */

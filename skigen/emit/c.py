@@ -57,7 +57,9 @@ _MATH_RE = re.compile(r"\b(%s)\(" % "|".join(_MATH.split()))
 _LITERAL_RE = re.compile(r"(?<![\w.])(\d+\.\d*(?:[eE][+-]?\d+)?|\d+[eE][+-]?\d+)(?![\w.])")
 STYLES = ("auto", "unrolled", "loops")
 LOOPS_KINDS = ("ukf", "ski")        # kinds the looped kernel implements
-AUTO_LOOPS_ABOVE_N = 20             # 'auto' loops above this augmented-state size
+AUTO_LOOPS_ABOVE_OPERATIONS = 20_000   # 'auto' loops above this many unrolled operations
+# (about 170 kB of Cortex-M7 code at the ~8.5 bytes per operation `skigen bench footprint` measures;
+# the looped kernel stays 30-60 kB at any size)
 _UPDATES = {"z": "z_next", "C": "C_next", "s": "s_next", "mem": "mem_next"}   # committed on success
 _FOH_NOTE = (" * First-order input hold: u holds u_k then u_{k+1} (NU values), and the prediction\n"
              " * interpolates the input linearly between them. On a vehicle, where u_{k+1} is known\n"
@@ -172,12 +174,14 @@ def _index_macros(filt: DerivedFilter, PREFIX: str) -> str:
 
 
 def choose_style(filt: DerivedFilter, style: str = "auto") -> str:
-    """The kernel style emitted for ``style``: 'auto' unrolls small models and loops
-    (where the kind allows it) above :data:`AUTO_LOOPS_ABOVE_N` states."""
+    """The kernel style emitted for ``style``: 'auto' unrolls a step of up to
+    :data:`AUTO_LOOPS_ABOVE_OPERATIONS` scalar operations and loops (where the kind allows
+    it) above: the unrolled code grows as n³ and soon outgrows a flight computer's flash."""
     if style not in STYLES:
         raise ValueError(f"style must be one of {', '.join(STYLES)}, got '{style}'")
     if style == "auto":
-        return "loops" if filt.kind in LOOPS_KINDS and filt.aug.n > AUTO_LOOPS_ABOVE_N else "unrolled"
+        large = filt.tunable.n_instructions() > AUTO_LOOPS_ABOVE_OPERATIONS
+        return "loops" if filt.kind in LOOPS_KINDS and large else "unrolled"
     if style == "loops" and filt.kind not in LOOPS_KINDS:
         raise ValueError(f"the looped kernel implements {', '.join(LOOPS_KINDS)}; "
                          f"emit filter '{filt.kind}' with style 'unrolled'")
