@@ -180,8 +180,8 @@ def choose_style(filt: DerivedFilter, style: str = "auto") -> str:
     if style not in STYLES:
         raise ValueError(f"style must be one of {', '.join(STYLES)}, got '{style}'")
     if style == "auto":
-        large = filt.tunable.n_instructions() > AUTO_LOOPS_ABOVE_OPERATIONS
-        return "loops" if filt.kind in LOOPS_KINDS and large else "unrolled"
+        large = filt.kind in LOOPS_KINDS and filt.tunable.n_instructions() > AUTO_LOOPS_ABOVE_OPERATIONS
+        return "loops" if large else "unrolled"
     if style == "loops" and filt.kind not in LOOPS_KINDS:
         raise ValueError(f"the looped kernel implements {', '.join(LOOPS_KINDS)}; "
                          f"emit filter '{filt.kind}' with style 'unrolled'")
