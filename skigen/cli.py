@@ -117,15 +117,19 @@ def _ran(args, model, n, t0, t1, summary) -> int:
 
 def _generate(args) -> int:
     from .derive import derive
-    from .emit.c import emit_c
+    from .emit.c import choose_style, emit_c
 
-    model = load_model(args.model)
+    filt = derive(load_model(args.model), args.filter)
     try:
-        files = emit_c(derive(model, args.filter), args.out, real=args.real, style=args.style, prefix=args.prefix)
+        style = choose_style(filt, args.style)
+        files = emit_c(filt, args.out, real=args.real, style=style, prefix=args.prefix)
     except ValueError as exc:
         raise CliError(str(exc)) from None
     for f in files:
         print(f)
+    why = (f" (auto: {filt.tunable.n_instructions()} operations unrolled, looped above "
+           f"{AUTO_LOOPS_ABOVE_OPERATIONS})" if args.style == "auto" and filt.kind in LOOPS_KINDS else "")
+    print(f"kernel: {style}{why}", file=sys.stderr)
     return 0
 
 

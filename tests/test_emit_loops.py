@@ -102,6 +102,9 @@ def test_style_choice_and_errors(tmp_path):
         choose_style(derive(wingrock_delay.model, "ekf"), "loops")
     with pytest.raises(ValueError, match="style must be one of"):
         choose_style(small, "fast")
+    r = subprocess.run([sys.executable, "-m", "skigen", "generate", "models.wingrock:model", "--filter", "ukf",
+                        "--out", str(tmp_path / "ukf")], capture_output=True, text=True)
+    assert r.returncode == 0 and "kernel: unrolled (auto: 6109 operations unrolled, looped above 20000)" in r.stderr
     r = subprocess.run([sys.executable, "-m", "skigen", "generate", "models.wingrock:model", "--filter", "ekf",
                         "--style", "loops", "--out", str(tmp_path)], capture_output=True, text=True)
     assert r.returncode == 2 and "style 'unrolled'" in r.stderr and "Traceback" not in r.stderr
