@@ -833,7 +833,7 @@ def _part(filt, t, outputs, raw, holes=(), notes=()) -> RunResult:
                      valid, holes, notes, trace)
 
 
-def _steps(filt, stepper, backend, pieces, again, path, time_at, holes=(), notes=(), strict=False, trace=False):
+def _steps(filt, stepper, backend, pieces, again, holes=(), notes=(), strict=False, trace=False):
     """Step over ``pieces`` (grid index of the first sample, t, step inputs, outputs), restarting the
     states before a piece whose first index is in ``again``; a RunResult per piece."""
     for a, t, u, y in pieces:
@@ -922,8 +922,7 @@ def iter_run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", re
     parts = list(zip(bounds[:-1], bounds[1:]))
     pieces = ((a, rec.t[a:b], inputs[a:b], rec.outputs[a:b]) for a, b in
               (progress(parts, len(parts), f"{label}, {N} samples in parts") if show_progress else parts))
-    yield from _steps(filt, stepper, backend, pieces, again, rec.path, lambda k: rec.t[k], rec.holes, rec.notes,
-                      strict, trace)
+    yield from _steps(filt, stepper, backend, pieces, again, rec.holes, rec.notes, strict, trace)
 
 
 def _stream_pieces(grid, foh: bool, chunk: int):
@@ -971,7 +970,7 @@ def iter_run_stream(filt: DerivedFilter, grid, *, backend: str = "python", real:
     pieces = _stream_pieces(grid, model.input_hold == "foh", chunk)
     if show_progress:
         pieces = progress(pieces, None, f"{label}, parts of a streamed file")
-    yield from _steps(filt, stepper, backend, pieces, grid.restarts, grid.stream.source, grid.time)
+    yield from _steps(filt, stepper, backend, pieces, grid.restarts)
 
 
 def run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", real: str = "double",
