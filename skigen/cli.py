@@ -119,8 +119,9 @@ def _generate(args) -> int:
     from .derive import derive
     from .emit.c import choose_style, emit_c
 
-    filt = derive(load_model(args.model), args.filter)
+    model = load_model(args.model)
     try:
+        filt = derive(model, args.filter)
         style = choose_style(filt, args.style)
         files = emit_c(filt, args.out, real=args.real, style=style, prefix=args.prefix)
     except ValueError as exc:
