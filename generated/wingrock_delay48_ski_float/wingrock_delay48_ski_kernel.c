@@ -36,6 +36,41 @@ static const real LOG_2PI = 1.8378770664093453f;
 
 /* ---- dense algebra ---------------------------------------------------------------- */
 
+/* a <- a - (2 v^T a / vtv) v for the column a (m rows). */
+static void reflect(const real* v, real* a, int m, real vtv)
+{
+    int i;
+    real tau = 0;
+    for (i = 0; i < m; ++i) tau += v[i] * a[i];
+    tau = 2 * tau / vtv;
+    for (i = 0; i < m; ++i) a[i] = a[i] - tau * v[i];
+}
+
+/* reflect() of the four columns a, a + lda, a + 2 lda, a + 3 lda: the same operations in the
+ * same order for each, with four sums in flight instead of one. */
+static void reflect4(const real* v, real* a, int lda, int m, real vtv)
+{
+    real *a0 = a, *a1 = a + lda, *a2 = a + 2 * lda, *a3 = a + 3 * lda;
+    real t0 = 0, t1 = 0, t2 = 0, t3 = 0;
+    int i;
+    for (i = 0; i < m; ++i) {
+        t0 += v[i] * a0[i];
+        t1 += v[i] * a1[i];
+        t2 += v[i] * a2[i];
+        t3 += v[i] * a3[i];
+    }
+    t0 = 2 * t0 / vtv;
+    t1 = 2 * t1 / vtv;
+    t2 = 2 * t2 / vtv;
+    t3 = 2 * t3 / vtv;
+    for (i = 0; i < m; ++i) {
+        a0[i] = a0[i] - t0 * v[i];
+        a1[i] = a1[i] - t1 * v[i];
+        a2[i] = a2[i] - t2 * v[i];
+        a3[i] = a3[i] - t3 * v[i];
+    }
+}
+
 /* S (n x n, lower, positive diagonal) with S S^T = A^T A: the transposed R of a Householder
  * QR of A (k x n, k >= n), which is overwritten. */
 static void tria(real* A, int k, int n, real* S)
@@ -49,13 +84,8 @@ static void tria(real* A, int k, int n, real* S)
         sign = v[0] >= 0 ? 1 : -1;
         vtv = norm2 > 0 ? 2 * alpha * (alpha + fabsf(v[0])) : 1;
         v[0] = v[0] + sign * alpha;
-        for (j = c + 1; j < n; ++j) {
-            real* a = A + c + j * k;
-            real tau = 0;
-            for (i = 0; i < k - c; ++i) tau += v[i] * a[i];
-            tau = 2 * tau / vtv;
-            for (i = 0; i < k - c; ++i) a[i] = a[i] - tau * v[i];
-        }
+        for (j = c + 1; j + 4 <= n; j += 4) reflect4(v, A + c + j * k, k, k - c, vtv);
+        for (; j < n; ++j) reflect(v, A + c + j * k, k - c, vtv);
         for (j = 0; j < c; ++j) S[j + c * n] = 0;
         S[c + c * n] = alpha;
         for (j = c + 1; j < n; ++j) S[j + c * n] = -sign * A[c + j * k];
@@ -78,11 +108,28 @@ static void cholupdate(real* L, real* x, int n, real sign)
     }
 }
 
-/* B (n x m) <- L^-1 B for lower-triangular L (n x n). */
+/* B (n x m) <- L^-1 B for lower-triangular L (n x n); four columns at a time where there are
+ * four, each by the same operations in the same order as one alone. */
 static void forward(const real* L, real* B, int n, int m)
 {
     int i, j, k;
-    for (j = 0; j < m; ++j) {
+    for (j = 0; j + 4 <= m; j += 4) {
+        real *b0 = B + j * n, *b1 = b0 + n, *b2 = b1 + n, *b3 = b2 + n;
+        for (i = 0; i < n; ++i) {
+            real t0 = 0, t1 = 0, t2 = 0, t3 = 0;
+            for (k = 0; k < i; ++k) {
+                t0 += L[i + k * n] * b0[k];
+                t1 += L[i + k * n] * b1[k];
+                t2 += L[i + k * n] * b2[k];
+                t3 += L[i + k * n] * b3[k];
+            }
+            b0[i] = (b0[i] - t0) / L[i + i * n];
+            b1[i] = (b1[i] - t1) / L[i + i * n];
+            b2[i] = (b2[i] - t2) / L[i + i * n];
+            b3[i] = (b3[i] - t3) / L[i + i * n];
+        }
+    }
+    for (; j < m; ++j) {
         real* b = B + j * n;
         for (i = 0; i < n; ++i) {
             real t = 0;
@@ -193,7 +240,20 @@ static void chol(const real* P, real* L, int n)
         for (k = 0; k < j; ++k) d += L[j + k * n] * L[j + k * n];
         for (i = 0; i < j; ++i) L[i + j * n] = 0;
         L[j + j * n] = sqrtf(P[j + j * n] - d);
-        for (i = j + 1; i < n; ++i) {
+        for (i = j + 1; i + 4 <= n; i += 4) {       /* four rows at a time, each as alone */
+            real t0 = 0, t1 = 0, t2 = 0, t3 = 0;
+            for (k = 0; k < j; ++k) {
+                t0 += L[i + k * n] * L[j + k * n];
+                t1 += L[i + 1 + k * n] * L[j + k * n];
+                t2 += L[i + 2 + k * n] * L[j + k * n];
+                t3 += L[i + 3 + k * n] * L[j + k * n];
+            }
+            L[i + j * n] = (P[i + j * n] - t0) / L[j + j * n];
+            L[i + 1 + j * n] = (P[i + 1 + j * n] - t1) / L[j + j * n];
+            L[i + 2 + j * n] = (P[i + 2 + j * n] - t2) / L[j + j * n];
+            L[i + 3 + j * n] = (P[i + 3 + j * n] - t3) / L[j + j * n];
+        }
+        for (; i < n; ++i) {
             real t = 0;
             for (k = 0; k < j; ++k) t += L[i + k * n] * L[j + k * n];
             L[i + j * n] = (P[i + j * n] - t) / L[j + j * n];
@@ -216,12 +276,30 @@ static void ard_pieces(const real* s_new, const real* s_old, const real* mu, con
 {
     int a, b, r;
     for (r = 0; r < NW; ++r) D[r] = 1 / s_new[r] - 1 / s_old[r];
-    for (b = 0; b < N; ++b)
-        for (a = b; a < N; ++a) {                 /* the lower triangle: all chol reads */
+    for (b = 0; b < N; ++b) {                     /* the lower triangle: all chol reads */
+        for (a = b; a + 4 <= N; a += 4) {         /* four rows at a time, each summed as alone */
+            int common = FIRST(a + 3);            /* the rows r that all four sums take */
+            real t0 = 0, t1 = 0, t2 = 0, t3 = 0;
+            for (r = FIRST(a); r < common; ++r) t0 += F[r + a * NW] * D[r] * F[r + b * NW];
+            for (r = FIRST(a + 1); r < common; ++r) t1 += F[r + (a + 1) * NW] * D[r] * F[r + b * NW];
+            for (r = FIRST(a + 2); r < common; ++r) t2 += F[r + (a + 2) * NW] * D[r] * F[r + b * NW];
+            for (r = common; r < NW; ++r) {
+                t0 += F[r + a * NW] * D[r] * F[r + b * NW];
+                t1 += F[r + (a + 1) * NW] * D[r] * F[r + b * NW];
+                t2 += F[r + (a + 2) * NW] * D[r] * F[r + b * NW];
+                t3 += F[r + (a + 3) * NW] * D[r] * F[r + b * NW];
+            }
+            B[a + b * N] = (a == b) + t0;
+            B[a + 1 + b * N] = (a + 1 == b) + t1;
+            B[a + 2 + b * N] = (a + 2 == b) + t2;
+            B[a + 3 + b * N] = (a + 3 == b) + t3;
+        }
+        for (; a < N; ++a) {
             real t = 0;
             for (r = FIRST(a); r < NW; ++r) t += F[r + a * NW] * D[r] * F[r + b * NW];
             B[a + b * N] = (a == b) + t;
         }
+    }
     chol(B, Lb, N);
     for (a = 0; a < N; ++a) {
         real t = 0;
