@@ -188,12 +188,23 @@ static int map_points(int (*fn)(const real**, real**, int*, real*, int), int row
     return 0;
 }
 
+/* 1 when x[from .. rows - 1] are all zero. */
+static int zero_from(const real* x, int from, int rows)
+{
+    int r;
+    for (r = from; r < rows; ++r)
+        if (x[r] != 0) return 0;
+    return 1;
+}
+
 /* mean (rows) <- sum_i Wm_i P[:, i]; A (k x rows) <- [sqrt(WC1) (P[:, i] - mean), i >= 1]^T
- * followed by `extra` (rows x n_extra; lower: its lower triangle only)^T; S (rows x rows) <- tria(A) updated with the centre
+ * followed by `extra` (rows x n_extra; lower: its lower triangle only)^T but for its zero columns (a zero row of A
+ * adds nothing to A^T A: the weights' columns of a constant-weight Q_sqrt); S (rows x rows) <- tria(A) updated with the centre
  * point. P is overwritten with the deviations, its column 0 then used up by the update. */
 static void spread(real* P, int rows, const real* extra, int n_extra, int lower, real* mean, real* A, real* S)
 {
-    int i, r, k = 2 * N + n_extra;
+    int i, r, j, k = 2 * N;
+    for (i = 0; i < n_extra; ++i) k += !zero_from(extra + i * rows, lower ? i : 0, rows);
     for (r = 0; r < rows; ++r) {
         real m = WM0 * P[r];
         for (i = 1; i < NSIG; ++i) m += WM1 * P[r + i * rows];
@@ -203,8 +214,11 @@ static void spread(real* P, int rows, const real* extra, int n_extra, int lower,
         for (r = 0; r < rows; ++r) P[r + i * rows] -= mean[r];
     for (i = 1; i < NSIG; ++i)
         for (r = 0; r < rows; ++r) A[(i - 1) + r * k] = SQRT_WC1 * P[r + i * rows];
-    for (i = 0; i < n_extra; ++i)
-        for (r = 0; r < rows; ++r) A[2 * N + i + r * k] = r >= i || !lower ? extra[r + i * rows] : 0;
+    for (i = 0, j = 2 * N; i < n_extra; ++i)
+        if (!zero_from(extra + i * rows, lower ? i : 0, rows)) {
+            for (r = 0; r < rows; ++r) A[j + r * k] = r >= i || !lower ? extra[r + i * rows] : 0;
+            ++j;
+        }
     tria(A, k, rows, S);
     if (WC0 != 0) {
         for (r = 0; r < rows; ++r) P[r] = SQRT_WC0 * P[r];   /* the centre deviation, scaled */
