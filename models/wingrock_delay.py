@@ -13,8 +13,8 @@ WINDOW = 8
 TRUE_DELAY = 6
 
 
-def build(prior_variance=1.0, process_std=(1e-4, 1e-3), window=WINDOW, name="wingrock_delay"):
-    """The delay model; ``window`` candidate delays 0 … window−1."""
+def build(prior_variance=1.0, process_std=(1e-4, 1e-3), window=WINDOW, name="wingrock_delay", weight_std=0.0):
+    """The delay model; ``window`` candidate delays 0 … window−1 (``weight_std``: their random walk)."""
     model = Model(name, dt=DT, discretization="rk4")
     theta = model.state("theta", unit="deg", role="angle", std=1.0, process_std=process_std[0])
     p = model.state("p", unit="deg/s", role="rate", std=1.0, process_std=process_std[1])
@@ -22,7 +22,7 @@ def build(prior_variance=1.0, process_std=(1e-4, 1e-3), window=WINDOW, name="win
     known = sum(w * b for w, b in zip(W_TRUE, [1, theta, p, abs(theta) * p, abs(p) * p, theta ** 3]))
     model.dynamics({theta: p, p: known})
     model.output("phi", theta, unit="deg", noise_std=NOISE_STD)
-    model.unknown(p, delayed_inputs(model, delta, window), prior_variance=prior_variance)
+    model.unknown(p, delayed_inputs(model, delta, window), prior_variance=prior_variance, process_std=weight_std)
     return model
 
 

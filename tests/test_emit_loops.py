@@ -91,6 +91,18 @@ def test_looped_delay_ski_equals_python_runtime(tmp_path):
     _close(c["std"], python.std)
 
 
+def test_looped_ski_with_random_walk_weights_equals_python_runtime(tmp_path):
+    """A noise factor with zero columns (θ has no process noise) beside non-zero ones (the
+    weights walk): the looped QR leaves out only the zero ones."""
+    filt = derive(wingrock_delay.build(process_std=(0.0, 1e-3), weight_std=1e-3, name="walk"), "ski")
+    assert np.sum(np.abs(filt.aug.Q[filt.aug.w_index][:, filt.aug.w_index])) > 0 and filt.aug.Q[0, 0] == 0
+    rec = recording(simulate(seed=4, delay=wingrock_delay.TRUE_DELAY, duration=4))
+    python = run(filt, rec, show_progress=False)
+    c = load_c(filt, style="loops", cache_dir=tmp_path).run(rec.inputs, rec.outputs)
+    _close(c["z_post"], python.mean)
+    _close(c["std"], python.std)
+
+
 def test_style_choice_and_errors(tmp_path):
     small, wide = derive(wingrock_delay.model, "ski"), derive(wingrock_delay.wide, "ski")
     assert choose_style(small) == "unrolled" and choose_style(wide) == "loops"
