@@ -71,13 +71,17 @@ def ekf_priors(model: Model, rec: Recording, samples) -> dict[int, tuple]:
     """k → (mean, covariance): the prior of ``model``'s strict EKF run over ``rec`` for sample k (where
     it stands after sample k − 1), for each k of ``samples`` inside the recording; the trace's
     z_next[k − 1], C_next[k − 1] without keeping a trace. Raises what the run raises."""
-    want, k, out = {int(k) for k in samples if 0 < k < len(rec.t)}, 0, {}
-    for part in iter_run(derive(model, "ekf"), rec, backend="casadi", strict=True, show_progress=False,
-                         cuts=sorted(want)):
+    want = {int(k) for k in samples if 0 < k < len(rec.t)}
+    return {k: part.next_prior for k, part in _cut_run(derive(model, "ekf"), rec, sorted(want)) if k in want}
+
+
+def _cut_run(filt: DerivedFilter, rec: Recording, cuts: list[int]):
+    """(k, part) for each part of ``filt``'s strict run over ``rec``, cut at each of ``cuts``: k the
+    samples run once the part is done."""
+    k = 0
+    for part in iter_run(filt, rec, backend="casadi", strict=True, show_progress=False, cuts=cuts):
         k += len(part.t)
-        if k in want:
-            out[k] = part.next_prior
-    return out
+        yield k, part
 
 
 def fold_loglik(model: Model | DerivedFilter, rec: Recording, folds: Folds) -> np.ndarray:
@@ -172,11 +176,9 @@ def _carried(filt, res: RunResult) -> tuple:
 def _ahead(filt, rec: Recording, ends: list[int]):
     """b → :func:`_carried` of the strict run over [0, b), for b in ``ends``: one run, cut at each;
     raises what that run raised before b."""
-    got, k, failed = {}, 0, None
+    got, failed = {}, None
     try:
-        for part in iter_run(filt, rec.slice(0, ends[-1]), backend="casadi", strict=True,
-                             show_progress=False, cuts=ends):
-            k += len(part.t)
+        for k, part in _cut_run(filt, rec.slice(0, ends[-1]), ends):
             got[k] = _carried(filt, part)
     except (FloatingPointError, RuntimeError) as exc:
         failed = exc
