@@ -46,8 +46,7 @@ def main(argv=None) -> dict:
         model = G.build(name="silverbox_" + label.split(",")[0].lower() + "_" + kw["hold"], **kw)
         r = fit(model, [train])
         checks = validate(r, list(tests.values()))
-        write_outputs(r, Path(args.out) / model.name, [train], validation=checks,
-                      validation_recordings=list(tests.values()), model_spec=None)
+        write_outputs(r, Path(args.out) / model.name, validation=checks, model_spec=None)
         results[label] = dict(parameters={k: [v["value"], v["std"]] for k, v in r.parameters.items()},
                               seconds=r.seconds, iterations=r.iterations,
                               train_mV=1e3 * r.recordings[0]["rmse"]["V2"],

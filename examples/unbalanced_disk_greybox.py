@@ -47,8 +47,8 @@ def main(argv=None) -> dict:
         model = G.build(**kw)
         r = fit(model, [train], estimate=estimate, shooting=SHOOTING)
         check = validate(r, [test])
-        write_outputs(r, Path(args.out) / ("viscous" if estimate else "diagnosed" if kw else "coulomb"), [train],
-                      validation=check, validation_recordings=[test])
+        write_outputs(r, Path(args.out) / ("viscous" if estimate else "diagnosed" if kw else "coulomb"),
+                      validation=check)
         results[label] = dict(parameters={k: [v["value"], v["std"]] for k, v in r.parameters.items()},
                               seconds=r.seconds, iterations=r.iterations, train_rad=r.recordings[0]["rmse"]["th"],
                               test_rad=check[0]["rmse"]["th"])

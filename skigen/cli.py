@@ -199,7 +199,7 @@ def _diagnose(args) -> int:
 
 def _fit(args) -> int:
     from .fit import FitError, fit
-    from .fit.output import validate, write_outputs
+    from .fit.output import per_output, validate, write_outputs
     from .recording import load_recording
 
     model = load_model(args.model)
@@ -214,7 +214,7 @@ def _fit(args) -> int:
     except FitError as exc:
         raise CliError(str(exc)) from None
     spec = canonical_spec(args.model)
-    write_outputs(result, args.out, recs, model_spec=spec, validation=checks, validation_recordings=held_out,
+    write_outputs(result, args.out, model_spec=spec, validation=checks,
                   figures=not args.no_figures)
     print(f"{model.name} fitted by {args.method}: {result.status.replace('_', ' ').lower()} in "
           f"{result.iterations} iterations ({result.seconds:.1f} s)")
@@ -223,7 +223,9 @@ def _fit(args) -> int:
     for r in result.recordings + checks:
         kind = "validation" if r in checks else "fit"
         span = f" (free runs restarted every {r['window']:.3g} s)" if r.get("window") else ""
-        print(f"  {kind} {Path(r['file']).name}: RMSE{span} " + ", ".join(f"{o} {v:.4g}" for o, v in r["rmse"].items()))
+        print(f"  {kind} {Path(r['file']).name}: RMSE{span} " + per_output(r["rmse"]))
+    for line in result.notes:
+        print(f"note: {line}")
     print(f"results: {Path(args.out) / 'fit.json'}, {Path(args.out) / 'report.md'}")
     return 0
 

@@ -165,6 +165,8 @@ def to_grid(samples: Samples, dt: float, input_names, output_names, input_hold: 
     input_names, output_names = tuple(input_names), tuple(output_names)
     scale, note = time_scale(samples, time_unit, dt)
     notes = list(samples.notes) + ([note] if note else [])
+    if not any(len(g.t) for g in samples.groups):
+        raise RecordingError(f"{samples.source}: no samples (nothing below the header)")
     origin = min(float(g.t[0]) * (1.0 if g.seconds else scale) for g in samples.groups if len(g.t))
     series, cols = _series(samples, scale, origin), samples.columns   # relative times: exact arithmetic
     for name in input_names:

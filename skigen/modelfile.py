@@ -44,11 +44,25 @@ def load_model(spec: str) -> Model:
         sys.modules[module_spec.name] = module      # dataclasses and pickling look it up
         try:
             module_spec.loader.exec_module(module)
-        except ModelError:
-            raise
+        except ModelError as exc:
+            raise ModelError(f"model file '{spec}'{_line_in(exc, path)}: {exc}") from None
         except Exception as exc:  # the user's file failed to run: say where, briefly
-            raise ModelFileError(f"model file '{spec}' failed to load: {type(exc).__name__}: {exc}") from None
+            raise ModelFileError(f"model file '{spec}' failed to load{_line_in(exc, path)}: "
+                                 f"{type(exc).__name__}: {exc.msg if isinstance(exc, SyntaxError) else exc}") from None
     model = getattr(module, attr, None)
     if not isinstance(model, Model):
         raise ModelFileError(f"'{spec}' defines no skigen.Model named '{attr}'")
     return model.check()
+
+
+def _line_in(exc: BaseException, path: Path) -> str:
+    """', line N' of the last frame of ``exc``'s traceback in the file ``path`` (a syntax error's
+    own line), or ''."""
+    if isinstance(exc, SyntaxError) and exc.lineno:
+        return f", line {exc.lineno}"
+    target, line, tb = path.resolve(), None, exc.__traceback__
+    while tb is not None:
+        if Path(tb.tb_frame.f_code.co_filename).resolve() == target:
+            line = tb.tb_lineno
+        tb = tb.tb_next
+    return f", line {line}" if line else ""

@@ -67,6 +67,28 @@ class Recording:
                         f"from the model, or read another column with --map {name}=COLUMN)")
         return None
 
+    def input_parts(self) -> list[Recording]:
+        """The stretches between this recording's input holes (an input without a sample for
+        longer than ``max_gap``: the value held there is not the input), each with at least two
+        samples and named ``'<path> [t0–t1 s]'``; ``[self]`` where no input has a hole."""
+        spans = [(h.t0, h.t1) for h in self.holes if h.inputs]
+        if not spans:
+            return [self]
+        tol = 1e-6 * self.dt
+        keep = np.ones(len(self.t), bool)
+        for t0, t1 in spans:
+            keep &= ~((self.t > t0 + tol) & (self.t < t1 - tol))
+        edges = np.flatnonzero(np.diff(np.r_[0, keep.astype(int), 0]))
+        parts = []
+        for a, b in zip(edges[::2], edges[1::2]):
+            if b - a < 2:
+                continue
+            ta, tb = self.t[a], self.t[b - 1]
+            parts.append(dataclasses.replace(
+                self.slice(a, b), path=f"{self.path} [{ta:g}–{tb:g} s]",
+                holes=tuple(h for h in self.holes if not h.inputs and h.t1 > ta and h.t0 < tb)))
+        return parts
+
     def slice(self, start: int | None, stop: int | None) -> Recording:
         """The samples with index in ``range(start, stop)`` (Python slice rules)."""
         s = slice(start, stop)

@@ -87,7 +87,11 @@ def test_bad_model_specs_are_explained(tmp_path, recording):
                       "model.dynamics({'y': x})\n")
     r = skigen("run", str(broken), str(recording), "--out", str(tmp_path / "o.csv"))
     assert r.returncode == 2 and "'y', which is not a declared state" in r.stderr
-    assert "Traceback" not in r.stderr
+    assert f"model file '{broken}', line 4:" in r.stderr and "Traceback" not in r.stderr
+    broken.write_text("from skigen import Model\nmodel = Model('m', dt=0.1)\nx = model.state('x')\n"
+                      "model.dynamics({x: -kk * x})\n")
+    r = skigen("run", str(broken), str(recording), "--out", str(tmp_path / "o.csv"))
+    assert r.returncode == 2 and f"'{broken}' failed to load, line 4: NameError: name 'kk'" in r.stderr
     r = skigen("run", "models.wingrock:nothing", str(recording), "--out", str(tmp_path / "o.csv"))
     assert r.returncode == 2 and "defines no skigen.Model named 'nothing'" in r.stderr
 

@@ -105,7 +105,7 @@ def _run(spec, digest, path, tmp: Path, opt: dict, row: dict) -> None:
 
 
 def _fit(spec, digest, path, tmp: Path, opt: dict, row: dict) -> None:
-    from ..fit import fit
+    from ..fit import fit, rms
     from ..fit.output import write_outputs
     from ..recording import load_recording
     model = _model(spec, digest)
@@ -113,10 +113,12 @@ def _fit(spec, digest, path, tmp: Path, opt: dict, row: dict) -> None:
     row.update(samples=len(rec.t), duration_s=_num(rec.t[-1] - rec.t[0]), start=_num(rec.t[0]))
     result = fit(model, [rec], method=opt["method"], estimate=list(opt["estimate"]) or None,
                  show_progress=False)
-    write_outputs(result, tmp, [rec], model_spec=spec, figures=opt["figures"])
+    write_outputs(result, tmp, model_spec=spec, figures=opt["figures"])
     row["quantities"] = {n: [_num(p["value"]), _num(p["std"])]
                          for n, p in {**result.parameters, **result.weights}.items()}
-    row["rmse"] = result.recordings[0]["rmse"]
+    row["rmse"] = {o: rms(np.concatenate([r.outputs[:, j] - Y[:, j] for r, Y in
+                                          zip(result.fitted_recordings, result.predictions)]))
+                   for j, o in enumerate(model.output_names)}
 
 
 def _diagnose(spec, digest, path, tmp: Path, final: Path, opt: dict, row: dict) -> None:

@@ -71,12 +71,14 @@ class FitResult:
     objective: float
     covariance_note: str
     predictions: list[np.ndarray] = field(repr=False, default_factory=list)   # (N, ny) per recording
+    notes: list[str] = field(default_factory=list)                            # what the fit decided on its own
+    fitted_recordings: list[Recording] = field(repr=False, default_factory=list)   # as fitted (cut at input holes)
 
     def asdict(self) -> dict:
         """The fit.json contract."""
         return {k: getattr(self, k) for k in ("method", "parameters", "weights", "initial_states", "noise",
                                               "correlation", "recordings", "converged", "status",
-                                              "iterations", "seconds", "objective", "covariance_note")}
+                                              "iterations", "seconds", "objective", "covariance_note", "notes")}
 
 
 _CACHE: dict = {}
@@ -96,7 +98,8 @@ def _problem(model, lengths, method, estimate, shooting, max_iter, tol=1e-8) -> 
         opts = {"print_time": False, "iteration_callback": prob.progress, "ipopt.print_level": 0,
                 "ipopt.sb": "yes", "ipopt.tol": tol, "ipopt.mu_strategy": "adaptive",
                 "ipopt.acceptable_tol": 100 * tol, "ipopt.acceptable_iter": 2,
-                "ipopt.acceptable_obj_change_tol": 1e-12, "calc_lam_p": False, "no_nlp_grad": True}
+                "ipopt.acceptable_obj_change_tol": 1e-12, "calc_lam_p": False, "no_nlp_grad": True,
+                "show_eval_warnings": False}   # a trial point where the model overflows: IPOPT steps back
         scoring = ca.nlpsol("fit_scoring", "ipopt", nlp, {**opts, "hess_lag": prob.nlp["hess"], "grad_f": prob.nlp["grad"],
                                                           "ipopt.max_iter": min(max_iter, SCORING_ITERATIONS)})
         newton = lambda: ca.nlpsol("fit_newton", "ipopt", nlp, {**opts, "ipopt.max_iter": max_iter})
@@ -221,6 +224,7 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
         raise FitError("no recording to fit")
     for rec in recs:
         _check_recording(model, rec)
+    recs, starts, notes = _known_input_parts(recs, starts)
     estimate = _check_estimate(model, estimate)
     if shooting is not None and (method != "output-error" or int(shooting) < 2):
         raise ValueError("shooting applies to output error and needs at least 2 samples per interval")
@@ -256,7 +260,9 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     lost = unidentified(J0, prior.ravel(), V.names, _dense(jac_g(theta0 / scale, p)))
     if lost:
         raise FitError(f"the recordings cannot identify every quantity of '{model.name}': " + "; ".join(lost)
-                       + ". Fix these (estimate=...), give them a prior std, or record richer excitation")
+                       + ". Hold some at their declared values (estimate only the others: estimate=[...] in Python, "
+                       "--estimate NAME for each on the command line), give them a prior std, or record richer "
+                       "excitation")
     lower = _resolution_floor(model, V, recs, prob.solver_inputs["lbx"])
     inputs = dict(prob.solver_inputs, x0=np.maximum(theta0, lower) / scale, lbx=lower / scale,
                   ubx=prob.solver_inputs["ubx"] / scale, p=p)
@@ -298,8 +304,52 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     fitted_at = [i for i, k in enumerate(V.kinds) if k in ("parameter", "weight")
                  and V.names[i] in estimate]
     Y = np.asarray(prob.predict(xi, p)).T
-    return _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_at,
-                   nll, Y, stats, status, time.perf_counter() - t0, float(sol["f"]), info, robust)
+    result = _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_at,
+                     nll, Y, stats, status, time.perf_counter() - t0, float(sol["f"]), info, robust)
+    result.notes, result.fitted_recordings = notes + _bound_notes(result.parameters), recs
+    return result
+
+
+AT_BOUND = 1e-3     # standard errors: an estimate this close to a bound sits on it
+
+
+def _bound_notes(parameters: dict) -> list[str]:
+    """A note per parameter that sits on a bound, or whose 2σ interval is wider than its bounds."""
+    notes = []
+    for name, p in parameters.items():
+        value, std, (lo, hi) = p["value"], p["std"], p["bounds"]
+        lo, hi = -np.inf if lo is None else lo, np.inf if hi is None else hi
+        side = "lower" if value - lo <= AT_BOUND * std else "upper" if hi - value <= AT_BOUND * std else None
+        if side:
+            notes.append(f"{name} = {value:.6g} ± {std:.2g} sits on its {side} bound {lo if side == 'lower' else hi:g}: "
+                         f"the best fit lies beyond it, and its std is no confidence interval there. Check the "
+                         f"bound, or whether the recordings excite {name}")
+        elif 4 * std > hi - lo:
+            notes.append(f"{name} = {value:.6g} ± {std:.2g}: its 2σ interval is wider than its bounds "
+                         f"[{lo:g}, {hi:g}]; the data hardly determine it")
+    return notes
+
+
+def _known_input_parts(recs: list[Recording], starts) -> tuple[list[Recording], list | None, list[str]]:
+    """Each recording cut at its input holes (:meth:`Recording.input_parts`: a held input is not
+    the input), ``starts`` for the parts (a later part starts from the model's initial state),
+    and a note per recording cut."""
+    if starts is not None and len(starts) != len(recs):
+        raise ValueError(f"starts: {len(starts)} given for {len(recs)} recordings")
+    parts, part_starts, notes = [], [], []
+    for rec, start in zip(recs, [None] * len(recs) if starts is None else starts):
+        cut = rec.input_parts()
+        holes = "; ".join(str(h) for h in rec.holes if h.inputs)
+        if not cut:
+            raise FitError(f"{rec.path}: no two consecutive samples with every input known between the input "
+                           f"holes ({holes})")
+        if cut[0] is not rec:
+            notes.append(f"{rec.path}: the held input is not the input in its hole(s) longer than max_gap = "
+                         f"{rec.max_gap:g} s ({holes}): fitted as {len(cut)} recordings, "
+                         + ", ".join(f"{p.t[0]:g}–{p.t[-1]:g} s" for p in cut))
+        parts += cut
+        part_starts += [start] + [None] * (len(cut) - 1)
+    return parts, None if starts is None else part_starts, notes
 
 
 def _starts(model: Model, recs: list[Recording], starts) -> np.ndarray:
@@ -517,7 +567,7 @@ def _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_
         e = rec.outputs - Y[start:start + n]
         predictions.append(Y[start:start + n])
         reports.append(dict(file=str(rec.path), samples=int(n),
-                            rmse={o: float(np.sqrt(np.nanmean(e[:, j] ** 2))) for j, o in enumerate(model.output_names)},
+                            rmse={o: rms(e[:, j]) for j, o in enumerate(model.output_names)},
                             loglik=float(-np.sum(nll[:, start:start + n]))))
         start += n
     note_text = ("sandwich covariance: the inverse Fisher information around the scores' covariance under "
@@ -527,6 +577,17 @@ def _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_
     return FitResult(method, fitted, params, weights, init, noise,
                      dict(names=[V.names[i] for i in corr_idx], matrix=(sub / np.outer(d, d)).tolist()),
                      reports, True, status, int(stats["iter_count"]), seconds, objective, note_text, predictions)
+
+
+def rms(e: np.ndarray) -> float | None:
+    """Root mean square of the finite values of ``e``; None where there is none (never measured)."""
+    e = e[np.isfinite(e)]
+    return float(np.sqrt(np.mean(e ** 2))) if e.size else None
+
+
+def per_output(values: dict, fmt: str = ".4g") -> str:
+    """'current 0.0213, speed not measured': a value per output, None as not measured."""
+    return ", ".join(f"{o} {v:{fmt}}" if v is not None else f"{o} not measured" for o, v in values.items())
 
 
 def _num(x: float):
@@ -553,7 +614,7 @@ def _noise(model, V, value, std, Y, recs, method) -> dict:
     declared = np.sqrt(np.diag(model.measurement_noise()))
     if method == "output-error":
         res = np.concatenate([rec.outputs for rec in recs]) - Y
-        out["residual_std"] = {o: float(np.sqrt(np.nanmean(res[:, j] ** 2))) for j, o in enumerate(model.output_names)}
+        out["residual_std"] = {o: rms(res[:, j]) for j, o in enumerate(model.output_names)}
         out["declared_std"] = {o: float(declared[j]) for j, o in enumerate(model.output_names)}
         return out
     q = np.ones(len(model.states))

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..modelfile import is_module_spec
 from ..simulate import AMPLIFICATION, free_run, growth_rate, simulation_window, windowed_free_run
-from . import FitResult, fit
+from . import FitError, FitResult, fit, per_output, rms
 
 __all__ = ["validate", "write_outputs"]
 
@@ -20,18 +20,23 @@ def validate(result: FitResult, recordings, init_samples: int = 50) -> list[dict
 
     The initial state of each is estimated from its first ``init_samples``
     samples (parameters fixed), then the model runs free over the whole
-    recording; the RMSE counts the samples after those. A model without weights
+    recording; the RMSE counts the samples after those. A recording is cut at its input holes
+    (:meth:`~skigen.recording.Recording.input_parts`), each part validated. A model without weights
     whose free run amplifies state errors more than AMPLIFICATION-fold over the
     recording (open-loop unstable) is instead restarted from its EKF's state every
     window within which it does so AMPLIFICATION-fold (``window`` in seconds, else
-    None). Returns one dict per recording: file, samples, rmse per output, window,
-    and the simulated outputs.
+    None). Returns one dict per recording (or part): file, samples, rmse per output, window, the
+    simulated outputs and the recording (part) itself.
     """
     model = result.model
     weights = [result.weights.get(n, {}).get("value", 0.0) for n in model.weight_names]
     out = []
-    for rec in recordings:
-        n0 = min(init_samples, len(rec.t) - 1)
+    for rec in (part for r in recordings for part in r.input_parts()):
+        if len(rec.t) <= init_samples:
+            raise FitError(f"{rec.path}: {len(rec.t)} samples to validate on; the first {init_samples} "
+                           f"(--init-samples) estimate its initial state and the rest are scored: give a longer "
+                           f"recording or fewer initial samples")
+        n0 = init_samples
         window, Y = (None, None) if model.weight_names else _windowed(model, rec, n0)
         if Y is None:
             head = fit(model, [rec.slice(0, max(n0, 2))], estimate=[], show_progress=False) \
@@ -41,8 +46,8 @@ def validate(result: FitResult, recordings, init_samples: int = 50) -> list[dict
         e = rec.outputs[n0:] - Y[n0:]
         out.append(dict(file=str(rec.path), samples=int(len(rec.t) - n0),
                         window=window * model.dt if window else None,
-                        rmse={o: float(np.sqrt(np.nanmean(e[:, j] ** 2))) for j, o in enumerate(model.output_names)},
-                        simulated=Y))
+                        rmse={o: rms(e[:, j]) for j, o in enumerate(model.output_names)},
+                        simulated=Y, recording=rec))
     return out
 
 
@@ -58,14 +63,16 @@ def _windowed(model, rec, n0: int):
     return window, windowed_free_run(model, states, rec.inputs, n0, window)
 
 
-def write_outputs(result: FitResult, out_dir, recordings, *, model_spec: str | None = None,
-                  validation: list[dict] = (), validation_recordings=(), figures: bool = True) -> list[Path]:
+def write_outputs(result: FitResult, out_dir, *, model_spec: str | None = None,
+                  validation: list[dict] = (), figures: bool = True) -> list[Path]:
     """Write ``fit.json``, ``fitted_model.py`` (when the model came from a file or module),
-    ``report.md`` and the figures to ``out_dir``; returns the paths written."""
+    ``report.md`` and the figures of the recordings as fitted to ``out_dir``; returns the paths
+    written."""
+    recordings = result.fitted_recordings
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     data = result.asdict()
-    data["validation"] = [{k: v for k, v in d.items() if k != "simulated"} for d in validation]
+    data["validation"] = [{k: v for k, v in d.items() if k not in ("simulated", "recording")} for d in validation]
     paths = [out / "fit.json"]
     paths[0].write_text(json.dumps(data, indent=2, allow_nan=False, default=_json) + "\n")
     if model_spec:
@@ -75,7 +82,7 @@ def write_outputs(result: FitResult, out_dir, recordings, *, model_spec: str | N
         names = result.model.output_names
         for r, (rec, Y) in enumerate(zip(recordings, result.predictions)):
             paths.append(recording_figure(out / f"fit_{r}.png", f"fitted: {Path(rec.path).name}", rec, Y, names))
-        for r, (rec, v) in enumerate(zip(validation_recordings, validation)):
+        for r, (rec, v) in enumerate((v["recording"], v) for v in validation):
             paths.append(recording_figure(out / f"validation_{r}.png", "validation (free run" + (
                                           f", restarted every {v['window']:.3g} s" if v.get("window") else "") + "): "
                                           f"{Path(rec.path).name}", rec, v["simulated"], names))
@@ -145,6 +152,8 @@ def _write_report(path: Path, result: FitResult, validation, figures) -> Path:
             lines.append(f"| {name} | | 0 | {_fmt(w['value'])} | {w['std']:.2g} | "
                          f"[{w['value'] - 2 * w['std']:.6g}, {w['value'] + 2 * w['std']:.6g}] | |")
         lines += ["", f"Standard deviations: {r.covariance_note}.", ""]
+    if r.notes:
+        lines += ["## Notes", ""] + [f"- {n}." for n in r.notes] + [""]
     names, C = r.correlation["names"], np.array(r.correlation["matrix"])
     strong = [(names[i], names[j], C[i, j]) for i in range(len(names)) for j in range(i) if abs(C[i, j]) > 0.9]
     if strong:
@@ -162,11 +171,12 @@ def _write_report(path: Path, result: FitResult, validation, figures) -> Path:
         lines.append("")
     else:
         lines += ["Residual std per output: " + ", ".join(
-            f"{o} {v:.4g} (declared {r.noise['declared_std'][o]:.4g})" for o, v in r.noise["residual_std"].items()), ""]
+            f"{o} {'not measured' if v is None else f'{v:.4g}'} (declared {r.noise['declared_std'][o]:.4g})"
+            for o, v in r.noise["residual_std"].items()), ""]
     lines += ["## Recordings", "", "| file | samples | RMSE | log-likelihood |", "|---|---|---|---|"]
     for rec in r.recordings:
         lines.append(f"| {Path(rec['file']).name} | {rec['samples']} | "
-                     + ", ".join(f"{o} {v:.4g}" for o, v in rec["rmse"].items()) + f" | {rec['loglik']:.6g} |")
+                     + per_output(rec["rmse"]) + f" | {rec['loglik']:.6g} |")
     kind = "free-run simulation" if r.method == "output-error" else "one-step prediction (innovation)"
     lines += ["", f"RMSE of the {kind} on the fitted recordings.", ""]
     if validation:
@@ -175,7 +185,7 @@ def _write_report(path: Path, result: FitResult, validation, figures) -> Path:
                   "| file | samples scored | RMSE | free run |", "|---|---|---|---|"]
         for v in validation:
             lines.append(f"| {Path(v['file']).name} | {v['samples']} | "
-                         + ", ".join(f"{o} {x:.4g}" for o, x in v["rmse"].items()) + " | "
+                         + per_output(v["rmse"]) + " | "
                          + (f"restarted from the EKF's state every {v['window']:.3g} s: the model amplifies a "
                             f"state error {AMPLIFICATION:g}-fold within that" if v.get("window") else "whole recording")
                          + " |")
