@@ -151,6 +151,8 @@ def _diagnose(args) -> int:
     except DiagnosisError as exc:
         raise CliError(str(exc)) from None
     d = report.data
+    for line in d["notes"]:
+        print(f"note: {line}")
     c, cal = d["consistency"], d["noise"]["calibrated"]
     print("calibrated noise: " + ", ".join(f"{k} {v:.3g}" for kind in ("process_std", "measurement_std")
                                              for k, v in cal[kind].items() if v))

@@ -344,7 +344,11 @@ class GridStream:
     def _span(self, a, b, name):
         self.spans.setdefault((a, b), []).append(name)
         if name in self.input_names:        # as runtime.restarts computes it from the whole recording
-            self.restarts.add(int(np.ceil(((b + self.origin) - (self.origin + self.start)) / self.dt - 1e-6)))
+            k = np.ceil(((b + self.origin) - (self.origin + self.start)) / self.dt - 1e-6)
+            if not k < 2 ** 62:             # a stamp far beyond the others: the whole-file reader names it
+                from .sources import NotStreamable
+                raise NotStreamable("the grid is too long for the time stamps")
+            self.restarts.add(int(k))
 
     def _stamps(self) -> int:
         return sum(c.count for c in self.cols.values())

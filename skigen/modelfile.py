@@ -39,7 +39,10 @@ def load_model(spec: str) -> Model:
         path, attr = Path(spec), "model"
         if not path.is_file():
             raise ModelFileError(f"model file '{spec}' not found (give a .py file or package.module:attribute)")
-        module_spec = importlib.util.spec_from_file_location(f"skigen_user_model_{path.stem}", path)
+        name, root = _module_name(path)
+        if root is not None and root not in sys.path:    # a file inside a package: its relative imports resolve from root
+            sys.path.insert(0, root)
+        module_spec = importlib.util.spec_from_file_location(name, path)
         module = importlib.util.module_from_spec(module_spec)
         sys.modules[module_spec.name] = module      # dataclasses and pickling look it up
         try:
@@ -53,6 +56,17 @@ def load_model(spec: str) -> Model:
     if not isinstance(model, Model):
         raise ModelFileError(f"'{spec}' defines no skigen.Model named '{attr}'")
     return model.check()
+
+
+def _module_name(path: Path) -> tuple[str, str | None]:
+    """(the module name a model file is executed under, the directory its package is imported
+    from): ``models.quadrotor_vertical`` and the directory above ``models`` for a file in a package
+    (a directory with ``__init__.py``), so that its relative imports work; else a private name and None."""
+    parts, d = [path.stem], path.resolve().parent
+    while (d / "__init__.py").is_file():
+        parts.insert(0, d.name)
+        d = d.parent
+    return (".".join(parts), str(d)) if len(parts) > 1 else (f"skigen_user_model_{path.stem}", None)
 
 
 def _line_in(exc: BaseException, path: Path) -> str:

@@ -24,6 +24,9 @@ class RecordingError(ValueError):
     """A recording file that breaks the contract; the message says where."""
 
 
+STUCK_RUN = 10      # identical readings in a row from which a sensor counts as stuck (the guard's stuck_limit)
+
+
 @dataclass(frozen=True, eq=False)
 class Recording:
     """Time, inputs and outputs of one run, as read-only arrays."""
@@ -66,6 +69,33 @@ class Recording:
                         f"measured: a stuck or disconnected sensor carries nothing to fit (drop the output "
                         f"from the model, or read another column with --map {name}=COLUMN)")
         return None
+
+    def unstuck(self) -> tuple[Recording, list[str]]:
+        """This recording with a stuck sensor's readings as not measured, and a sentence per output
+        naming them. Stuck: identical readings in a row, at least STUCK_RUN and 5 times as many as
+        the output's readings usually repeat (a slow sensor logged at a faster rate repeats each
+        reading), of a value inside the range of its other readings (a clipped sensor reads its
+        bound: an extreme), from a sensor that is not quantised (:func:`resolution` 0: a
+        quantised one reads the same count at rest)."""
+        outputs, notes = self.outputs.copy(), []
+        for j, name in enumerate(self.output_names):
+            at = np.flatnonzero(np.isfinite(outputs[:, j]))
+            y = outputs[at, j]
+            if len(y) < 2 or resolution(y) > 0:
+                continue
+            starts = np.flatnonzero(np.r_[True, y[1:] != y[:-1]])
+            ends = np.r_[starts[1:], len(y)]
+            limit = max(STUCK_RUN, 5 * np.median(ends - starts))
+            runs = [(a, b) for a, b in zip(starts, ends) if b - a >= limit and y.min() < y[a] < y.max()]
+            if runs:
+                for a, b in runs:
+                    outputs[at[a:b], j] = np.nan
+                a, b = runs[0]
+                notes.append(f"{self.path}: output '{name}' holds one reading in {sum(b - a for a, b in runs)} "
+                             f"samples ({len(runs)} run(s) of {limit:g} or more; the first reads {y[a]:g} from t = "
+                             f"{self.t[at[a]]:g} to {self.t[at[b - 1]]:g} s), far longer than its readings "
+                             f"repeat elsewhere: a stuck sensor, those readings left out")
+        return (dataclasses.replace(self, outputs=outputs) if notes else self), notes
 
     def input_parts(self) -> list[Recording]:
         """The stretches between this recording's input holes (an input without a sample for

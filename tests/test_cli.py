@@ -1,7 +1,9 @@
 """The command line as a user meets it: results on good data, one-line errors on bad."""
 import csv
+import os
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,10 +12,12 @@ from models.wingrock_sim import simulate
 from skigen.recording import write_recording
 
 MODEL = "models/wingrock.py"
+ROOT = Path(__file__).resolve().parents[1]
 
 
 def skigen(*args, cwd=None):
-    return subprocess.run([sys.executable, "-m", "skigen", *args], capture_output=True, text=True, cwd=cwd)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
+    return subprocess.run([sys.executable, "-m", "skigen", *args], capture_output=True, text=True, cwd=cwd, env=env)
 
 
 @pytest.fixture(scope="module")
@@ -100,6 +104,13 @@ def test_module_attribute_spec_works(recording, tmp_path):
     r = skigen("run", "models.wingrock:model", str(recording), "--filter", "ekf", "--out", str(tmp_path / "o.csv"))
     assert r.returncode == 0, r.stderr
     assert "mean NIS" in r.stdout
+
+
+def test_a_model_file_in_a_package_loads_by_path_from_anywhere(recording, tmp_path):
+    """models/wingrock_delay.py imports from its package (``from .wingrock import ...``)."""
+    r = skigen("run", str(ROOT / "models" / "wingrock_delay.py"), str(recording), "--filter", "ekf",
+               "--out", "o.csv", cwd=tmp_path)
+    assert r.returncode == 0 and "mean NIS" in r.stdout, r.stderr
 
 
 def test_generate_then_run_with_the_c_backend(recording, tmp_path):

@@ -96,12 +96,18 @@ def test_a_finding_the_joint_refit_no_longer_needs_is_flagged():
     from skigen.diagnose.catalog import Additive
     limit, cubic = (Additive(e, "v", f, "") for e, f in (("physical_limit", "-fmax(y - 0.2, 0)"),
                                                          ("cubic_stiffness", "-y**3")))
-    findings = [dict(effect="physical_limit", equation="v", kind="additive", coefficient=5797.0, std=107.0),
-                dict(effect="cubic_stiffness", equation="v", kind="additive", coefficient=6.08e5, std=3.4e3)]
-    fitted = {"physical_limit_v": dict(value=224.9, std=187.8), "cubic_stiffness_v": dict(value=7.371e5, std=2.8e3)}
-    _update_findings(findings, {"physical_limit_v": limit, "cubic_stiffness_v": cubic}, fitted, alpha=0.01)
+    lower = Additive("physical_limit", "v", "fmax(-0.3 - y, 0)", "")
+    findings = [dict(effect=c.effect, equation="v", expression=c.formula, kind="additive", coefficient=k, std=s)
+                for c, k, s in ((limit, 5797.0, 107.0), (cubic, 6.08e5, 3.4e3), (lower, 2.0, 0.1))]
+    fitted = {"physical_limit_v": dict(value=224.9, std=187.8), "cubic_stiffness_v": dict(value=7.371e5, std=2.8e3),
+              "physical_limit_v_2": dict(value=2.1, std=0.06)}
+    _update_findings(findings, {"physical_limit_v": limit, "cubic_stiffness_v": cubic, "physical_limit_v_2": lower},
+                     fitted, alpha=0.01)
     assert findings[0]["coefficient"] == 224.9 and "within 2.58 std of zero" in findings[0]["note"]
     assert findings[1]["coefficient"] == 7.371e5 and "note" not in findings[1]
+    # a second limit on the same equation keeps its own parameter (both once showed the last one's)
+    assert (findings[2]["coefficient"], findings[2]["parameter"]) == (2.1, "physical_limit_v_2")
+    assert findings[0]["parameter"] == "physical_limit_v"
 
 
 def test_a_finding_a_simulation_is_better_without_is_flagged():

@@ -38,3 +38,25 @@ def test_the_sensor_is_named_not_the_dynamics(diagnosed, name):
     assert len(d["findings"]) == 1 and d["remaining"]["mismatch"] is False, (d["findings"], d["remaining"])
     text = open(d["corrected_model"]).read()
     assert PARAMETER[name] in text, text
+
+
+def test_a_sensor_stuck_partway_and_an_input_hole_are_left_out_and_said(tmp_path):
+    """A cart recording the nominal model explains, with its position sensor frozen for 2 s at
+    36 s and the force unknown for 2 s at 12 s: the frozen readings are left out, the longest
+    stretch between the input holes is diagnosed, the report says both, and no mismatch is
+    found. Diagnosed as read (the frozen value and the held force taken as data) the mean NIS is
+    130 and a mismatch is declared (measured)."""
+    import numpy as np
+    import pandas as pd
+    from benchmarks.scenarios import make
+    from skigen.diagnose import diagnose
+    sc = make("cart_clean", seed=SEED)
+    frame = pd.DataFrame({"t": sc.t, **sc.inputs, **sc.outputs})       # t, F, p_meas at 100 Hz
+    frame.loc[3600:3800, "p_meas"] = frame.loc[3600, "p_meas"]
+    frame.loc[1200:1400, "F"] = np.nan
+    d = diagnose(sc.model_file, frame, tmp_path, show_progress=False, figures=False, emit=False).data
+    assert not d["mismatch_detected"] and d["consistency"]["nis_mean"] < 1.1
+    stuck, hole = d["notes"]
+    assert "output 'p_meas' holds one reading in 201 samples" in stuck and "from t = 36 to 38 s), far longer" in stuck
+    assert "11.99–14.01 s (2.02 s) without F" in hole and "14.01–59.99 s (4599 of 6000 samples)" in hole
+    assert "Note: DataFrame: output 'p_meas' holds one reading" in (tmp_path / "report.md").read_text()

@@ -193,3 +193,44 @@ def test_result_numbers_are_exact_and_shortest_in_a_background_writer(tmp_path):
     with pytest.raises(ValueError):
         with TableWriter(path, background=True) as w:
             w.write({"a": [1.0, 2.0], "b": [1.0]})
+
+
+def test_stuck_readings_are_told_from_a_quantised_sensor_and_a_clipped_one():
+    """Recording.unstuck: a run of 10 identical readings inside the range of a sensor whose other
+    readings never repeat is stuck; the same run of a quantised sensor (at rest), at the sensor's
+    extreme (a clip at its bound) or of a sensor logged at 10 times its rate is data; that
+    sensor's stuck run is 50 readings."""
+    rng = np.random.default_rng(0)
+    t = np.arange(200) * 0.01
+    y = np.sin(t) + 0.01 * rng.normal(size=200)
+    rec = lambda *cols: Recording("r.csv", t, np.zeros((200, 1)), np.column_stack(cols), ("u",),
+                                  tuple(f"y{i}" for i in range(len(cols))))
+    frozen, short = y.copy(), y.copy()
+    frozen[50:62] = frozen[50]
+    short[50:59] = short[50]                                    # 9 in a row: not yet stuck
+    clipped = np.minimum(y, 0.8)
+    quantised = np.round(np.where(t < 1, 0.0, y) / 0.05) * 0.05  # at rest for 1 s, in steps of 0.05
+    slow = np.repeat(y[::10], 10)                                # each reading logged 10 times
+    slow_stuck = slow.copy()
+    slow_stuck[100:150] = slow_stuck[100]
+    out, notes = rec(frozen, short, clipped, quantised, slow, slow_stuck).unstuck()
+    assert np.isnan(out.outputs[50:62, 0]).all() and np.isfinite(np.delete(out.outputs[:, 0], range(50, 62))).all()
+    assert np.isfinite(out.outputs[:, 1:5]).all()
+    assert np.isnan(out.outputs[100:150, 5]).all() and np.isfinite(np.delete(out.outputs[:, 5], range(100, 150))).all()
+    assert notes[0] == ("r.csv: output 'y0' holds one reading in 12 samples (1 run(s) of 10 or more; the first reads "
+                        f"{frozen[50]:g} from t = 0.5 to 0.61 s), far longer than its readings repeat elsewhere: "
+                        "a stuck sensor, those readings left out")
+    assert len(notes) == 2 and "'y5' holds one reading in 50 samples (1 run(s) of 50 or more" in notes[1]
+
+
+def test_input_holes_cut_a_recording_into_parts():
+    """Recording.input_parts: the samples inside an input hole belong to no part; an output hole
+    cuts nothing and stays with its part."""
+    from skigen.grid import Hole
+    t = np.arange(100) * 0.1
+    holes = (Hole(2.0, 4.5, ("u",), True), Hole(6.0, 7.5, ("y",), False))
+    rec = Recording("r.csv", t, np.zeros((100, 1)), np.zeros((100, 1)), ("u",), ("y",), holes=holes)
+    first, second = rec.input_parts()
+    assert (first.t[0], first.t[-1], second.t[0], second.t[-1]) == (0.0, 2.0, 4.5, 9.9)
+    assert first.path == "r.csv [0–2 s]" and first.holes == () and second.holes == holes[1:]
+    assert Recording("r.csv", t, np.zeros((100, 1)), np.zeros((100, 1)), ("u",), ("y",)).input_parts()[0].t is t

@@ -41,7 +41,7 @@ from .errors import DiagnosisError
 from .evidence import weigh
 from .figures import diagnosis_figures, plot_residuals
 from .fit import evaluate_fit, free_run_window, simulation_worth
-from .inputs import MIN_SAMPLES, check, load
+from .inputs import MIN_SAMPLES, check, load, usable
 from .locate import Location, locate
 from .name import Correction, basis_rms, beyond_parameters, focus_window, name_terms, shape_search
 from .plausible import screen, significant
@@ -132,9 +132,14 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     read = dict(time=time, time_unit=time_unit, columns=columns, max_gap=max_gap)
     try:
         user, spec, rec = load(model, recording, **read)
+        rec, notes = usable(rec)
         nominal = T.copy_model(user, unknowns=False)
         check(nominal, rec, folds)
-        others = [load(nominal, r, **read)[2] for r in (validate or [])]
+        others = []
+        for r in validate or []:
+            other, more = usable(load(nominal, r, **read)[2])
+            others.append(other)
+            notes += more
         user_cands = C.user_candidates(nominal, candidates) + C.declared_candidates(user)
         unknown = [e for e in equations or [] if e not in nominal.state_names]
         if unknown:
@@ -145,6 +150,8 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     except ValueError as exc:
         raise DiagnosisError(str(exc)) from None
     _refuse_a_diverging_step(nominal, rec)
+    for line in notes:
+        stage.note(line)
     if units := unit_hints(nominal, rec):
         stage.note("; ".join(units))
     out = Path(out_dir)
@@ -164,7 +171,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     window = free_run_window(calibrated, rec, nominal_run)       # the nominal's: every model is compared on it
     before = evaluate_fit(calibrated, rec, run=nominal_run, window=window)
     eps = normalised_innovations(nominal_run)
-    data = {"mismatch_detected": verdict.mismatch, "noise": noise.asdict(),
+    data = {"mismatch_detected": verdict.mismatch, "notes": notes, "noise": noise.asdict(),
             "consistency": dict(cons.asdict(), declared_noise=consistency(declared_run, nominal.output_names,
                                                                           alpha).asdict(),
                                 disturbance_gain=verdict.gains, disturbance_threshold=verdict.threshold),
@@ -347,7 +354,7 @@ def _update_findings(findings: list[dict], names: dict, fitted: dict, alpha: flo
     """The refitted values in the findings; the std keeps the shape search's share. A finding whose
     refitted coefficient is no longer significant gets a note saying so."""
     by_target = {(c.effect, c.target, c.side): (n, c) for n, c in names.items() if isinstance(c, C.Structural)}
-    by_effect = {c.key: n for n, c in names.items() if c is not None and not isinstance(c, C.Structural)}
+    by_term = {c.key + (c.text,): n for n, c in names.items() if c is not None and not isinstance(c, C.Structural)}
     for f in findings:
         if f["kind"] == "structural":
             n, s = by_target.get((f["effect"], f.get("output") or f.get("input"), f.get("side", "")), (None, None))
@@ -356,7 +363,7 @@ def _update_findings(findings: list[dict], names: dict, fitted: dict, alpha: flo
                 f["coefficient"], f["std"] = fitted[n]["value"], fitted[n]["std"]
                 f["expression"], f["refit_parameter"] = s.describe(f["coefficient"]), n
             continue
-        n = by_effect.get((f["effect"], f["equation"], f.get("through", "")))
+        n = by_term.get((f["effect"], f["equation"], f.get("through", ""), f["expression"]))
         if n not in fitted:
             continue
         spread = f.get("shape_search", {}).get("coefficient_std_from_shape", 0.0)

@@ -11,7 +11,7 @@ from ..runtime import check_columns
 from . import transform as T
 from .errors import DiagnosisError
 
-__all__ = ["MIN_SAMPLES", "load", "check"]
+__all__ = ["MIN_SAMPLES", "load", "check", "usable"]
 
 MIN_SAMPLES = 300          # ≥ 60 per fold of 5, and ≥ 5 Ljung–Box lags
 
@@ -41,6 +41,25 @@ def load(model, recording, **read) -> tuple[Model, str | None, Recording]:
         except ValueError as exc:
             raise DiagnosisError(str(exc)) from None
     return model, spec, rec
+
+
+def usable(rec: Recording) -> tuple[Recording, list[str]]:
+    """``rec`` without a stuck sensor's readings (:meth:`Recording.unstuck`) and, where an input
+    has holes, its longest stretch between them (a held input is not the input, and a diagnosis
+    takes one recording), with a sentence per change."""
+    rec, notes = rec.unstuck()
+    parts = rec.input_parts()
+    holes = "; ".join(str(h) for h in rec.holes if h.inputs)
+    if not parts:
+        raise DiagnosisError(f"{rec.path}: no two consecutive samples with every input known between the input "
+                             f"holes ({holes})")
+    if parts[0] is not rec:
+        longest = max(parts, key=len)
+        notes.append(f"{rec.path}: the held input is not the input in its hole(s) longer than max_gap = "
+                     f"{rec.max_gap:g} s ({holes}): diagnosed on the longest stretch between them, "
+                     f"{longest.t[0]:g}–{longest.t[-1]:g} s ({len(longest)} of {len(rec)} samples)")
+        rec = longest
+    return rec, notes
 
 
 def check(model: Model, rec: Recording, folds: int):

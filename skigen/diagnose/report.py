@@ -123,6 +123,7 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
     else:
         verdict = "**A significant mismatch exists; the corrected model explains it.**"
     L += [verdict, "", f"{meta['samples']} samples, dt = {meta['dt']:g} s. {fit['validation']}.", ""]
+    L += [f"Note: {n}." for n in data["notes"]] + [""] * bool(data["notes"])
     if rem.get("units"):
         L += ["**Check the units first** — the findings below may only be making up for them: "
               + "; ".join(rem["units"]), ""]

@@ -224,7 +224,7 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
         raise FitError("no recording to fit")
     for rec in recs:
         _check_recording(model, rec)
-    recs, starts, notes = _known_input_parts(recs, starts)
+    recs, starts, notes = _usable(recs, starts)
     estimate = _check_estimate(model, estimate)
     if shooting is not None and (method != "output-error" or int(shooting) < 2):
         raise ValueError("shooting applies to output error and needs at least 2 samples per interval")
@@ -330,14 +330,16 @@ def _bound_notes(parameters: dict) -> list[str]:
     return notes
 
 
-def _known_input_parts(recs: list[Recording], starts) -> tuple[list[Recording], list | None, list[str]]:
-    """Each recording cut at its input holes (:meth:`Recording.input_parts`: a held input is not
-    the input), ``starts`` for the parts (a later part starts from the model's initial state),
-    and a note per recording cut."""
+def _usable(recs: list[Recording], starts) -> tuple[list[Recording], list | None, list[str]]:
+    """Each recording without a stuck sensor's readings (:meth:`Recording.unstuck`) and cut at its
+    input holes (:meth:`Recording.input_parts`: a held input is not the input), ``starts`` for the
+    parts (a later part starts from the model's initial state), and a note per change."""
     if starts is not None and len(starts) != len(recs):
         raise ValueError(f"starts: {len(starts)} given for {len(recs)} recordings")
     parts, part_starts, notes = [], [], []
     for rec, start in zip(recs, [None] * len(recs) if starts is None else starts):
+        rec, stuck = rec.unstuck()
+        notes += stuck
         cut = rec.input_parts()
         holes = "; ".join(str(h) for h in rec.holes if h.inputs)
         if not cut:
