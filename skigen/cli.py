@@ -181,10 +181,10 @@ def _diagnose(args) -> int:
         if d["fit"]["after"]:
             b, a = d["fit"]["before"], d["fit"]["after"]
             span = f" (restarted every {b['free_run_window']:.3g} s)" if b.get("free_run_window") else ""
-            print(f"log-likelihood {b['loglik']:.1f} -> {a['loglik']:.1f}, free-run RMSE{span} "
-                  + ", ".join(f"{k} {b['free_run_rmse'][k]:.4g} -> {a['free_run_rmse'][k]:.4g}"
-                              for k in b["free_run_rmse"] if b['free_run_rmse'][k] is not None
-                              and a['free_run_rmse'][k] is not None))
+            both = [k for k in b["free_run_rmse"] if None not in (b["free_run_rmse"][k], a["free_run_rmse"][k])]
+            print(f"log-likelihood {b['loglik']:.1f} -> {a['loglik']:.1f}" + (
+                f", free-run RMSE{span} " + ", ".join(f"{k} {b['free_run_rmse'][k]:.4g} -> {a['free_run_rmse'][k]:.4g}"
+                                                      for k in both) if both else ""))
         rem = d["remaining"]
         print("what remains: " + ("a mismatch remains" + (f"; it follows {rem['explained_by']}: try --candidate "
                                                           f"'{rem['suggested_candidate']}'" if rem.get("explained_by") else "")

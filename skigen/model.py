@@ -138,9 +138,13 @@ class Model:
         if not (isinstance(name, str) and name.isidentifier() and name.isascii()):
             raise ModelError(f"{what} name {name!r} must be an identifier (ASCII letters, digits, _; not "
                              f"starting with a digit): it names C symbols and result columns")
-        if name in C_KEYWORDS or keyword.iskeyword(name) or name in RESERVED or name.startswith(RESERVED_PREFIXES):
-            raise ModelError(f"{what} name '{name}' is reserved (a C or Python keyword, a result column, a "
-                             f"formula function, or a prefix of {', '.join(RESERVED_PREFIXES)}); choose another")
+        prefix = next((p for p in RESERVED_PREFIXES if name.startswith(p)), None)
+        why = ("a C keyword" if name in C_KEYWORDS else "a Python keyword" if keyword.iskeyword(name) else
+               "a result column or a formula function" if name in RESERVED else
+               f"it starts with '{prefix}', which names result columns ({', '.join(RESERVED_PREFIXES)} are taken)"
+               if prefix else None)
+        if why:
+            raise ModelError(f"{what} name '{name}' is reserved: {why}; choose another")
         if name in self.names:
             raise ModelError(f"{what} '{name}' is declared twice")
         return ca.SX.sym(name)

@@ -165,17 +165,17 @@ class RunSummary:
         self.holes, self.notes = (), ()
         self.events = {c: 0 for c in EVENTS}
         self.first_restart = None
-        self.per_output = np.zeros(len(filt.aug.model.output_names), int)   # samples where each was measured
+        self.per_output = np.zeros(len(filt.aug.model.output_names), int)   # samples where each reading was used
 
     def add(self, part: RunResult) -> "RunSummary":
-        ok = np.isfinite(part.nis)
+        ok, used = np.isfinite(part.nis), np.isfinite(part.innovation)     # a reading gated or stuck is not used
         self.samples += len(part.t)
-        self.with_measurement += int(part.measured.any(axis=1).sum()) if part.measured.size else 0
-        if part.measured.size:
-            self.per_output += part.measured.sum(axis=0).astype(int)
+        self.with_measurement += int(used.any(axis=1).sum()) if used.size else 0
+        if used.size:
+            self.per_output += used.sum(axis=0).astype(int)
         self.nis_sum += float(part.nis[ok].sum())
         self.nis_count += int(ok.sum())
-        self.expected_sum += float(part.measured[ok].sum())
+        self.expected_sum += float(used[ok].sum())
         self.holes, self.notes = part.holes, part.notes
         for c in EVENTS:
             self.events[c] += int(np.sum(part.code == c))
@@ -221,14 +221,14 @@ class RunSummary:
         if self.nis_count:
             expected = self.expected_sum / self.nis_count
             out.append(f"mean NIS {self.nis_sum / self.nis_count:.3f} (expected {expected:.3f}: the "
-                       f"{len(aug.model.output_names)} output(s) measured {expected:.3g} at a time on average, "
+                       f"{len(aug.model.output_names)} output(s) used {expected:.3g} at a time on average, "
                        f"{self.with_measurement} of {self.samples} samples measured)")
         else:
             out.append("no sample was measured: no NIS")
         names = aug.model.output_names
         if self.samples and (self.per_output < self.samples).any():
             out.append("measured per output: " + ", ".join(f"{n} {m} of {self.samples}" for n, m in zip(names, self.per_output))
-                       + " (the rest empty, non-finite, gated or stuck)")
+                       + " used (the rest empty, non-finite, gated or stuck)")
         return out
 
 
@@ -850,7 +850,7 @@ def _steps(filt, stepper, backend, pieces, again, holes=(), notes=(), strict=Fal
         yield part
 
 
-RESTART_SCALE = 1.0      # after an input hole the states restart with this times their declared covariance
+RESTART_SCALE = Guard.reinit_scale   # after an input hole: this times the declared covariance, as a recovery
 
 
 def restarts(rec: Recording, dt: float) -> list[int]:
@@ -860,9 +860,11 @@ def restarts(rec: Recording, dt: float) -> list[int]:
 
 
 def forget_states(stepper, filt: DerivedFilter) -> None:
-    """The input was unknown for a while: the physical states restart from their declared
-    covariance (mean kept) and lose their correlation with the weights and parameters, which
-    keep what they learnt."""
+    """The input was unknown for a while: the physical states restart from RESTART_SCALE times
+    their declared covariance (mean kept; the recovery policy's widening, so that the first
+    readings after the hole pass the gate where the states have moved) and lose their correlation
+    with the weights and parameters, which keep what they learnt. (At 1 times, a motor whose
+    speed moved 16 declared std in a 1.5 s hole had its next 25 readings gated.)"""
     nx, square_root = len(filt.aug.model.states), filt.square_root
     C = np.asarray(stepper.C, float)
     P = C @ C.T if square_root else C.copy()
@@ -878,6 +880,9 @@ def forget_states(stepper, filt: DerivedFilter) -> None:
 
 def _stepper(filt, backend, real, show_progress, cache_dir, guard=None, init=None, strict=False, trace=False):
     aug, model = filt.aug, filt.aug.model
+    if real != "double" and backend != "c":
+        raise ValueError(f"real='{real}' is the precision of the generated C: give backend 'c' (the "
+                         f"{backend} backend computes in double)")
     if backend == "c" and (init is not None or trace):
         raise ValueError("init and trace need backend 'python' or 'casadi'")
     if backend == "casadi":

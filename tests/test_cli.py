@@ -106,6 +106,12 @@ def test_module_attribute_spec_works(recording, tmp_path):
     assert "mean NIS" in r.stdout
 
 
+def test_float_precision_needs_the_c_backend(recording, tmp_path):
+    r = skigen("run", MODEL, str(recording), "--filter", "ekf", "--real", "float", "--out", str(tmp_path / "o.csv"))
+    assert r.returncode == 1 and "real='float' is the precision of the generated C: give backend 'c'" in r.stderr
+    assert not (tmp_path / "o.csv").exists()
+
+
 def test_a_model_file_in_a_package_loads_by_path_from_anywhere(recording, tmp_path):
     """models/wingrock_delay.py imports from its package (``from .wingrock import ...``)."""
     r = skigen("run", str(ROOT / "models" / "wingrock_delay.py"), str(recording), "--filter", "ekf",

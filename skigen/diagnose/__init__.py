@@ -40,7 +40,7 @@ from .detect import Consistency, consistency, judge, normalised_innovations, rem
 from .errors import DiagnosisError
 from .evidence import weigh
 from .figures import diagnosis_figures, plot_residuals
-from .fit import evaluate_fit, free_run_window, simulation_worth
+from .fit import DIVERGED, evaluate_fit, free_run_window, simulation_worth
 from .inputs import MIN_SAMPLES, check, load, usable
 from .locate import Location, locate
 from .name import Correction, basis_rms, beyond_parameters, focus_window, name_terms, shape_search
@@ -132,14 +132,14 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     read = dict(time=time, time_unit=time_unit, columns=columns, max_gap=max_gap)
     try:
         user, spec, rec = load(model, recording, **read)
-        rec, notes = usable(rec)
+        rec, caveats = usable(rec)
         nominal = T.copy_model(user, unknowns=False)
         check(nominal, rec, folds)
         others = []
         for r in validate or []:
             other, more = usable(load(nominal, r, **read)[2])
             others.append(other)
-            notes += more
+            caveats += more
         user_cands = C.user_candidates(nominal, candidates) + C.declared_candidates(user)
         unknown = [e for e in equations or [] if e not in nominal.state_names]
         if unknown:
@@ -150,7 +150,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     except ValueError as exc:
         raise DiagnosisError(str(exc)) from None
     _refuse_a_diverging_step(nominal, rec)
-    for line in notes:
+    for line in caveats:
         stage.note(line)
     if units := unit_hints(nominal, rec):
         stage.note("; ".join(units))
@@ -170,8 +170,12 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     cons = verdict.consistency
     window = free_run_window(calibrated, rec, nominal_run)       # the nominal's: every model is compared on it
     before = evaluate_fit(calibrated, rec, run=nominal_run, window=window)
+    if (t_gone := before.metrics["free_run_diverges_at"]) is not None:
+        caveats.append(f"the nominal model's free run diverges at t = {t_gone:g} s (beyond {DIVERGED:g} times the "
+                       f"recording's spread): its free-run errors are not compared")
+        stage.note(caveats[-1])
     eps = normalised_innovations(nominal_run)
-    data = {"mismatch_detected": verdict.mismatch, "notes": notes, "noise": noise.asdict(),
+    data = {"mismatch_detected": verdict.mismatch, "notes": caveats, "noise": noise.asdict(),
             "consistency": dict(cons.asdict(), declared_noise=consistency(declared_run, nominal.output_names,
                                                                           alpha).asdict(),
                                 disturbance_gain=verdict.gains, disturbance_threshold=verdict.threshold),
@@ -279,6 +283,11 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         stage("fit of the corrected model")
         after = evaluate_fit(corrected, rec, window=window)
         data["fit"]["after"] = after.metrics
+        b, a = before.metrics["free_run_rmse"], after.metrics["free_run_rmse"]
+        if worse := [k for k in a if None not in (a[k], b[k]) and a[k] > b[k]]:
+            caveats.append("the corrected model free-runs worse than the nominal on " + ", ".join(
+                f"{k} ({b[k]:.4g} → {a[k]:.4g})" for k in worse) + ": its findings improve the one-step "
+                "predictions, not the simulation; weigh them with care")
         w, regime = windows_where_it_acts(calibrated, after, rec, loc.equations, loc.states)
         data["located"].update(windows=[[float(a), float(b)] for a, b in w], regime=regime or loc.regime,
                                windows_from="where the found terms add at least 20 % of their 99th-percentile "
@@ -414,23 +423,25 @@ def unit_hints(nominal: Model, rec) -> list[str]:
     """Outputs whose recording is the nominal free run times a unit conversion (within 3 %, the scaled
     free run explaining at least 90 % of what the unscaled one leaves, offsets allowed): a log in
     degrees against a model in radians, say. Hints only: the diagnosis goes on."""
-    with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"):        # a free run that escapes to overflow is no scaled copy
         _, Y = free_run(T.constants(nominal), rec.inputs)
-    out = []
-    for j, name in enumerate(nominal.output_names):
-        y, yhat = np.asarray(rec.outputs)[:, j], Y[:, j]
-        ok = np.isfinite(y) & np.isfinite(yhat)
-        if ok.sum() < 10 or np.std(yhat[ok]) == 0:
-            continue
-        y, yhat = y[ok] - y[ok].mean(), yhat[ok] - yhat[ok].mean()
-        a = float(yhat @ y / (yhat @ yhat))
-        unscaled, scaled = np.mean((y - yhat) ** 2), np.mean((y - a * yhat) ** 2)
-        factor = min(CONVERSIONS, key=lambda f: abs(np.log(a / f)) if a > 0 else np.inf)
-        if a > 0 and abs(np.log(a / factor)) < 0.03 and scaled < 0.1 * unscaled:
-            unit = nominal.outputs[j].unit
-            out.append(f"output '{name}'{f' [{unit}]' if unit else ''} is {a:.4g}× the nominal free run: "
-                       f"is the recording in {CONVERSIONS[factor]}?")
-    return out
+        return [hint for j in range(len(nominal.output_names))
+                if (hint := _unit_hint(nominal, j, np.asarray(rec.outputs)[:, j], Y[:, j]))]
+
+
+def _unit_hint(nominal: Model, j: int, y: np.ndarray, yhat: np.ndarray) -> str | None:
+    ok = np.isfinite(y) & np.isfinite(yhat)
+    if ok.sum() < 10 or np.std(yhat[ok]) == 0:
+        return None
+    y, yhat = y[ok] - y[ok].mean(), yhat[ok] - yhat[ok].mean()
+    a = float(yhat @ y / (yhat @ yhat))
+    unscaled, scaled = np.mean((y - yhat) ** 2), np.mean((y - a * yhat) ** 2)
+    factor = min(CONVERSIONS, key=lambda f: abs(np.log(a / f)) if a > 0 else np.inf)
+    if not (a > 0 and abs(np.log(a / factor)) < 0.03 and scaled < 0.1 * unscaled):
+        return None
+    out = nominal.outputs[j]
+    return (f"output '{out.name}'{f' [{out.unit}]' if out.unit else ''} is {a:.4g}× the nominal free run: "
+            f"is the recording in {CONVERSIONS[factor]}?")
 
 
 def _refuse_a_diverging_step(nominal: Model, rec) -> None:

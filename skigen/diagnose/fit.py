@@ -33,6 +33,9 @@ class Fit:
     window: int             # samples per free run
 
 
+DIVERGED = 1e6      # a free run this many times the recording's spread away from its mean has diverged
+
+
 def settle(n: int) -> int:
     """Samples not scored at the start of a free run."""
     return int(min(max(50, n // 100), n // 2))
@@ -59,7 +62,12 @@ def evaluate_fit(model: Model, rec: Recording, run: RunResult | None = None, win
     run = run or ekf_run(model, rec)
     k0 = settle(len(rec.t))
     window = window or free_run_window(model, rec, run)
-    free = free_run(model, run, rec, k0, window)
+    with np.errstate(all="ignore"):
+        free = free_run(model, run, rec, k0, window)
+        away = ~(np.abs(free - np.nanmean(rec.outputs, axis=0)) <= DIVERGED * np.nanstd(rec.outputs, axis=0))
+    away[:k0 + 1] = False
+    gone = np.flatnonzero(away.any(axis=1))
+    free[away] = np.nan
     err = free - rec.outputs
     e = run.innovation
     names = model.output_names
@@ -73,9 +81,10 @@ def evaluate_fit(model: Model, rec: Recording, run: RunResult | None = None, win
             "free_run_rmse": {n: float(np.sqrt(np.nanmean(err[k0 + 1:, i] ** 2))) for i, n in enumerate(names)},
             "free_run_from": float(rec.t[k0]),
             "free_run_window": None if window >= len(rec.t) - 1 - k0 else float(window * model.dt),
+            "free_run_diverges_at": float(rec.t[gone[0]]) if len(gone) else None,
         }
-    for k in ("free_run_rmse",):
-        metrics[k] = {n: (v if np.isfinite(v) else None) for n, v in metrics[k].items()}
+    metrics["free_run_rmse"] = {n: (v if np.isfinite(v) and not away[:, i].any() else None)
+                                for i, (n, v) in enumerate(metrics["free_run_rmse"].items())}
     return Fit(metrics, run, free, window)
 
 
