@@ -23,8 +23,8 @@ def note(text: str, stream=None) -> None:
 def progress(iterable, total, label, stream=sys.stderr, min_seconds=1.0):
     """Yield from ``iterable``, showing ``label: 45% (6750/15000) 1.2 s, eta 1.5 s``.
 
-    The line is drawn only if ``stream.isatty()`` (``SKIGEN_PROGRESS=1`` forces it,
-    ``=0`` disables it), only once the work has taken ``min_seconds``, at most
+    The line is drawn only if ``stream.isatty()`` (``SKIGEN_PROGRESS=1`` forces it, as its last
+    state only; ``=0`` disables it), only once the work has taken ``min_seconds``, at most
     ~10 times per second, and is finished with a newline at the end.
     """
     if not shown(stream):
@@ -33,8 +33,9 @@ def progress(iterable, total, label, stream=sys.stderr, min_seconds=1.0):
 
     t0 = time.perf_counter()
     last, width, done = -1.0, 0, 0
+    tty = getattr(stream, "isatty", lambda: False)()     # elsewhere (forced): the last line only
 
-    def draw(now):
+    def draw(now, last_line=False):
         nonlocal width
         el = now - t0
         if total:
@@ -42,9 +43,10 @@ def progress(iterable, total, label, stream=sys.stderr, min_seconds=1.0):
             text = f"{label}: {100 * done / total:3.0f}% ({done}/{total}) {el:.1f} s, eta {eta}"
         else:
             text = f"{label}: {done} {el:.1f} s"
-        stream.write("\r" + text.ljust(width))
-        stream.flush()
-        width = len(text)
+        if tty or last_line:
+            stream.write("\r" + text.ljust(width))
+            stream.flush()
+            width = len(text)
 
     try:
         for item in iterable:
@@ -57,6 +59,6 @@ def progress(iterable, total, label, stream=sys.stderr, min_seconds=1.0):
     finally:
         now = time.perf_counter()
         if width or now - t0 >= min_seconds:
-            draw(now)
+            draw(now, last_line=True)
             stream.write("\n")
             stream.flush()

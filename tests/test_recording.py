@@ -141,7 +141,21 @@ def test_progress_not_tty(monkeypatch):
     assert out.getvalue() == ""
     monkeypatch.setenv("SKIGEN_PROGRESS", "1")
     list(progress(range(3), 3, "forced", stream=out, min_seconds=0))
-    assert "forced" in out.getvalue()
+    assert out.getvalue().startswith("\rforced: 100% (3/3)") and out.getvalue().count("forced") == 1
+
+
+def test_diagnosis_stages_are_lines_in_a_log_file(monkeypatch):
+    """Forced onto a file, each stage and note is a line of its own (no carriage returns joining them)."""
+    from skigen.diagnose import _Stages
+    monkeypatch.setenv("SKIGEN_PROGRESS", "1")
+    out = io.StringIO()
+    stage = _Stages(True, out)
+    stage("calibrating the noise")
+    stage.note("a note")
+    stage("naming")
+    lines = out.getvalue().splitlines()
+    assert "\r" not in out.getvalue() and len(lines) == 3 and lines[1] == "diagnose: a note"
+    assert lines[0].startswith("diagnose ") and lines[0].endswith(" s: calibrating the noise")
 
 
 def test_progress_quiet_when_fast(monkeypatch):

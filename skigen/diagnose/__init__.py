@@ -18,7 +18,6 @@ follows), :mod:`report` and :mod:`figures`.
 """
 from __future__ import annotations
 
-import os
 import sys
 from time import perf_counter
 from dataclasses import dataclass, field
@@ -29,6 +28,7 @@ import numpy as np
 from scipy import stats
 
 from ..model import Model, ModelError, _complex
+from ..progress import shown
 from ..recording import RecordingError
 from ..simulate import free_run
 from . import catalog as C
@@ -73,29 +73,31 @@ class Report:
 
 
 class _Stages:
-    """One status line on a terminal: 'diagnose 12.3 s: SKI over the additive candidates'."""
+    """One status line on a terminal: 'diagnose 12.3 s: SKI over the additive candidates'; a line
+    per stage where progress is forced onto a pipe or file (SKIGEN_PROGRESS=1)."""
 
     def __init__(self, show: bool, stream=sys.stderr):
-        env = os.environ.get("SKIGEN_PROGRESS")
-        tty = getattr(stream, "isatty", lambda: False)()
-        self.on = show and (env == "1" or (env != "0" and tty))
+        self.on, self.tty = show and shown(stream), getattr(stream, "isatty", lambda: False)()
         self.stream, self.t0, self.width = stream, perf_counter(), 0
         self.log: list[tuple[str, float]] = []           # (stage, start in s)
+
+    def _write(self, text: str, stays: bool):
+        if self.tty:
+            self.stream.write("\r" + text.ljust(self.width) + ("\n" if stays else ""))
+            self.width = 0 if stays else len(text)
+        else:
+            self.stream.write(text + "\n")
+        self.stream.flush()
 
     def __call__(self, label: str):
         self.log.append((label.split(":")[0], perf_counter() - self.t0))
         if self.on:
-            text = f"diagnose {perf_counter() - self.t0:5.1f} s: {label}"
-            self.stream.write("\r" + text.ljust(self.width))
-            self.stream.flush()
-            self.width = len(text)
+            self._write(f"diagnose {perf_counter() - self.t0:5.1f} s: {label}", False)
 
     def note(self, text: str):
         """A line that stays (a warning the user should read now, not only in the report)."""
         if self.on:
-            self.stream.write("\r" + f"diagnose: {text}".ljust(self.width) + "\n")
-            self.stream.flush()
-            self.width = 0
+            self._write(f"diagnose: {text}", True)
 
     def seconds(self) -> dict:
         """Seconds spent per stage (stages of the same name summed)."""
