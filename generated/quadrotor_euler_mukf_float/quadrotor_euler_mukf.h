@@ -55,23 +55,23 @@ typedef float quadrotor_euler_mukf_real;
 #define QUADROTOR_EULER_MUKF_DT 0.02f /* sample time, s */
 /* Index of every name: z[QUADROTOR_EULER_MUKF_Z_<state or weight>], u[QUADROTOR_EULER_MUKF_U_<input>], y[QUADROTOR_EULER_MUKF_Y_<output>],
  * settings.param[QUADROTOR_EULER_MUKF_P_<declared parameter>]. */
-#define QUADROTOR_EULER_MUKF_Z_V_X 0
-#define QUADROTOR_EULER_MUKF_Z_V_Y 1
-#define QUADROTOR_EULER_MUKF_Z_V_Z 2
-#define QUADROTOR_EULER_MUKF_Z_X 3
-#define QUADROTOR_EULER_MUKF_Z_Y 4
-#define QUADROTOR_EULER_MUKF_Z_Z 5
-#define QUADROTOR_EULER_MUKF_Z_THETA 6
-#define QUADROTOR_EULER_MUKF_Z_PHI 7
-#define QUADROTOR_EULER_MUKF_U_F_X 0
-#define QUADROTOR_EULER_MUKF_U_F_Y 1
-#define QUADROTOR_EULER_MUKF_U_F_Z 2
-#define QUADROTOR_EULER_MUKF_Y_X_M 0
-#define QUADROTOR_EULER_MUKF_Y_Y_M 1
-#define QUADROTOR_EULER_MUKF_Y_Z_M 2
-#define QUADROTOR_EULER_MUKF_Y_V_X_M 3
-#define QUADROTOR_EULER_MUKF_Y_V_Y_M 4
-#define QUADROTOR_EULER_MUKF_Y_V_Z_M 5
+#define QUADROTOR_EULER_MUKF_Z_V_X 0 /* m/s */
+#define QUADROTOR_EULER_MUKF_Z_V_Y 1 /* m/s */
+#define QUADROTOR_EULER_MUKF_Z_V_Z 2 /* m/s */
+#define QUADROTOR_EULER_MUKF_Z_X 3 /* m */
+#define QUADROTOR_EULER_MUKF_Z_Y 4 /* m */
+#define QUADROTOR_EULER_MUKF_Z_Z 5 /* m */
+#define QUADROTOR_EULER_MUKF_Z_THETA 6 /* 1/kg */
+#define QUADROTOR_EULER_MUKF_Z_PHI 7 /* 1/m */
+#define QUADROTOR_EULER_MUKF_U_F_X 0 /* N */
+#define QUADROTOR_EULER_MUKF_U_F_Y 1 /* N */
+#define QUADROTOR_EULER_MUKF_U_F_Z 2 /* N */
+#define QUADROTOR_EULER_MUKF_Y_X_M 0 /* m */
+#define QUADROTOR_EULER_MUKF_Y_Y_M 1 /* m */
+#define QUADROTOR_EULER_MUKF_Y_Z_M 2 /* m */
+#define QUADROTOR_EULER_MUKF_Y_V_X_M 3 /* m/s */
+#define QUADROTOR_EULER_MUKF_Y_V_Y_M 4 /* m/s */
+#define QUADROTOR_EULER_MUKF_Y_V_Z_M 5 /* m/s */
 
 /* Work sizes of the generated kernel (arrays below are at least 1 long to stay C99). */
 #define QUADROTOR_EULER_MUKF_SZ_ARG 9

@@ -55,12 +55,12 @@ typedef double quadrotor_spiral_ukf_real;
 #define QUADROTOR_SPIRAL_UKF_DT 0.02 /* sample time, s */
 /* Index of every name: z[QUADROTOR_SPIRAL_UKF_Z_<state or weight>], u[QUADROTOR_SPIRAL_UKF_U_<input>], y[QUADROTOR_SPIRAL_UKF_Y_<output>],
  * settings.param[QUADROTOR_SPIRAL_UKF_P_<declared parameter>]. */
-#define QUADROTOR_SPIRAL_UKF_Z_PX 0
-#define QUADROTOR_SPIRAL_UKF_Z_PY 1
-#define QUADROTOR_SPIRAL_UKF_Z_PZ 2
-#define QUADROTOR_SPIRAL_UKF_Z_VX 3
-#define QUADROTOR_SPIRAL_UKF_Z_VY 4
-#define QUADROTOR_SPIRAL_UKF_Z_VZ 5
+#define QUADROTOR_SPIRAL_UKF_Z_PX 0 /* m */
+#define QUADROTOR_SPIRAL_UKF_Z_PY 1 /* m */
+#define QUADROTOR_SPIRAL_UKF_Z_PZ 2 /* m */
+#define QUADROTOR_SPIRAL_UKF_Z_VX 3 /* m/s */
+#define QUADROTOR_SPIRAL_UKF_Z_VY 4 /* m/s */
+#define QUADROTOR_SPIRAL_UKF_Z_VZ 5 /* m/s */
 #define QUADROTOR_SPIRAL_UKF_Z_W_ONE 6
 #define QUADROTOR_SPIRAL_UKF_Z_W_PWM 7
 #define QUADROTOR_SPIRAL_UKF_Z_W_PWM2 8
@@ -73,10 +73,10 @@ typedef double quadrotor_spiral_ukf_real;
 #define QUADROTOR_SPIRAL_UKF_U_QX 1
 #define QUADROTOR_SPIRAL_UKF_U_QY 2
 #define QUADROTOR_SPIRAL_UKF_U_QZ 3
-#define QUADROTOR_SPIRAL_UKF_U_PWM 4
-#define QUADROTOR_SPIRAL_UKF_Y_X 0
-#define QUADROTOR_SPIRAL_UKF_Y_Y 1
-#define QUADROTOR_SPIRAL_UKF_Y_Z 2
+#define QUADROTOR_SPIRAL_UKF_U_PWM 4 /* us */
+#define QUADROTOR_SPIRAL_UKF_Y_X 0 /* m */
+#define QUADROTOR_SPIRAL_UKF_Y_Y 1 /* m */
+#define QUADROTOR_SPIRAL_UKF_Y_Z 2 /* m */
 
 /* Work sizes of the generated kernel (arrays below are at least 1 long to stay C99). */
 #define QUADROTOR_SPIRAL_UKF_SZ_ARG 9

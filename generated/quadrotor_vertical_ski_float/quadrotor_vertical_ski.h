@@ -55,16 +55,16 @@ typedef float quadrotor_vertical_ski_real;
 #define QUADROTOR_VERTICAL_SKI_DT 0.01f /* sample time, s */
 /* Index of every name: z[QUADROTOR_VERTICAL_SKI_Z_<state or weight>], u[QUADROTOR_VERTICAL_SKI_U_<input>], y[QUADROTOR_VERTICAL_SKI_Y_<output>],
  * settings.param[QUADROTOR_VERTICAL_SKI_P_<declared parameter>]. */
-#define QUADROTOR_VERTICAL_SKI_Z_PZ 0
-#define QUADROTOR_VERTICAL_SKI_Z_VZ 1
+#define QUADROTOR_VERTICAL_SKI_Z_PZ 0 /* m */
+#define QUADROTOR_VERTICAL_SKI_Z_VZ 1 /* m/s */
 #define QUADROTOR_VERTICAL_SKI_Z_W_ONE 2
 #define QUADROTOR_VERTICAL_SKI_Z_W_PWM 3
 #define QUADROTOR_VERTICAL_SKI_Z_W_PWM2 4
 #define QUADROTOR_VERTICAL_SKI_Z_W_PWM3 5
 #define QUADROTOR_VERTICAL_SKI_Z_W_PWM4 6
 #define QUADROTOR_VERTICAL_SKI_Z_W_PWM5 7
-#define QUADROTOR_VERTICAL_SKI_U_PWM 0
-#define QUADROTOR_VERTICAL_SKI_Y_Z 0
+#define QUADROTOR_VERTICAL_SKI_U_PWM 0 /* us */
+#define QUADROTOR_VERTICAL_SKI_Y_Z 0 /* m */
 
 /* Work sizes of the generated kernel (arrays below are at least 1 long to stay C99). */
 #define QUADROTOR_VERTICAL_SKI_SZ_ARG 10

@@ -55,8 +55,8 @@ typedef double wingrock_delay48_ski_real;
 #define WINGROCK_DELAY48_SKI_DT 0.02 /* sample time, s */
 /* Index of every name: z[WINGROCK_DELAY48_SKI_Z_<state or weight>], u[WINGROCK_DELAY48_SKI_U_<input>], y[WINGROCK_DELAY48_SKI_Y_<output>],
  * settings.param[WINGROCK_DELAY48_SKI_P_<declared parameter>]. */
-#define WINGROCK_DELAY48_SKI_Z_THETA 0
-#define WINGROCK_DELAY48_SKI_Z_P 1
+#define WINGROCK_DELAY48_SKI_Z_THETA 0 /* deg */
+#define WINGROCK_DELAY48_SKI_Z_P 1 /* deg/s */
 #define WINGROCK_DELAY48_SKI_Z_W_DELTA_D0 2
 #define WINGROCK_DELAY48_SKI_Z_W_DELTA_D1 3
 #define WINGROCK_DELAY48_SKI_Z_W_DELTA_D2 4
@@ -105,8 +105,8 @@ typedef double wingrock_delay48_ski_real;
 #define WINGROCK_DELAY48_SKI_Z_W_DELTA_D45 47
 #define WINGROCK_DELAY48_SKI_Z_W_DELTA_D46 48
 #define WINGROCK_DELAY48_SKI_Z_W_DELTA_D47 49
-#define WINGROCK_DELAY48_SKI_U_DELTA 0
-#define WINGROCK_DELAY48_SKI_Y_PHI 0
+#define WINGROCK_DELAY48_SKI_U_DELTA 0 /* deg */
+#define WINGROCK_DELAY48_SKI_Y_PHI 0 /* deg */
 
 /* Work sizes of the generated kernel (arrays below are at least 1 long to stay C99). */
 #define WINGROCK_DELAY48_SKI_SZ_ARG 10

@@ -55,8 +55,8 @@ typedef float wingrock_delay_ukf_real;
 #define WINGROCK_DELAY_UKF_DT 0.02f /* sample time, s */
 /* Index of every name: z[WINGROCK_DELAY_UKF_Z_<state or weight>], u[WINGROCK_DELAY_UKF_U_<input>], y[WINGROCK_DELAY_UKF_Y_<output>],
  * settings.param[WINGROCK_DELAY_UKF_P_<declared parameter>]. */
-#define WINGROCK_DELAY_UKF_Z_THETA 0
-#define WINGROCK_DELAY_UKF_Z_P 1
+#define WINGROCK_DELAY_UKF_Z_THETA 0 /* deg */
+#define WINGROCK_DELAY_UKF_Z_P 1 /* deg/s */
 #define WINGROCK_DELAY_UKF_Z_W_DELTA_D0 2
 #define WINGROCK_DELAY_UKF_Z_W_DELTA_D1 3
 #define WINGROCK_DELAY_UKF_Z_W_DELTA_D2 4
@@ -65,8 +65,8 @@ typedef float wingrock_delay_ukf_real;
 #define WINGROCK_DELAY_UKF_Z_W_DELTA_D5 7
 #define WINGROCK_DELAY_UKF_Z_W_DELTA_D6 8
 #define WINGROCK_DELAY_UKF_Z_W_DELTA_D7 9
-#define WINGROCK_DELAY_UKF_U_DELTA 0
-#define WINGROCK_DELAY_UKF_Y_PHI 0
+#define WINGROCK_DELAY_UKF_U_DELTA 0 /* deg */
+#define WINGROCK_DELAY_UKF_Y_PHI 0 /* deg */
 
 /* Work sizes of the generated kernel (arrays below are at least 1 long to stay C99). */
 #define WINGROCK_DELAY_UKF_SZ_ARG 9

@@ -55,16 +55,16 @@ typedef float wingrock_ekf_real;
 #define WINGROCK_EKF_DT 0.02f /* sample time, s */
 /* Index of every name: z[WINGROCK_EKF_Z_<state or weight>], u[WINGROCK_EKF_U_<input>], y[WINGROCK_EKF_Y_<output>],
  * settings.param[WINGROCK_EKF_P_<declared parameter>]. */
-#define WINGROCK_EKF_Z_THETA 0
-#define WINGROCK_EKF_Z_P 1
+#define WINGROCK_EKF_Z_THETA 0 /* deg */
+#define WINGROCK_EKF_Z_P 1 /* deg/s */
 #define WINGROCK_EKF_Z_W_ONE 2
 #define WINGROCK_EKF_Z_W_THETA 3
 #define WINGROCK_EKF_Z_W_P 4
 #define WINGROCK_EKF_Z_W_ABS_THETA_P 5
 #define WINGROCK_EKF_Z_W_ABS_P_P 6
 #define WINGROCK_EKF_Z_W_THETA3 7
-#define WINGROCK_EKF_U_DELTA 0
-#define WINGROCK_EKF_Y_PHI 0
+#define WINGROCK_EKF_U_DELTA 0 /* deg */
+#define WINGROCK_EKF_Y_PHI 0 /* deg */
 
 /* Work sizes of the generated kernel (arrays below are at least 1 long to stay C99). */
 #define WINGROCK_EKF_SZ_ARG 9

@@ -158,9 +158,10 @@ def _c_strings(names) -> str:
 
 def _index_macros(filt: DerivedFilter, PREFIX: str) -> str:
     """``#define <PREFIX>_Z_<NAME> i`` for every state and weight, likewise U_ inputs, Y_ outputs
-    and P_ declared parameters (of ``settings.param``)."""
-    groups = {"Z": filt.aug.names, "U": filt.aug.u_names, "Y": filt.aug.model.output_names,
-              "P": filt.aug.fixed_names}
+    and P_ declared parameters (of ``settings.param``), each with its declared unit."""
+    model = filt.aug.model
+    groups = {"Z": filt.aug.names, "U": filt.aug.u_names, "Y": model.output_names, "P": filt.aug.fixed_names}
+    units = {v.name: v.unit for v in [*model.states, *model.inputs, *model.outputs, *model.parameters]}
     lines, seen = [], {}
     for tag, names in groups.items():
         for i, name in enumerate(names):
@@ -169,7 +170,8 @@ def _index_macros(filt: DerivedFilter, PREFIX: str) -> str:
                 raise ValueError(f"names '{seen[macro]}' and '{name}' both give the C macro {macro}: "
                                  f"rename one (index macros are upper case)")
             seen[macro] = name
-            lines.append(f"#define {macro} {i}")
+            unit = units.get(name, "").replace("*/", "* /")     # never ends the comment
+            lines.append(f"#define {macro} {i}" + (f" /* {unit} */" if unit else ""))
     return "\n".join(lines) + "\n"
 
 
