@@ -148,6 +148,14 @@ def _nearest(ts, start, dt, n):
     return k[order[first]], order[first]
 
 
+def first_known(after: float, dt: float, input_hold: str) -> float:
+    """The grid sample (a float, from the grid start) at which an input stamped ``after`` seconds
+    after the grid start is first used: the one nearest it under a zero-order hold (the grid's
+    rule), the first at or after it under a first-order hold (interpolation reaches back)."""
+    k = after / dt
+    return np.floor(k - 0.5) + 1 if input_hold == "zoh" else np.ceil(k - 1e-6)
+
+
 def _holes(series, names, inputs, start, end, max_gap, columns) -> list[Hole]:
     spans = {}
     for name in names:
@@ -344,7 +352,7 @@ class GridStream:
     def _span(self, a, b, name):
         self.spans.setdefault((a, b), []).append(name)
         if name in self.input_names:        # as runtime.restarts computes it from the whole recording
-            k = np.ceil(((b + self.origin) - (self.origin + self.start)) / self.dt - 1e-6)
+            k = first_known((b + self.origin) - (self.origin + self.start), self.dt, self.hold)
             if not k < 2 ** 62:             # a stamp far beyond the others: the whole-file reader names it
                 from .sources import NotStreamable
                 raise NotStreamable("the grid is too long for the time stamps")

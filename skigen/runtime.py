@@ -32,7 +32,9 @@ import numpy as np
 
 from .derive import DerivedFilter, step_inputs
 from .emit.c import Status
+from .grid import first_known
 from .guard import Guard, bound_std, reinit
+from .model import Model
 from .progress import note, progress
 from .recording import Recording, write_table
 
@@ -853,9 +855,9 @@ def _steps(filt, stepper, backend, pieces, again, holes=(), notes=(), strict=Fal
 RESTART_SCALE = Guard.reinit_scale   # after an input hole: this times the declared covariance, as a recovery
 
 
-def restarts(rec: Recording, dt: float) -> list[int]:
-    """Grid samples at which an input is known again after a hole in it."""
-    ks = {int(np.ceil((h.t1 - rec.t[0]) / dt - 1e-6)) for h in rec.holes if h.inputs}
+def restarts(rec: Recording, model: Model) -> list[int]:
+    """Grid samples at which an input is known again after a hole in it (:func:`grid.first_known`)."""
+    ks = {int(first_known(h.t1 - rec.t[0], model.dt, model.input_hold)) for h in rec.holes if h.inputs}
     return sorted(k for k in ks if 0 < k < len(rec.t))
 
 
@@ -921,7 +923,7 @@ def iter_run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", re
     stepper = _stepper(filt, backend, real, show_progress, cache_dir, guard, init, strict, trace)
     inputs, N = step_inputs(model, rec.inputs), len(rec.t)
     chunk = chunk or CHUNK[backend]
-    again = set(restarts(rec, model.dt))
+    again = set(restarts(rec, model))
     bounds = sorted(set(range(0, N, chunk)) | again | {k for k in cuts if 0 < k < N}) + [N]
     label = label or f"{model.name} {filt.kind} ({backend})"
     parts = list(zip(bounds[:-1], bounds[1:]))

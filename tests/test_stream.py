@@ -66,6 +66,25 @@ def streamed_grid(path, model, **kw):
 
 
 @pytest.mark.parametrize("hold", ["zoh", "foh"])
+@pytest.mark.parametrize("after", [0.0, 0.009, 0.011])
+def test_the_states_restart_where_the_input_after_a_hole_is_first_used(hold, after):
+    """The grid uses an input at the sample nearest its stamp (zero-order hold) or interpolates up
+    to it (first-order hold); the restart after a hole is where the new value is first used (a
+    stamp 0.45 dt after a grid sample once restarted a sample late, after its reading had been
+    judged against the states of before the hole)."""
+    model = small_model(hold)
+    t = np.arange(500) * 0.02
+    u = t.copy()
+    frame = pd.DataFrame({"t": t, "g": 0.0, "xm": 0.0, "vm": 0.0, "u": u})
+    frame = frame[(frame.t < 3.0) | (frame.t > 5.0)].copy()
+    frame.loc[frame.t > 5.0, "t"] += after                          # the stamps after the hole, late
+    rec = load_recording(frame.reset_index(drop=True), model)
+    (k,) = skigen.runtime.restarts(rec, model)
+    first = int(np.argmax(rec.inputs[:, 0] > 3.0))                  # the first sample using a new value
+    assert k == first if hold == "zoh" else rec.t[k] >= 5.02 + after > rec.t[k - 1]
+
+
+@pytest.mark.parametrize("hold", ["zoh", "foh"])
 @pytest.mark.parametrize("rows, block", [(1, 5), (2, 1 << 16), (3, 7), (17, 3), (250, 100), (None, 1 << 16)])
 def test_the_streamed_grid_is_the_whole_file_grid(log_csv, hold, rows, block):
     model = small_model(hold)
@@ -75,7 +94,7 @@ def test_the_streamed_grid_is_the_whole_file_grid(log_csv, hold, rows, block):
     assert np.array_equal(t, rec.t) and np.array_equal(inputs, rec.inputs)
     assert np.array_equal(outputs, rec.outputs, equal_nan=True)
     assert grid.holes == rec.holes and tuple(grid.notes) == rec.notes
-    assert grid.restart_list == skigen.runtime.restarts(rec, model.dt) != []
+    assert grid.restart_list == skigen.runtime.restarts(rec, model) != []
     assert len(rec.holes) >= 2 and any("faster than the model" in n for n in rec.notes)
 
 
@@ -123,7 +142,7 @@ def test_epoch_stamps_and_an_input_that_stops_before_the_end(tmp_path, hold):
         grid, t, inputs, outputs, _ = streamed_grid(path, model, rows=rows)
         assert np.array_equal(t, rec.t) and np.array_equal(inputs, rec.inputs)
         assert np.array_equal(outputs, rec.outputs, equal_nan=True) and grid.holes == rec.holes
-        assert grid.restart_list == skigen.runtime.restarts(rec, model.dt)
+        assert grid.restart_list == skigen.runtime.restarts(rec, model)
     assert rec.holes[-1].inputs and rec.holes[-1].columns[0] == "u" and rec.holes[-1].t1 >= rec.t[-1] - model.dt
 
 
