@@ -672,10 +672,12 @@ def test_an_input_hole_cuts_the_recording_into_parts_fitted_apart():
 
 def test_an_estimate_on_its_bound_is_named():
     """The input gain b bounded below the truth (2) sits on the bound: its std is no interval,
-    and the result says so; the other estimates are inside theirs."""
-    frame = _pendulum_frame(np.random.default_rng(6))
+    and the result says so; the other estimates are inside theirs. (The DataFrame is read with
+    the options of skigen run: a time column in ms, an input under another name.)"""
+    frame = _pendulum_frame(np.random.default_rng(6)).rename(columns={"t": "time_ms", "u": "torque"})
+    frame["time_ms"] *= 1000
     model = pendulum(PENDULUM_START, b_bounds=(0.0, 1.5))
-    res = fit(model, [frame], show_progress=False)
+    res = fit(model, [frame], show_progress=False, time="time_ms", time_unit="ms", columns={"u": "torque"})
     assert res.parameters["b"]["value"] == pytest.approx(1.5, abs=1e-6)
     assert len(res.notes) == 1 and res.notes[0].startswith("b = 1.5 ± ") and "sits on its upper bound 1.5" in res.notes[0]
 

@@ -13,8 +13,8 @@ from __future__ import annotations
 import copy
 import functools
 import os
-import time
 from dataclasses import dataclass, field
+from time import perf_counter
 
 import casadi as ca
 import numpy as np
@@ -155,7 +155,7 @@ class _Progress(ca.Callback):
 
     def start(self, label: str | None, negligible=None):
         """negligible(ξ, recent iterates) → True where the remaining gain is negligible: IPOPT then stops."""
-        self.label, self.iteration, self.t0 = label, 0, time.perf_counter()
+        self.label, self.iteration, self.t0 = label, 0, perf_counter()
         self.negligible, self.history, self.next_check, self.stopped = negligible, [], 0, False
         self.iterates = []
 
@@ -185,7 +185,7 @@ class _Progress(ca.Callback):
         f = float(arg[1])
         if self.label:
             note(f"{self.label}: iteration {self.iteration}, -log L {f:.7g} "
-                 f"({time.perf_counter() - self.t0:.1f} s)")
+                 f"({perf_counter() - self.t0:.1f} s)")
         self.iteration += 1
         self.history.append(f)
         self.iterates = self.iterates[-STALL:] + [np.asarray(arg[0]).ravel()]
@@ -200,7 +200,8 @@ class _Progress(ca.Callback):
 
 def fit(model: Model, recordings, *, method: str = "output-error", estimate=None,
         shooting: int | None = None, max_iter: int = 200, tol: float = 1e-8,
-        starts=None, show_progress: bool = True) -> FitResult:
+        starts=None, show_progress: bool = True, time=None, time_unit: str = "s", columns=None,
+        max_gap: float = 1.0) -> FitResult:
     """Fit ``model`` to ``recordings`` (Recording objects, or paths and DataFrames read onto the
     model's grid with :func:`skigen.recording.load_recording`) by ``method``.
 
@@ -211,15 +212,17 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     convergence tolerance. starts: filter error only, per recording the filter's state before its
     first sample, (mean (nx,), covariance (nx, nx)), or None for the model's initial state and
     covariance (the default for every recording): a recording cut from a longer one starts where
-    a filter run over that one stood.
+    a filter run over that one stood. time, time_unit, columns, max_gap: how to read recordings
+    given as paths or DataFrames (see :func:`skigen.recording.load_recording`).
     """
-    t0 = time.perf_counter()
+    t0 = perf_counter()
     if method not in METHODS:
         raise ValueError(f"method must be one of {', '.join(METHODS)}, got '{method}'")
     model.check()
     if isinstance(recordings, (Recording, str, os.PathLike)) or hasattr(recordings, "columns"):   # one, or a DataFrame
         recordings = [recordings]
-    recs = [r if isinstance(r, Recording) else load_recording(r, model) for r in recordings]
+    read = dict(time=time, time_unit=time_unit, columns=columns, max_gap=max_gap)
+    recs = [r if isinstance(r, Recording) else load_recording(r, model, **read) for r in recordings]
     if not recs:
         raise FitError("no recording to fit")
     for rec in recs:
@@ -305,7 +308,7 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
                  and V.names[i] in estimate]
     Y = np.asarray(prob.predict(xi, p)).T
     result = _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_at,
-                     nll, Y, stats, status, time.perf_counter() - t0, float(sol["f"]), info, robust)
+                     nll, Y, stats, status, perf_counter() - t0, float(sol["f"]), info, robust)
     result.notes, result.fitted_recordings = notes + _bound_notes(result.parameters), recs
     return result
 
