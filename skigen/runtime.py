@@ -150,8 +150,10 @@ class RunResult:
                    Trace.concat([p.trace for p in parts]) if first.trace is not None else None, last.next_prior)
 
 
-EVENTS = (Status.OUTLIER_REJECTED, Status.SENSOR_STUCK, Status.BAD_INPUT, Status.NUMERICAL_FAILURE,
-          Status.REINITIALISED)     # the codes a run summary counts
+EVENT_WORDS = {Status.OUTLIER_REJECTED: "gated (outlier not used)", Status.SENSOR_STUCK: "stuck reading",
+               Status.BAD_INPUT: "bad input", Status.NUMERICAL_FAILURE: "rejected (non-finite)",
+               Status.REINITIALISED: "recovered (states restarted)"}
+EVENTS = tuple(EVENT_WORDS)         # the codes a run summary counts
 
 
 class RunSummary:
@@ -192,6 +194,14 @@ class RunSummary:
                 self.last = (part.mean[k], part.std[k], part.prior_var[k] if part.prior_var.size else None)
         return self
 
+    def event_counts(self) -> list[str]:
+        """'1067 gated (outlier not used)', … for every event counted."""
+        return [f"{n} {EVENT_WORDS[c]}" for c, n in self.events.items() if n]
+
+    def attention(self) -> list[str]:
+        """What a person should look at, briefly: the holes and the events."""
+        return ([f"{len(self.holes)} hole(s)"] if self.holes else []) + self.event_counts()
+
     def kept(self) -> np.ndarray | None:
         """SKI: True for the weights whose term is kept; None for other filters."""
         if self.last is None or self.last[2] is None:
@@ -213,10 +223,7 @@ class RunSummary:
                 mark = "" if kept is None else ("   kept" if kept[j] else "   pruned")
                 out.append(f"  {aug.names[i]:16s} {self.last[0][i]:+.4g} ± {2 * self.last[1][i]:.2g}{mark}")
         if any(self.events.values()):
-            words = {Status.OUTLIER_REJECTED: "gated (outlier not used)", Status.SENSOR_STUCK: "stuck reading",
-                     Status.BAD_INPUT: "bad input", Status.NUMERICAL_FAILURE: "rejected (non-finite)",
-                     Status.REINITIALISED: "recovered (states restarted)"}
-            out.append("events: " + ", ".join(f"{n} {words[c]}" for c, n in self.events.items() if n)
+            out.append("events: " + ", ".join(self.event_counts())
                        + (f"; first restart at t = {self.first_restart:g} s" if self.first_restart is not None else ""))
         else:
             out.append("events: none (no outlier, stuck reading, bad input, rejection or restart)")

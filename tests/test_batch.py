@@ -68,7 +68,7 @@ def test_22_logs_give_20_ok_rows_and_2_failed_rows_with_their_messages(first):
     assert rows["flight_no_phi"]["status"] == "failed" and "phi" in rows["flight_no_phi"]["message"]
     for name in GOOD:
         r = rows[name]
-        assert r["status"] == "ok" and r["message"] == "" and int(r["samples"]) == 151
+        assert r["status"] == "ok" and r["message"] == r["notes"] == "" and int(r["samples"]) == 151
         assert float(r["duration_s"]) == pytest.approx(3.0)
         assert 0.2 < float(r["mean_nis"]) < 5 and float(r["nis_expected"]) == 1.0
         assert (out / name / "done.json").exists() and (out / name / "result.csv").exists()
@@ -172,6 +172,8 @@ def test_clear_errors(fleet, tmp_path):
         batch(MODEL, str(fleet / "flight_00.csv"), tmp_path, scheduler="tcp://127.0.0.1:9", connect_timeout=1)
     with pytest.raises(BatchError, match="file path or package.module:attribute"):
         batch(load_model(MODEL), str(fleet / "flight_00.csv"), tmp_path)
+    with pytest.raises(BatchError, match="model file 'nope.py' not found"):
+        batch("nope.py", str(fleet / "flight_00.csv"), tmp_path)
     with pytest.raises(BatchError, match="SKI needs basis weights"):
         batch("models/cart.py", str(fleet / "flight_00.csv"), tmp_path, filter="ski")
 
@@ -205,3 +207,50 @@ def test_diagnose_each_log_lists_its_findings(client, tmp_path):
     report = json.loads((tmp_path / "out" / "cart_coulomb" / "report.json").read_text())
     assert report["corrected_model"] == str(tmp_path / "out" / "cart_coulomb" / "corrected_model.py")
     assert Path(report["corrected_model"]).exists() and res.counts["ok"] == 2
+
+
+def test_logs_of_one_name_keep_apart_and_the_output_folder_is_not_read(tmp_path):
+    """c.csv beside c.parquet get their own folders (they shared one: a log was lost); a glob that
+    reaches into the batch's own output folder does not take its results for logs."""
+    from skigen.batch import expand_logs, log_names
+    for rel in ("a/f.csv", "b/f.csv", "c.csv", "c.parquet", "out/c/result.csv"):
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_text("t\n")
+    paths = expand_logs(str(tmp_path / "**" / "*.*"), outside=tmp_path / "out")
+    assert [p.relative_to(tmp_path).as_posix() for p in paths] == ["a/f.csv", "b/f.csv", "c.csv", "c.parquet"]
+    assert log_names(paths) == ["a__f.csv", "b__f.csv", "c.csv", "c.parquet"]
+    assert log_names(paths[:3]) == ["a__f", "b__f", "c"]
+    with pytest.raises(BatchError, match="no log file matches"):
+        expand_logs(str(tmp_path / "out" / "**" / "*.csv"), outside=tmp_path / "out")
+
+
+def test_a_constant_imported_by_the_model_file_is_part_of_its_digest(tmp_path):
+    """A resumed batch redoes its logs when the model changes, also through a module it imports."""
+    from skigen.batch.task import model_digest
+    pkg = tmp_path / "vehicle"
+    pkg.mkdir()
+    (pkg / "__init__.py").write_text("")
+    (pkg / "model.py").write_text(
+        "from skigen import Model\nfrom .constants import GAIN\nmodel = Model('m', dt=0.1)\n"
+        "x = model.state('x', std=1.0, process_std=0.1)\nu = model.input('u')\n"
+        "model.dynamics({x: -x + GAIN * u})\nmodel.output('y', x, noise_std=0.1)\n")
+    digests = []
+    for gain in ("1.0", "1.0", "1.2000001"):
+        (pkg / "constants.py").write_text(f"GAIN = {gain}\n")
+        for name in [n for n in sys.modules if n == "vehicle" or n.startswith("vehicle.")]:
+            del sys.modules[name]                     # a new process: the constants as they are now
+        digests.append(model_digest(str(pkg / "model.py")))
+    assert digests[0] == digests[1] != digests[2]
+
+
+def test_a_log_that_could_not_be_read_does_not_reorder_the_fleet():
+    """Logs with calendar time stamps stay in time order when one failed to be read (it goes last);
+    the moves are then between the right flights."""
+    from skigen.batch.summary import order_rows
+    rows = [dict(file="z_first.csv", log="z_first", status="ok", start=1.7e9),
+            dict(file="m_second.csv", log="m_second", status="ok", start=1.7e9 + 86400),
+            dict(file="a_third.csv", log="a_third", status="ok", start=1.7e9 + 2 * 86400),
+            dict(file="empty.csv", log="empty", status="failed", start=None)]
+    ordered, order = order_rows(rows)
+    assert order == "time stamp" and [r["log"] for r in ordered] == ["z_first", "m_second", "a_third", "empty"]
+    assert order_rows(rows[:3] + [dict(rows[3], status="ok")])[1] == "file name"

@@ -217,8 +217,10 @@ def test_nis_expectation_counts_the_outputs_measured():
     assert not any(line.startswith("measured per output") for line in full)
     # gated readings are present but not used: neither counted nor expected in the NIS
     wild = df.assign(vm=rng.normal(0, 0.1, 500), xm=np.where(np.arange(500) % 50 == 25, 50.0, df.xm))
-    lines = skigen.run(m, wild, filter="ekf").summary().lines()
+    summary = skigen.run(m, wild, filter="ekf").summary()
+    lines = summary.lines()
     assert "10 gated" in next(line for line in lines if line.startswith("events"))
+    assert summary.attention() == ["10 gated (outlier not used)"]           # a batch's notes column
     assert "expected 1.980" in next(line for line in lines if line.startswith("mean NIS"))
     assert "xm 490 of 500, vm 500 of 500 used" in next(line for line in lines if line.startswith("measured per output"))
 

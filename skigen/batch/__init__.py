@@ -71,17 +71,21 @@ class BatchResult:
         return out
 
 
-def expand_logs(patterns) -> list[Path]:
+def expand_logs(patterns, outside: Path | None = None) -> list[Path]:
     """The files matching each glob (sorted; ``**`` recurses) or named plainly, in order, without
-    duplicates. A pattern that matches no file is an error naming it."""
+    duplicates, and none below the folder ``outside`` (a batch's own results, when its output
+    folder lies where the glob looks). A pattern that matches no file is an error naming it."""
     if isinstance(patterns, (str, os.PathLike)):
         patterns = [patterns]
+    outside = None if outside is None else Path(outside).resolve()
     files: dict = {}
     for pat in map(str, patterns):
         if _glob.has_magic(pat):
             found = sorted(p for p in _glob.glob(pat, recursive=True) if Path(p).is_file())
         else:
             found = [pat] if Path(pat).is_file() else []
+        if outside is not None:
+            found = [p for p in found if not Path(p).resolve().is_relative_to(outside)]
         if not found:
             raise BatchError(f"no log file matches '{pat}'")
         files.update(dict.fromkeys(Path(p).resolve() for p in found))
@@ -92,12 +96,15 @@ def expand_logs(patterns) -> list[Path]:
 
 def log_names(paths: list[Path]) -> list[str]:
     """Each log's folder name under DIR: its file stem, or, where two stems collide, its path
-    from the logs' common folder with '/' as '__'."""
+    from the logs' common folder with '/' as '__' (and its extension, where that still collides)."""
     stems = [p.stem for p in paths]
     if len(set(stems)) == len(stems):
         return stems
     root = Path(os.path.commonpath([str(p.parent) for p in paths]))
-    return [str(p.relative_to(root).with_suffix("")).replace(os.sep, "__") for p in paths]
+    names = [str(p.relative_to(root).with_suffix("")).replace(os.sep, "__") for p in paths]
+    if len(set(names)) == len(names):
+        return names
+    return [str(p.relative_to(root)).replace(os.sep, "__") for p in paths]     # c.csv beside c.parquet
 
 
 def _spec(model) -> str:
@@ -166,9 +173,12 @@ def batch(model, logs, out_dir, *, mode: str = "run", filter: str = "ski", backe
         raise BatchError(f"unknown backend '{backend}'; choose python or c")
     if scheduler and (workers or client):
         raise BatchError("give either a scheduler address or a number of local workers, not both")
-    from ..modelfile import load_model
+    from ..modelfile import ModelFileError, load_model
     spec = _spec(model)
-    m = load_model(spec)
+    try:
+        m = load_model(spec)
+    except ModelFileError as exc:
+        raise BatchError(str(exc)) from None
     track, estimate = tuple(track or ()), tuple(estimate or ())
     for name in track:
         if name not in m.state_names:
@@ -182,9 +192,9 @@ def batch(model, logs, out_dir, *, mode: str = "run", filter: str = "ski", backe
         except ValueError as exc:
             raise BatchError(str(exc)) from None
         quantity_names(filt, track)
-    paths = expand_logs(logs)
-    names = log_names(paths)
     out = Path(out_dir).resolve()
+    paths = expand_logs(logs, outside=out)
+    names = log_names(paths)
     out.mkdir(parents=True, exist_ok=True)
     for stale in out.glob(".*.tmp-*"):          # left by a batch that was stopped
         shutil.rmtree(stale, ignore_errors=True)

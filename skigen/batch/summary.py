@@ -26,15 +26,17 @@ __all__ = ["order_rows", "moves", "write_summary", "plot_summary", "threshold", 
 
 ALPHA = 0.05
 EPOCH = (1e9, 4.1e9)      # seconds since 1970: 2001–2100
-FIXED = ["file", "log", "status", "message", "samples", "duration_s", "start", "seconds", "mean_nis",
+FIXED = ["file", "log", "status", "message", "notes", "samples", "duration_s", "start", "seconds", "mean_nis",
          "nis_expected"]
 
 
 def order_rows(rows: list[dict]) -> tuple[list[dict], str]:
-    """(rows in fleet order, 'time stamp' or 'file name')."""
-    starts = [r.get("start") for r in rows if r.get("start") is not None]
-    if starts and len(starts) == len(rows) and all(EPOCH[0] <= s <= EPOCH[1] for s in starts):
-        return sorted(rows, key=lambda r: (r["start"], r["file"])), "time stamp"
+    """(rows in fleet order, 'time stamp' or 'file name'): by time stamp when every log read has
+    a calendar start (a log that could not be read has none: it goes last, by file name)."""
+    read = [r for r in rows if r.get("start") is not None]
+    unread = sorted((r for r in rows if r.get("start") is None), key=lambda r: r["file"])
+    if read and all(EPOCH[0] <= r["start"] <= EPOCH[1] for r in read) and all(r["status"] == "failed" for r in unread):
+        return sorted(read, key=lambda r: (r["start"], r["file"])) + unread, "time stamp"
     return sorted(rows, key=lambda r: r["file"]), "file name"
 
 

@@ -39,9 +39,23 @@ def _spec_file(spec: str) -> Path | None:
 
 
 def model_digest(spec: str) -> str:
-    """Hash of the model file's content (or of the spec, for a module not found as a file)."""
+    """Hash of the model file's text (or of the spec, for a module not found as a file) and of what
+    the loaded model declares — its transition and observation to the bit, noises, priors, initial
+    state, parameters — so that a constant changed in a module the file imports counts too."""
+    import casadi as ca
+
+    from ..derive.augment import augment
+    from ..modelfile import load_model
     path = _spec_file(spec)
-    return hashlib.sha256(path.read_bytes() if path else spec.encode()).hexdigest()[:16]
+    digest = hashlib.sha256(path.read_bytes() if path else spec.encode())
+    model = load_model(spec)
+    a = augment(model)
+    digest.update(ca.Function("model", [a.z, a.u, a.mem], [a.f, a.h, a.mem_next]).serialize().encode())
+    for v in (a.Q, a.R, a.P0, a.z0, a.s0, a.fixed_values):
+        digest.update(np.ascontiguousarray(v, float).tobytes())
+    digest.update(json.dumps([model.name, model.dt, a.names, [(p.name, p.value, p.std, list(p.bounds))
+                                                              for p in model.parameters]]).encode())
+    return digest.hexdigest()[:16]
 
 
 def log_digest(path) -> str:
@@ -93,6 +107,7 @@ def _run(spec, digest, path, tmp: Path, opt: dict, row: dict) -> None:
             summary.add(part)
     lines = list(rec.notes) + summary.lines()
     (tmp / "summary.txt").write_text("\n".join(lines) + "\n")
+    row["notes"] = summary.attention()
     names = filt.aug.names
     if summary.last is not None:
         mean, std = summary.last[0], summary.last[1]
@@ -114,6 +129,7 @@ def _fit(spec, digest, path, tmp: Path, opt: dict, row: dict) -> None:
     result = fit(model, [rec], method=opt["method"], estimate=list(opt["estimate"]) or None,
                  show_progress=False)
     write_outputs(result, tmp, model_spec=spec, figures=opt["figures"])
+    row["notes"] = result.notes
     row["quantities"] = {n: [_num(p["value"]), _num(p["std"])]
                          for n, p in {**result.parameters, **result.weights}.items()}
     row["rmse"] = {o: rms(np.concatenate([r.outputs[:, j] - Y[:, j] for r, Y in
@@ -134,6 +150,7 @@ def _diagnose(spec, digest, path, tmp: Path, final: Path, opt: dict, row: dict) 
         if p.exists():
             p.write_text(p.read_text().replace(str(tmp), str(final)))
     d = report.data
+    row["notes"] = d["notes"]
     row["mean_nis"] = d["consistency"]["nis_mean"]
     row["nis_expected"] = d["consistency"]["nis_expected"]
     row["mismatch"] = bool(d["mismatch_detected"])
