@@ -368,6 +368,9 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, RuntimeError) as exc:
         print(f"skigen: error: {exc}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        print("skigen: interrupted", file=sys.stderr)
+        return 130
 
 
 if __name__ == "__main__":
