@@ -649,6 +649,40 @@ def _pendulum_frame(rng, N=600):
     return pd.DataFrame(dict(t=np.arange(N) * plant.dt, u=U, angle=Y[:, 0]))
 
 
+def _heater(gain):
+    """Heater and thermal mass: dT/dt = (−(T − 20) + K·P)/60, T measured (std 0.05 °C) every 0.5 s."""
+    m = Model("heater", dt=0.5)
+    T = m.state("T", unit="degC", initial=20.0, std=1.0, process_std=0.005)
+    P = m.input("P", unit="W")
+    K = m.parameter("K", gain, unit="degC/W", std=0.2)
+    m.dynamics({T: (-(T - 20.0) + K * P) / 60.0})
+    m.output("T_meas", T, unit="degC", noise_std=0.05)
+    return m
+
+
+@pytest.mark.parametrize("restart", [True, False])
+def test_filter_error_leaves_the_noise_basin_of_a_wrong_start(monkeypatch, restart):
+    """K declared 0.35 for a true 0.5: at the start its error is process noise, and scoring keeps
+    that basin after K has moved to its value (measured with the restart switched off: sensor
+    noise 3.9e-5 °C for 0.05, process noise 0.071 for 0.005, K ± 0.0025, 911 nats short). The
+    noise started again from the declared values at the estimates is more likely: the fit goes
+    on from there (measured: 0.0500, 0.0049, K 0.49978 ± 0.00018)."""
+    fitting = sys.modules["skigen.fit"]
+    monkeypatch.setattr(fitting, "MOVED", fitting.MOVED if restart else np.inf)
+    rng = np.random.default_rng(1)
+    hold = rng.integers(60, 240, 40)
+    P = np.repeat(rng.uniform(0, 100, 40), hold)[:3000]
+    X, Y = simulate(_heater(0.5), P[:, None], np.array([20.0]), rng, q_std=(0.005,))
+    res = fit(_heater(0.35), [recording(_heater(0.35), P, Y)], method="filter-error", show_progress=False)
+    cal = res.noise["calibrated"]
+    if restart:
+        assert cal["measurement_std"]["T_meas"] == pytest.approx(0.05, rel=0.05)
+        assert cal["process_std"]["T"] == pytest.approx(0.005, rel=0.15)
+        assert abs(res.parameters["K"]["value"] - 0.5) < 3 * res.parameters["K"]["std"] < 0.002
+    else:
+        assert cal["measurement_std"]["T_meas"] < 0.01
+
+
 def test_an_input_hole_cuts_the_recording_into_parts_fitted_apart():
     """An input without a sample for longer than max_gap is not its held value: the fit takes the
     stretches on either side as two recordings (each with its own initial state), says so, and
