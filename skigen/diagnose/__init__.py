@@ -165,6 +165,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     declared_run = ekf_run(T.constants(nominal), rec)
     declared, noise = calibrate(nominal, [rec])
     calibrated = T.constants(declared)          # parameters at their values, for every test below
+    user_noise = nominal.process_noise(), nominal.measurement_noise()     # every recalibration starts here too
     stage("testing the calibrated model")
     nominal_run = ekf_run(calibrated, rec)
     eqs = list(equations) if equations else C.rate_equations(nominal)
@@ -224,7 +225,8 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
                                           structural, alpha, progress=lambda s: stage(f"naming: {s}"),
                                                       focus=focus_window(sum((d / np.maximum(sd, 1e-300)) ** 2
                                                                              for d, sd in loc.disturbance.values())),
-                                                      parameters=C.parameter_terms(declared, rate_eqs))
+                                                      parameters=C.parameter_terms(declared, rate_eqs),
+                                                      noise_from=user_noise)
     stage("searching the shapes")
     variants = {}
     for c in additive:
@@ -271,7 +273,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
             if m is not None:
                 m.covariances(**noise)
         corrected, names, notes, refit_info = refit_jointly(nominal, base, corr.without_parameters(), rec,
-                                                            loc.equations, refit, anchored, window)
+                                                            loc.equations, refit, anchored, window, user_noise)
         data["refit"] = refit_info
         _update_findings(data["findings"], names, refit_info.get("parameters", {}), alpha)
         path = out / "corrected_model.py"

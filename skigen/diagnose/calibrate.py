@@ -78,22 +78,25 @@ def block_starts(model: Model, rec: Recording, pieces: list[Recording]) -> list 
 
 
 def calibrate(model: Model, recs: list[Recording], show_progress: bool = False,
-              max_samples: int = MAX_SAMPLES) -> tuple[Model, Noise]:
+              max_samples: int = MAX_SAMPLES, noise_from=None) -> tuple[Model, Noise]:
     """(``model`` with its calibrated Q and R, the :class:`Noise` record). A recording longer than
     ``max_samples`` is calibrated on evenly spread blocks of it (:func:`blocks`), each started
-    where the model's EKF over the whole recording stood (:func:`block_starts`)."""
+    where the model's EKF over the whole recording stood (:func:`block_starts`). noise_from: the
+    user's declared (Q, R), started from as well when ``model`` carries another noise (see
+    :func:`skigen.fit.fit`)."""
     pieces = [blocks(r, max_samples) for r in recs]
     starts = [s for r, b in zip(recs, pieces) for s in (block_starts(model, r, b) or [None] * len(b))]
     recs = [b for bs in pieces for b in bs]
     res, note = None, ""
     if model.parameters:               # the user's uncertain constants are the model's to fit, not findings
         try:
-            res = fit(model, recs, method="filter-error", starts=starts, show_progress=show_progress)
+            res = fit(model, recs, method="filter-error", starts=starts, show_progress=show_progress,
+                      noise_from=noise_from)
         except FitError as exc:
             note = f"declared parameters held at their values ({exc})"
     try:
         res = res or fit(model, recs, method="filter-error", estimate=[], starts=starts,
-                         show_progress=show_progress)
+                         show_progress=show_progress, noise_from=noise_from)
     except FitError as exc:
         raise DiagnosisError(f"could not calibrate the noise of '{model.name}' on this recording: {exc}") from None
     noise = res.noise

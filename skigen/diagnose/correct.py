@@ -185,13 +185,14 @@ def liftable(nominal: Model, corr: Correction, equations) -> list[tuple[str, str
 
 def refit_jointly(nominal: Model, calibrated: Model, corr: Correction, rec, equations,
                   enabled: bool = True, anchored: Model | None = None,
-                  window: int | None = None) -> tuple[Model, dict, dict, dict]:
+                  window: int | None = None, noise_from=None) -> tuple[Model, dict, dict, dict]:
     """The corrected model refitted by `skigen fit` (filter error): the nominal's declared
     parameters, the found coefficients, the lifted linear corrections and the noise, jointly.
     ``anchored``: ``calibrated`` with the calibration's std as the parameters' prior, tried when
     the refit without it does not converge (the prior comes from the same recording: it steadies
     a rough likelihood, and its error bars count the data twice, which the note says).
-    ``window``: the free-run window the polish compares on (fit.free_run_window).
+    ``window``: the free-run window the polish compares on (fit.free_run_window). ``noise_from``:
+    the user's declared (Q, R), started from as well (:func:`skigen.fit.fit`).
     Returns (fitted model, {parameter: candidate}, comments per equation, what the refit did)."""
     from ..fit import FitError, fit
     lift = liftable(nominal, corr, equations)
@@ -207,7 +208,7 @@ def refit_jointly(nominal: Model, calibrated: Model, corr: Correction, rec, equa
             return model, names, notes, info
         try:
             res = fit(model, pieces, method="filter-error", starts=block_starts(model, rec, pieces),
-                      show_progress=False)
+                      show_progress=False, noise_from=noise_from)
         except FitError as exc:
             info["note"] += (f"joint refit with {len(attempt)} lifted corrections"
                              + (", the calibration's std as prior," if start is anchored else "")

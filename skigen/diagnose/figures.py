@@ -64,6 +64,9 @@ def plot_disturbance(path, t, panels, windows, t_val, title) -> Path:
     return _save(fig, path)
 
 
+FIT_SAMPLES = 1000      # samples fit.png shows: the first located window, a fifth of them before it
+
+
 def plot_fit(path, t, measured, before, after, names, span, title) -> Path:
     """Measured outputs vs free-run predictions of the nominal and corrected models."""
     k = (t >= span[0]) & (t <= span[1])
@@ -93,8 +96,10 @@ def diagnosis_figures(out, nominal, rec, eps, loc, before, after, t_val) -> list
         panels[eq] = (d, sd, ident, f"{unit}/s" if unit else "")
     figs.append(plot_disturbance(out / "disturbance.png", rec.t, panels, loc.windows, t_val,
                                  "where the nominal model needs help, and what the found terms supply"))
-    t0 = max(rec.t[0], loc.windows[0][0] - 2.0) if loc.windows else rec.t[0]
-    span = (t0, min(rec.t[-1], t0 + 10.0))
+    first = int(np.argmax(np.isfinite(before.free).any(axis=1)))   # the free run starts after the filter settles
+    lead = int(np.searchsorted(rec.t, loc.windows[0][0])) - FIT_SAMPLES // 5 if loc.windows else first
+    a = min(max(first, lead), max(first, len(rec.t) - FIT_SAMPLES))
+    span = (rec.t[a], rec.t[min(len(rec.t), a + FIT_SAMPLES) - 1])
     figs.append(plot_fit(out / "fit.png", rec.t, np.asarray(rec.outputs), before.free,
                          None if after is None else after.free, nominal.output_names, span,
                          "measured vs free-run simulation, nominal and corrected"))

@@ -498,11 +498,12 @@ def shape_search(nominal: Model, corr: Correction, variants: dict, rec: Recordin
 def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str], states: np.ndarray,
                disturbance_rms: dict[str, float], additive: list[Additive], structural: list[Structural],
                alpha: float = 0.01, progress=None, focus: tuple[int, int] | None = None,
-               parameters: list[Additive] = ()) -> tuple[Correction, list[Proposal], dict, dict, Model]:
+               parameters: list[Additive] = (), noise_from=None) -> tuple[Correction, list[Proposal], dict, dict, Model]:
     """See the module docstring. ``states``: smoothed nominal states (for candidate scales);
     ``disturbance_rms``: RMS of the located disturbance per equation (the missing rate's size);
     ``focus``: the samples [a, b) SKI selects on (all of them by default); ``parameters``: the
-    declared parameters' corrections (:func:`catalog.parameter_terms`), refitted with every candidate.
+    declared parameters' corrections (:func:`catalog.parameter_terms`), refitted with every candidate;
+    ``noise_from``: the user's declared (Q, R), a start of every recalibration (:func:`calibrate`).
     Returns (correction, proposals accepted or not, candidate RMS, per-equation sizes, ``nominal``
     with the noise recalibrated under the correction)."""
     tick = progress or (lambda label: None)
@@ -552,7 +553,7 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
         for p in passing:                  # each finalist under the noise it leaves, then the best
             tick(f"recalibrating the noise under {p.label}")
             try:
-                got = _adopt(nominal, corr, p, rec, rms, size, alpha, states)
+                got = _adopt(nominal, corr, p, rec, rms, size, alpha, states, noise_from)
             except DiagnosisError:         # no noise calibrates under it: not adopted
                 got = None
             if got is not None:
@@ -611,7 +612,7 @@ def _label(s: Structural) -> str:
 
 
 def _adopt(nominal: Model, corr: Correction, p: Proposal, rec: Recording, rms: dict, size: dict,
-           alpha: float, states: np.ndarray) -> tuple[Correction, Model] | None:
+           alpha: float, states: np.ndarray, noise_from=None) -> tuple[Correction, Model] | None:
     """(the correction with proposal ``p`` adopted, the nominal with the noise recalibrated under it),
     or None when none of an additive proposal's terms survives an honest (EKF) refit with a sign
     physics allows (the others go to ``p.set_aside``)."""
@@ -628,12 +629,12 @@ def _adopt(nominal: Model, corr: Correction, p: Proposal, rec: Recording, rms: d
         return None
     new = refit(nominal, Correction(accepted.additive[:len(corr.additive)] + new_terms, accepted.structural),
                 rec, rms, size)
-    nominal = recalibrated(nominal, new, rec)
+    nominal = recalibrated(nominal, new, rec, noise_from)
     if p.kind == "structural":             # its parameter again, under the noise it leaves
         before = new.structural[-1][:2]
         new = coarsened(nominal, reprofiled(nominal, new, rec), rec, alpha)
         if new.structural[-1][0] is not before[0] or not np.isclose(new.structural[-1][1], before[1], rtol=1e-3):
-            nominal = recalibrated(nominal, new, rec)
+            nominal = recalibrated(nominal, new, rec, noise_from)
     return refit(nominal, new, rec, rms, size), nominal
 
 
@@ -667,11 +668,12 @@ def reprofiled(nominal: Model, corr: Correction, rec: Recording) -> Correction:
     return Correction(corr.additive, corr.structural[:-1] + [(s, value, std)])
 
 
-def recalibrated(nominal: Model, corr: Correction, rec: Recording) -> Model:
+def recalibrated(nominal: Model, corr: Correction, rec: Recording, noise_from=None) -> Model:
     """``nominal`` with the noise the corrected model calibrates to: what the accepted terms
-    explain is no longer left to the process noise."""
+    explain is no longer left to the process noise (started from the user's declared noise
+    ``noise_from`` as well: the nominal's calibration may sit where that was all process noise)."""
     from .calibrate import calibrate
-    cal, _ = calibrate(corr.build(nominal), [rec])
+    cal, _ = calibrate(corr.build(nominal), [rec], noise_from=noise_from)
     nx = len(nominal.states)
     m = T.copy_model(nominal)
     m.covariances(Q=cal.process_noise()[:nx, :nx], R=cal.measurement_noise(), P0=nominal.initial_covariance())
