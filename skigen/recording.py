@@ -97,11 +97,32 @@ class Recording:
                              f"repeat elsewhere: a stuck sensor, those readings left out")
         return (dataclasses.replace(self, outputs=outputs) if notes else self), notes
 
+    @property
+    def input_holes(self) -> tuple:
+        """The holes in which an input is not known."""
+        return tuple(h for h in self.holes if h.inputs)
+
+    def usable(self) -> tuple[list[Recording], list[str]]:
+        """(this recording without a stuck sensor's readings (:meth:`unstuck`), cut at its input
+        holes (:meth:`input_parts`), a sentence per stuck sensor); an error where no stretch
+        between the holes remains."""
+        rec, notes = self.unstuck()
+        parts = rec.input_parts()
+        if not parts:
+            raise RecordingError(f"{rec.path}: no two consecutive samples with every input known between the "
+                                 f"input holes ({'; '.join(map(str, rec.input_holes))})")
+        return parts, notes
+
+    def hole_note(self, what: str) -> str:
+        """A sentence on this recording's input holes, ending in what was done about them."""
+        return (f"{self.path}: the held input is not the input in its hole(s) longer than max_gap = "
+                f"{self.max_gap:g} s ({'; '.join(map(str, self.input_holes))}): {what}")
+
     def input_parts(self) -> list[Recording]:
         """The stretches between this recording's input holes (an input without a sample for
         longer than ``max_gap``: the value held there is not the input), each with at least two
         samples and named ``'<path> [t0–t1 s]'``; ``[self]`` where no input has a hole."""
-        spans = [(h.t0, h.t1) for h in self.holes if h.inputs]
+        spans = [(h.t0, h.t1) for h in self.input_holes]
         if not spans:
             return [self]
         tol = 1e-6 * self.dt

@@ -864,7 +864,7 @@ RESTART_SCALE = Guard.reinit_scale   # after an input hole: this times the decla
 
 def restarts(rec: Recording, model: Model) -> list[int]:
     """Grid samples at which an input is known again after a hole in it (:func:`grid.first_known`)."""
-    ks = {int(first_known(h.t1 - rec.t[0], model.dt, model.input_hold)) for h in rec.holes if h.inputs}
+    ks = {int(first_known(h.t1 - rec.t[0], model.dt, model.input_hold)) for h in rec.input_holes}
     return sorted(k for k in ks if 0 < k < len(rec.t))
 
 

@@ -47,19 +47,12 @@ def usable(rec: Recording) -> tuple[Recording, list[str]]:
     """``rec`` without a stuck sensor's readings (:meth:`Recording.unstuck`) and, where an input
     has holes, its longest stretch between them (a held input is not the input, and a diagnosis
     takes one recording), with a sentence per change."""
-    rec, notes = rec.unstuck()
-    parts = rec.input_parts()
-    holes = "; ".join(str(h) for h in rec.holes if h.inputs)
-    if not parts:
-        raise DiagnosisError(f"{rec.path}: no two consecutive samples with every input known between the input "
-                             f"holes ({holes})")
-    if parts[0] is not rec:
-        longest = max(parts, key=len)
-        notes.append(f"{rec.path}: the held input is not the input in its hole(s) longer than max_gap = "
-                     f"{rec.max_gap:g} s ({holes}): diagnosed on the longest stretch between them, "
-                     f"{longest.t[0]:g}–{longest.t[-1]:g} s ({len(longest)} of {len(rec)} samples)")
-        rec = longest
-    return rec, notes
+    parts, notes = rec.usable()
+    longest = max(parts, key=len)
+    if rec.input_holes:
+        notes.append(rec.hole_note(f"diagnosed on the longest stretch between them, {longest.t[0]:g}–"
+                                   f"{longest.t[-1]:g} s ({len(longest)} of {len(rec)} samples)"))
+    return longest, notes
 
 
 def check(model: Model, rec: Recording, folds: int):

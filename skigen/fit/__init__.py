@@ -409,17 +409,11 @@ def _usable(recs: list[Recording], starts) -> tuple[list[Recording], list | None
         raise ValueError(f"starts: {len(starts)} given for {len(recs)} recordings")
     parts, part_starts, notes = [], [], []
     for rec, start in zip(recs, [None] * len(recs) if starts is None else starts):
-        rec, stuck = rec.unstuck()
+        cut, stuck = rec.usable()
         notes += stuck
-        cut = rec.input_parts()
-        holes = "; ".join(str(h) for h in rec.holes if h.inputs)
-        if not cut:
-            raise FitError(f"{rec.path}: no two consecutive samples with every input known between the input "
-                           f"holes ({holes})")
-        if cut[0] is not rec:
-            notes.append(f"{rec.path}: the held input is not the input in its hole(s) longer than max_gap = "
-                         f"{rec.max_gap:g} s ({holes}): fitted as {len(cut)} recordings, "
-                         + ", ".join(f"{p.t[0]:g}–{p.t[-1]:g} s" for p in cut))
+        if rec.input_holes:
+            notes.append(rec.hole_note(f"fitted as {len(cut)} recordings, "
+                                       + ", ".join(f"{p.t[0]:g}–{p.t[-1]:g} s" for p in cut)))
         parts += cut
         part_starts += [start] + [None] * (len(cut) - 1)
     return parts, None if starts is None else part_starts, notes
