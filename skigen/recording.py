@@ -75,8 +75,9 @@ class Recording:
         naming them. Stuck: identical readings in a row, at least STUCK_RUN and 5 times as many as
         the output's readings usually repeat (a slow sensor logged at a faster rate repeats each
         reading), of a value inside the range of its other readings (a clipped sensor reads its
-        bound: an extreme), from a sensor that is not quantised (:func:`resolution` 0: a
-        quantised one reads the same count at rest)."""
+        bound: an extreme), after the first reading (a recording may begin at rest), from a
+        sensor that is not quantised (:func:`resolution` 0: a quantised one reads the same count
+        at rest)."""
         outputs, notes = self.outputs.copy(), []
         for j, name in enumerate(self.output_names):
             at = np.flatnonzero(np.isfinite(outputs[:, j]))
@@ -86,7 +87,7 @@ class Recording:
             starts = np.flatnonzero(np.r_[True, y[1:] != y[:-1]])
             ends = np.r_[starts[1:], len(y)]
             limit = max(STUCK_RUN, 5 * np.median(ends - starts))
-            runs = [(a, b) for a, b in zip(starts, ends) if b - a >= limit and y.min() < y[a] < y.max()]
+            runs = [(a, b) for a, b in zip(starts, ends) if b - a >= limit and a > 0 and y.min() < y[a] < y.max()]
             if runs:
                 for a, b in runs:
                     outputs[at[a:b], j] = np.nan

@@ -212,8 +212,8 @@ def test_result_numbers_are_exact_and_shortest_in_a_background_writer(tmp_path):
 def test_stuck_readings_are_told_from_a_quantised_sensor_and_a_clipped_one():
     """Recording.unstuck: a run of 10 identical readings inside the range of a sensor whose other
     readings never repeat is stuck; the same run of a quantised sensor (at rest), at the sensor's
-    extreme (a clip at its bound) or of a sensor logged at 10 times its rate is data; that
-    sensor's stuck run is 50 readings."""
+    extreme (a clip at its bound), at the start (at rest) or of a sensor logged at 10 times its
+    rate is data; that sensor's stuck run is 50 readings."""
     rng = np.random.default_rng(0)
     t = np.arange(200) * 0.01
     y = np.sin(t) + 0.01 * rng.normal(size=200)
@@ -224,6 +224,7 @@ def test_stuck_readings_are_told_from_a_quantised_sensor_and_a_clipped_one():
     short[50:59] = short[50]                                    # 9 in a row: not yet stuck
     clipped = np.minimum(y, 0.8)
     quantised = np.round(np.where(t < 1, 0.0, y) / 0.05) * 0.05  # at rest for 1 s, in steps of 0.05
+    frozen[:30] = frozen[0]                                     # at rest before it starts: data
     slow = np.repeat(y[::10], 10)                                # each reading logged 10 times
     slow_stuck = slow.copy()
     slow_stuck[100:150] = slow_stuck[100]
