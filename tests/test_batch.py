@@ -239,7 +239,7 @@ def test_a_constant_imported_by_the_model_file_is_part_of_its_digest(tmp_path):
         (pkg / "constants.py").write_text(f"GAIN = {gain}\n")
         for name in [n for n in sys.modules if n == "vehicle" or n.startswith("vehicle.")]:
             del sys.modules[name]                     # a new process: the constants as they are now
-        digests.append(model_digest(str(pkg / "model.py")))
+        digests.append(model_digest(str(pkg / "model.py"), load_model(str(pkg / "model.py"))))
     assert digests[0] == digests[1] != digests[2]
 
 

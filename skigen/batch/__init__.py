@@ -199,7 +199,7 @@ def batch(model, logs, out_dir, *, mode: str = "run", filter: str = "ski", backe
     for stale in out.glob(".*.tmp-*"):          # left by a batch that was stopped
         shutil.rmtree(stale, ignore_errors=True)
     build = out / ".build"
-    options = dict(spec=spec, digest=model_digest(spec), mode=mode, filter=filter, backend=backend, real=real,
+    options = dict(spec=spec, digest=model_digest(spec, m), mode=mode, filter=filter, backend=backend, real=real,
                    build=str(build), track=list(track), estimate=list(estimate), method=method,
                    figures=bool(figures), read=dict(time=time, time_unit=time_unit, columns=columns,
                                                     max_gap=max_gap))

@@ -38,17 +38,16 @@ def _spec_file(spec: str) -> Path | None:
     return Path(spec) if Path(spec).is_file() else None
 
 
-def model_digest(spec: str) -> str:
+def model_digest(spec: str, model) -> str:
     """Hash of the model file's text (or of the spec, for a module not found as a file) and of what
-    the loaded model declares — its transition and observation to the bit, noises, priors, initial
-    state, parameters — so that a constant changed in a module the file imports counts too."""
+    ``model``, loaded from it, declares — its transition and observation to the bit, noises,
+    priors, initial state, parameters — so that a constant changed in a module the file imports
+    counts too."""
     import casadi as ca
 
     from ..derive.augment import augment
-    from ..modelfile import load_model
     path = _spec_file(spec)
     digest = hashlib.sha256(path.read_bytes() if path else spec.encode())
-    model = load_model(spec)
     a = augment(model)
     digest.update(ca.Function("model", [a.z, a.u, a.mem], [a.f, a.h, a.mem_next]).serialize().encode())
     for v in (a.Q, a.R, a.P0, a.z0, a.s0, a.fixed_values):

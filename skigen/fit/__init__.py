@@ -652,9 +652,14 @@ def rms(e: np.ndarray) -> float | None:
     return float(np.sqrt(np.mean(e ** 2))) if e.size else None
 
 
+def value_text(v: float | None, fmt: str = ".4g") -> str:
+    """``v`` formatted, or 'not measured' for None (an output without a reading)."""
+    return "not measured" if v is None else f"{v:{fmt}}"
+
+
 def per_output(values: dict, fmt: str = ".4g") -> str:
     """'current 0.0213, speed not measured': a value per output, None as not measured."""
-    return ", ".join(f"{o} {v:{fmt}}" if v is not None else f"{o} not measured" for o, v in values.items())
+    return ", ".join(f"{o} {value_text(v, fmt)}" for o, v in values.items())
 
 
 def _num(x: float):

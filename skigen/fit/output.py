@@ -10,7 +10,7 @@ import numpy as np
 
 from ..modelfile import is_module_spec
 from ..simulate import AMPLIFICATION, free_run, growth_rate, simulation_window, windowed_free_run
-from . import FitError, FitResult, fit, per_output, rms
+from . import FitError, FitResult, fit, per_output, rms, value_text
 
 __all__ = ["validate", "write_outputs"]
 
@@ -82,10 +82,10 @@ def write_outputs(result: FitResult, out_dir, *, model_spec: str | None = None,
         names = result.model.output_names
         for r, (rec, Y) in enumerate(zip(recordings, result.predictions)):
             paths.append(recording_figure(out / f"fit_{r}.png", f"fitted: {Path(rec.path).name}", rec, Y, names))
-        for r, (rec, v) in enumerate((v["recording"], v) for v in validation):
+        for r, v in enumerate(validation):
             paths.append(recording_figure(out / f"validation_{r}.png", "validation (free run" + (
                                           f", restarted every {v['window']:.3g} s" if v.get("window") else "") + "): "
-                                          f"{Path(rec.path).name}", rec, v["simulated"], names))
+                                          f"{Path(v['recording'].path).name}", v["recording"], v["simulated"], names))
         if result.correlation["names"]:
             paths.append(correlation_figure(out / "correlation.png", result))
     paths.append(_write_report(out / "report.md", result, validation, [p.name for p in paths if p.suffix == ".png"]))
@@ -171,7 +171,7 @@ def _write_report(path: Path, result: FitResult, validation, figures) -> Path:
         lines.append("")
     else:
         lines += ["Residual std per output: " + ", ".join(
-            f"{o} {'not measured' if v is None else f'{v:.4g}'} (declared {r.noise['declared_std'][o]:.4g})"
+            f"{o} {value_text(v)} (declared {r.noise['declared_std'][o]:.4g})"
             for o, v in r.noise["residual_std"].items()), ""]
     lines += ["## Recordings", "", "| file | samples | RMSE | log-likelihood |", "|---|---|---|---|"]
     for rec in r.recordings:
