@@ -226,7 +226,7 @@ def _fit(args) -> int:
         kind = "validation" if r in checks else "fit"
         span = f" (free runs restarted every {r['window']:.3g} s)" if r.get("window") else ""
         print(f"  {kind} {Path(r['file']).name}: RMSE{span} " + per_output(r["rmse"]))
-    for line in result.notes:
+    for line in result.notes + [n for c in checks for n in c["notes"]]:
         print(f"note: {line}")
     print(f"results: {Path(args.out) / 'fit.json'}, {Path(args.out) / 'report.md'}")
     return 0

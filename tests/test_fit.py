@@ -704,6 +704,26 @@ def test_an_input_hole_cuts_the_recording_into_parts_fitted_apart():
     assert held["rmse"]["angle"] > 10 * max(r["rmse"]["angle"] for r in res.recordings), held
 
 
+def test_validation_leaves_out_a_stuck_sensor_and_cuts_at_input_holes():
+    """A held-out recording is read as the fit reads its own: the readings of a sensor stuck for
+    2 s are left out of the RMSE (counted, the frozen angle scores 0.477 rad against 0.0104 without
+    it; measured) and a 2 s input hole cuts it into two parts, each started from its own first samples; both
+    are said."""
+    from skigen.fit.output import validate
+    from skigen.recording import load_recording
+    model = pendulum(PENDULUM_START)
+    res = fit(model, [_pendulum_frame(np.random.default_rng(8))], show_progress=False)
+    frame = _pendulum_frame(np.random.default_rng(9))
+    (clean,) = validate(res, [load_recording(frame, model)])
+    frame.loc[300:399, "angle"] = frame.loc[300, "angle"]
+    frame.loc[480:529, "u"] = np.nan
+    checks = validate(res, [load_recording(frame, model)])
+    assert [c["samples"] for c in checks] == [480 - 50, 600 - 530 - 50]
+    assert checks[0]["rmse"]["angle"] == pytest.approx(clean["rmse"]["angle"], rel=0.03)
+    assert [len(c["notes"]) for c in checks] == [2, 0]
+    assert "stuck sensor" in checks[0]["notes"][0] and "validated as 2 recordings" in checks[0]["notes"][1]
+
+
 def test_an_estimate_on_its_bound_is_named():
     """The input gain b bounded below the truth (2) sits on the bound: its std is no interval,
     and the result says so; the other estimates are inside theirs. (The DataFrame is read with

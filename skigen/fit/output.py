@@ -20,18 +20,20 @@ def validate(result: FitResult, recordings, init_samples: int = 50) -> list[dict
 
     The initial state of each is estimated from its first ``init_samples``
     samples (parameters fixed), then the model runs free over the whole
-    recording; the RMSE counts the samples after those. A recording is cut at its input holes
-    (:meth:`~skigen.recording.Recording.input_parts`), each part validated. A model without weights
+    recording; the RMSE counts the samples after those. As in the fit, a stuck sensor's readings
+    are left out and a recording is cut at its input holes
+    (:meth:`~skigen.recording.Recording.usable`), each part validated. A model without weights
     whose free run amplifies state errors more than AMPLIFICATION-fold over the
     recording (open-loop unstable) is instead restarted from its EKF's state every
     window within which it does so AMPLIFICATION-fold (``window`` in seconds, else
-    None). Returns one dict per recording (or part): file, samples, rmse per output, window, the
-    simulated outputs and the recording (part) itself.
+    None). Returns one dict per recording (or part): file, samples, rmse per output, window,
+    notes (stuck readings and input holes, on the recording's first part), the simulated outputs
+    and the recording (part) itself.
     """
     model = result.model
     weights = [result.weights.get(n, {}).get("value", 0.0) for n in model.weight_names]
     out = []
-    for rec in (part for r in recordings for part in r.input_parts()):
+    for rec, notes in _validation_parts(recordings):
         if len(rec.t) <= init_samples:
             raise FitError(f"{rec.path}: {len(rec.t)} samples to validate on; the first {init_samples} "
                            f"(--init-samples) estimate its initial state and the rest are scored: give a longer "
@@ -47,8 +49,18 @@ def validate(result: FitResult, recordings, init_samples: int = 50) -> list[dict
         out.append(dict(file=str(rec.path), samples=int(len(rec.t) - n0),
                         window=window * model.dt if window else None,
                         rmse={o: rms(e[:, j]) for j, o in enumerate(model.output_names)},
-                        simulated=Y, recording=rec))
+                        notes=notes, simulated=Y, recording=rec))
     return out
+
+
+def _validation_parts(recordings):
+    """(part, notes) of each recording's usable parts; the notes on its first part."""
+    for r in recordings:
+        parts, notes = r.usable()
+        if r.input_holes:
+            notes = notes + [r.hole_note(f"validated as {len(parts)} recordings")]
+        for i, part in enumerate(parts):
+            yield part, notes if i == 0 else []
 
 
 def _windowed(model, rec, n0: int):
@@ -189,7 +201,7 @@ def _write_report(path: Path, result: FitResult, validation, figures) -> Path:
                          + (f"restarted from the EKF's state every {v['window']:.3g} s: the model amplifies a "
                             f"state error {AMPLIFICATION:g}-fold within that" if v.get("window") else "whole recording")
                          + " |")
-        lines.append("")
+        lines += [""] + [f"- {n}." for v in validation for n in v.get("notes", [])] + [""]
     lines += [f"![{f}]({f})" for f in figures]
     path.write_text("\n".join(lines) + "\n")
     return path
