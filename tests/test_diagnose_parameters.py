@@ -155,6 +155,11 @@ def test_a_refitted_value_is_written_to_its_std_second_digit():
     assert _pm(6.002, 0.0085) == "6.002 ± 0.0085"            # at least four significant digits
     assert _pm(0.0, 0.1) == "0 ± 0.1" and _pm(None, None) == "– ± –"
     assert _pm(0.103, float("nan")) == "0.103 (no error bar)"   # a width not identifiable: was "0.103 ± nan"
+    from skigen.diagnose.report import finding_line             # the CLI's line: a whole delay was "1 ± nan"
+    delay = dict(effect="input_delay", equation="w", expression="u[k-1] (0.025 s)", coefficient=1, std=float("nan"),
+                 evidence=70725.8, free_run_without=0.273)
+    assert "coefficient 1 (a whole number of samples: no error bar), cross-validated" in finding_line(delay)
+    assert "coefficient 4.285 ± 0.043, cross" in finding_line(dict(delay, effect="bias", coefficient=4.285, std=0.043))
 
 
 def test_a_remaining_mismatch_points_at_a_step_too_coarse_for_a_fast_mode():

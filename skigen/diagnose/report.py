@@ -39,8 +39,11 @@ def where(f: dict) -> str:
 def finding_line(f: dict) -> str:
     """One finding in a line: effect, equation, term, coefficient ± std, evidence, free run without it."""
     free = f.get("free_run_without")
-    return (f"{where(f)}: {f['expression']}, coefficient {f['coefficient']:.6g} ± "
-            f"{_fmt(f['std'], '.2g')}, cross-validated evidence {f['evidence']:+.1f}, free run without it "
+    std = f["std"]
+    bar = f"± {std:.2g}" if std is not None and math.isfinite(std) else (
+        "(a whole number of samples: no error bar)" if f["effect"] == "input_delay" else "(no error bar)")
+    return (f"{where(f)}: {f['expression']}, coefficient {f['coefficient']:.6g} {bar}, "
+            f"cross-validated evidence {f['evidence']:+.1f}, free run without it "
             f"{'diverges' if free is None or not math.isfinite(free) else format(free, '.3g')}"
             + "".join(f"; not told apart from {where(a)} ({a['expression']}, {a['coefficient']:.6g}): it explains "
                       f"the recording as well" for a in f.get("as_good", [])))
