@@ -1,4 +1,4 @@
-"""A minimal terminal progress line, silent unless the stream is a terminal."""
+"""A progress line: redrawn in place on a terminal, written as lines where forced (SKIGEN_PROGRESS=1)."""
 from __future__ import annotations
 
 import os
@@ -6,8 +6,12 @@ import sys
 import time
 
 
-def shown(stream=sys.stderr) -> bool:
-    """True when progress goes to ``stream``: a terminal, or ``SKIGEN_PROGRESS=1``."""
+LINE_SECONDS = 2.0    # forced onto a pipe or file: a line at most this often
+
+
+def shown(stream=None) -> bool:
+    """True when progress goes to ``stream`` (default sys.stderr): a terminal, or ``SKIGEN_PROGRESS=1``."""
+    stream = stream or sys.stderr
     env = os.environ.get("SKIGEN_PROGRESS")
     tty = getattr(stream, "isatty", None)
     return env == "1" or (env != "0" and tty is not None and tty())
@@ -20,45 +24,49 @@ def note(text: str, stream=None) -> None:
         print(text, file=stream, flush=True)
 
 
-def progress(iterable, total, label, stream=sys.stderr, min_seconds=1.0):
-    """Yield from ``iterable``, showing ``label: 45% (6750/15000) 1.2 s, eta 1.5 s``.
+def progress(iterable, total, label, stream=None, min_seconds=1.0):
+    """Yield from ``iterable``, showing ``label: 45% (6750/15000) 1.2 s, eta 1.5 s`` on ``stream``
+    (default sys.stderr).
 
-    The line is drawn only if ``stream.isatty()`` (``SKIGEN_PROGRESS=1`` forces it, as its last
-    state only; ``=0`` disables it), only once the work has taken ``min_seconds``, at most
-    ~10 times per second, and is finished with a newline at the end.
+    On a terminal the line is redrawn in place, at most ~10 times per second, and finished with a
+    newline. Forced onto a pipe or file (``SKIGEN_PROGRESS=1``) it is written as lines, at most one
+    every LINE_SECONDS, and the last. ``SKIGEN_PROGRESS=0`` disables it. Nothing is shown before
+    the work has taken ``min_seconds``.
     """
+    stream = stream or sys.stderr
     if not shown(stream):
         yield from iterable
         return
 
     t0 = time.perf_counter()
-    last, width, done = -1.0, 0, 0
-    tty = getattr(stream, "isatty", lambda: False)()     # elsewhere (forced): the last line only
+    last, width, done, drawn = -1.0, 0, 0, None
+    tty = getattr(stream, "isatty", lambda: False)()
+    every = 0.1 if tty else LINE_SECONDS
 
-    def draw(now, last_line=False):
-        nonlocal width
+    def draw(now):
+        nonlocal width, drawn
         el = now - t0
         if total:
             eta = f"{el * (total - done) / done:.1f} s" if done else "?"
             text = f"{label}: {100 * done / total:3.0f}% ({done}/{total}) {el:.1f} s, eta {eta}"
         else:
             text = f"{label}: {done} {el:.1f} s"
-        if tty or last_line:
-            stream.write("\r" + text.ljust(width))
-            stream.flush()
-            width = len(text)
+        stream.write("\r" + text.ljust(width) if tty else text + "\n")
+        stream.flush()
+        width, drawn = len(text), done
 
     try:
         for item in iterable:
             yield item
             done += 1
             now = time.perf_counter()
-            if now - t0 >= min_seconds and now - last >= 0.1:
+            if now - t0 >= min_seconds and now - last >= every:
                 draw(now)
                 last = now
     finally:
         now = time.perf_counter()
-        if width or now - t0 >= min_seconds:
-            draw(now, last_line=True)
+        if (width or now - t0 >= min_seconds) and drawn != done:
+            draw(now)
+        if tty and width:
             stream.write("\n")
             stream.flush()

@@ -141,7 +141,25 @@ def test_progress_not_tty(monkeypatch):
     assert out.getvalue() == ""
     monkeypatch.setenv("SKIGEN_PROGRESS", "1")
     list(progress(range(3), 3, "forced", stream=out, min_seconds=0))
-    assert out.getvalue().startswith("\rforced: 100% (3/3)") and out.getvalue().count("forced") == 1
+    assert out.getvalue().splitlines()[-1].startswith("forced: 100% (3/3)")
+    assert "\r" not in out.getvalue() and out.getvalue().endswith("\n")
+
+
+def test_forced_progress_is_written_as_lines_as_the_work_goes(monkeypatch):
+    """Onto a pipe (SKIGEN_PROGRESS=1) a line every LINE_SECONDS while the work goes on, not one at the end."""
+    import skigen.progress as pg
+    monkeypatch.setenv("SKIGEN_PROGRESS", "1")
+    clock = iter(range(0, 10_000, 1))                  # each look at the clock: one second later
+    monkeypatch.setattr(pg.time, "perf_counter", lambda: float(next(clock)))
+    out = io.StringIO()
+    work = progress(range(10), 10, "run", stream=out)
+    for _ in range(6):
+        next(work)
+    lines = out.getvalue().splitlines()
+    assert len(lines) >= 2 and "\r" not in out.getvalue() and out.getvalue().endswith("\n")
+    assert all(line.startswith("run: ") for line in lines) and "(1/10)" in lines[0]
+    list(work)
+    assert out.getvalue().splitlines()[-1].startswith("run: 100% (10/10)")
 
 
 def test_diagnosis_stages_are_lines_in_a_log_file(monkeypatch):
