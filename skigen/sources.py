@@ -5,12 +5,17 @@ stamp (a CSV file is one group; a ULog file has a group per topic instance),
 with only the columns the model uses, as float arrays (NaN = no sample).
 Columns the model does not use are never parsed. Number parsing is strict
 (ASCII decimal only: no ``1_0``, no ``0x10``, no non-ASCII digits); an empty
-cell, ``nan``, ``NaN`` or ``N/A`` means "no sample". Anything malformed raises
-:class:`RecordingError` naming the file, row and column.
+cell, ``nan``, ``NaN`` or ``N/A`` means "no sample". A CSV time column may hold
+ISO-8601 time stamps instead (seconds since 1970, as a datetime column). Anything
+malformed raises :class:`RecordingError` naming the file, row and column, its
+content quoted :func:`printable`.
 """
 from __future__ import annotations
 
+import contextlib
 import csv
+import io
+import itertools
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,13 +26,14 @@ import numpy as np
 from .recording import RecordingError
 
 __all__ = ["Group", "Samples", "read_samples", "stream_csv", "CsvStream", "NotStreamable", "TIME_NAMES", "MISSING",
-           "parse_number", "is_csv"]
+           "parse_number", "is_csv", "printable"]
 
 TIME_NAMES = ("t", "time", "timestamp")           # looked for (case-insensitive) when no --time is given
 MISSING = ("", "nan", "NaN", "N/A")               # cells that mean "no sample"
 FLOAT_MAX = float(np.finfo(np.float32).max)
 _NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*(?:[eE][+-]?\d+)?|\.\d+(?:[eE][+-]?\d+)?|inf|infinity)",
                      re.ASCII | re.IGNORECASE)
+_ISO_STAMP = re.compile(r"\d{4}-\d{2}-\d{2}[T ]\d", re.ASCII)    # an ISO-8601 date and time
 _ULOG_COLUMN = re.compile(r"(?P<topic>\w+)(?::(?P<instance>\d+))?\.(?P<field>\w+(?:\[\d+\])?)$", re.ASCII)
 
 
@@ -39,6 +45,18 @@ def parse_number(cell: str) -> float:
     if not _NUMBER.fullmatch(c):
         raise ValueError(f"{cell!r} is not a number")
     return float(c)
+
+
+def printable(text, limit: int = 80) -> str:
+    """``text`` for a message: non-printable characters escaped (``\\x00``), cut to ``limit`` characters."""
+    text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in str(text))
+    return text if len(text) <= limit else text[:limit - 1] + "…"
+
+
+def _found(header) -> str:
+    """The columns found, for a message: each printable, at most 30 of them."""
+    more = f", … ({len(header)} columns)" if len(header) > 30 else ""
+    return ", ".join(printable(h, 40) for h in header[:30]) + more
 
 
 @dataclass
@@ -80,24 +98,33 @@ def _time_column(header, time, source) -> str:
     """The time column: ``time`` if given, else the first of TIME_NAMES present (any case)."""
     if time is not None:
         if time not in header:
-            raise RecordingError(f"{source}: no time column '{time}' (columns found: {', '.join(header)})")
+            raise RecordingError(f"{source}: no time column '{time}' (columns found: {_found(header)})")
         return time
     lower = {h.lower(): h for h in reversed(header)}
     for name in TIME_NAMES:
         if name in lower:
             return lower[name]
     raise RecordingError(f"{source}: no time column: expected one named {', '.join(TIME_NAMES)} or given with "
-                         f"--time COLUMN (columns found: {', '.join(header)})")
+                         f"--time COLUMN (columns found: {_found(header)})")
 
 
 def _require(columns: dict, header, source, time_col) -> None:
     missing = [f"'{c}'" + (f" (for '{n}')" if c != n else "") for n, c in columns.items() if c not in header]
     if missing:
         raise RecordingError(f"{source}: missing required column(s) {', '.join(missing)} "
-                             f"(columns found: {', '.join(header)}); map others with --map NAME=COLUMN")
+                             f"(columns found: {_found(header)}); map others with --map NAME=COLUMN")
     if time_col in columns.values():
         raise RecordingError(f"{source}: column '{time_col}' is the time column and cannot be a model "
                              f"input or output")
+
+
+def _check_advances(g: Group, source, time_col, header) -> None:
+    """An error when every time stamp of a recording is the same (a constant column read as time)."""
+    if len(g.t) > 1 and np.all(g.t == g.t[0]):
+        others = [h for h in header if h.lower() in TIME_NAMES and h != time_col]
+        raise RecordingError(f"{source}, column '{time_col}': every time stamp is {g.t[0]:.15g} ({len(g.t)} rows): "
+                             f"time does not advance" + (f"; column '{others[0]}' looks like time too "
+                                                         f"(--time {others[0]})" if others else ""))
 
 
 def check_group(g: Group, columns: dict, time_col: str, real: str, fail) -> None:
@@ -136,33 +163,69 @@ def _csv_header(path) -> list[str]:
     try:
         with open(path, encoding="utf-8-sig", newline="") as f:
             first = next(csv.reader(f), None)
+            second = f.readline()
     except FileNotFoundError:
         raise RecordingError(f"{path}: file not found") from None
     except (OSError, UnicodeDecodeError, csv.Error) as e:
         raise RecordingError(f"{path}: cannot read file ({e})") from None
     if not first or not any(c.strip() for c in first):
         raise RecordingError(f"{path}: file is empty")
+    if any("\0" in c for c in first):
+        raise RecordingError(f"{path}: not a CSV file: it holds binary data (it begins "
+                             f"'{printable(','.join(first), 40)}')")
     header = [h.strip() for h in first]
     if len(header) == 1 and (sep := next((c for c in ";\t|" if c in header[0]), None)):
-        raise RecordingError(f"{_where(path, 'row 1')}: one column '{header[0]}': the file seems separated by "
-                             f"{'tabs' if sep == chr(9) else repr(sep)}, and skigen reads comma-separated values. "
-                             f"Convert it (pandas.read_csv(path, sep={sep!r}).to_csv(new_path, index=False)) "
+        comma = any(re.fullmatch(r"[+-]?\d+,\d+", c.strip()) for c in second.split(sep))
+        raise RecordingError(f"{_where(path, 'row 1')}: one column '{printable(header[0])}': the file seems "
+                             f"separated by {'tabs' if sep == chr(9) else repr(sep)}, and skigen reads comma-"
+                             f"separated values. Convert it (pandas.read_csv(path, sep={sep!r}"
+                             f"{', decimal=' + repr(',') if comma else ''}).to_csv(new_path, index=False)) "
                              f"or pass a DataFrame")
     seen = {}
     for j, h in enumerate(header):
         if h in seen:
-            raise RecordingError(f"{_where(path, 'row 1', h)}: duplicate column name (columns {seen[h] + 1} "
-                                 f"and {j + 1})")
+            raise RecordingError(f"{_where(path, 'row 1', printable(h))}: duplicate column name (columns "
+                                 f"{seen[h] + 1} and {j + 1})")
         seen[h] = j
     return header
+
+
+def _iso_time(path, header, time_col) -> bool:
+    """True when the time column's first value is an ISO-8601 date and time, not a number."""
+    j = header.index(time_col)
+    try:
+        with open(path, encoding="utf-8-sig", newline="") as f:
+            for r in itertools.islice(csv.reader(f), 1, None):
+                cell = r[j].strip() if len(r) > j else ""
+                if cell not in MISSING:
+                    return bool(_ISO_STAMP.match(cell))
+    except (OSError, UnicodeDecodeError, csv.Error):
+        pass                                  # the exact reader names it
+    return False
+
+
+def _iso_seconds(cells, fail=None) -> np.ndarray:
+    """Seconds since 1970 of ISO-8601 time stamps (UTC unless they carry a zone), NaN for a missing
+    cell; ``fail(i, message)`` for the first cell that is neither (else NaN there too)."""
+    import pandas as pd
+
+    text = pd.Series(cells, dtype=object).fillna("").astype(str).str.strip()
+    missing = text.isin(MISSING).to_numpy()
+    stamps = pd.to_datetime(text.where(~missing), format="ISO8601", utc=True, errors="coerce")
+    bad = stamps.isna().to_numpy() & ~missing
+    if bad.any() and fail is not None:
+        i = int(np.argmax(bad))
+        fail(i, f"'{printable(text[i])}' is not an ISO-8601 time stamp (the column's first value is one)")
+    return _column_values(None, None, stamps, None)[0]
 
 
 BLOCK_SIZE = 4 << 20          # bytes per block of pyarrow's streaming CSV reader (whole-file reading)
 STREAM_BLOCK_SIZE = 1 << 20   # the same when streaming: pyarrow reads up to 32 blocks ahead
 
 
-def _open_csv(path, header, wanted, block_size=BLOCK_SIZE):
-    """pyarrow's streaming reader of the used columns, as float64 (NaN for the missing spellings)."""
+def _open_csv(path, header, wanted, block_size=BLOCK_SIZE, text=None):
+    """pyarrow's streaming reader of the used columns, as float64 (NaN for the missing spellings);
+    the column ``text`` (ISO time stamps) as strings (None for the missing spellings)."""
     import pyarrow as pa
     import pyarrow.csv as pc
 
@@ -171,24 +234,31 @@ def _open_csv(path, header, wanted, block_size=BLOCK_SIZE):
                                           use_threads=True),
         parse_options=pc.ParseOptions(ignore_empty_lines=False),
         convert_options=pc.ConvertOptions(include_columns=wanted, null_values=list(MISSING),
-                                          column_types={c: pa.float64() for c in wanted},
-                                          quoted_strings_can_be_null=True))
+                                          column_types={c: pa.string() if c == text else pa.float64()
+                                                        for c in wanted},
+                                          strings_can_be_null=True, quoted_strings_can_be_null=True))
 
 
-def _csv_fast(path, header, wanted, columns, time_col, real) -> Group:
+def _block_values(batch, wanted, iso_col) -> dict:
+    """A pyarrow batch's used columns as float arrays (ISO time stamps as seconds since 1970)."""
+    return {c: _iso_seconds(batch.column(c).to_numpy(zero_copy_only=False)) if c == iso_col
+            else batch.column(c).to_numpy(zero_copy_only=False) for c in wanted}
+
+
+def _csv_fast(path, header, wanted, columns, time_col, real, iso) -> Group:
     """pyarrow's streaming reader: blocks of 4 MB, only the used columns. Raises _Retry on anything odd."""
     import pyarrow as pa
 
     try:
-        reader = _open_csv(path, header, wanted)
+        reader = _open_csv(path, header, wanted, text=time_col if iso else None)
         chunks = {c: [] for c in wanted}
         for batch in reader:
-            for c in wanted:
-                chunks[c].append(batch.column(c).to_numpy(zero_copy_only=False))
+            for c, v in _block_values(batch, wanted, time_col if iso else None).items():
+                chunks[c].append(v)
     except (pa.ArrowInvalid, pa.ArrowTypeError):
         raise _Retry from None
     data = {c: np.concatenate(chunks[c]) if chunks[c] else np.zeros(0) for c in wanted}
-    g = Group(data[time_col], {n: data[c] for n, c in columns.items()}, lambda i: f"row {i + 2}")
+    g = Group(data[time_col], {n: data[c] for n, c in columns.items()}, lambda i: f"row {i + 2}", iso)
 
     def retry(i, col, msg):
         raise _Retry
@@ -196,7 +266,7 @@ def _csv_fast(path, header, wanted, columns, time_col, real) -> Group:
     return g
 
 
-def _csv_exact(path, header, wanted, columns, time_col, real) -> Group:
+def _csv_exact(path, header, wanted, columns, time_col, real, iso) -> Group:
     """The csv module, cell by cell: slow, and names the exact line of any problem."""
     idx = {c: header.index(c) for c in wanted}
     rows, lines, blank_from = {c: [] for c in wanted}, [], None
@@ -217,17 +287,18 @@ def _csv_exact(path, header, wanted, columns, time_col, real) -> Group:
                                          f"(as in the header), found {len(r)}")
                 for c in wanted:
                     try:
-                        rows[c].append(parse_number(r[idx[c]]))
+                        rows[c].append(r[idx[c]] if iso and c == time_col else parse_number(r[idx[c]]))
                     except ValueError as e:
                         raise RecordingError(f"{_where(path, f'row {line}', c)}: {e}") from None
                 lines.append(line)
         except csv.Error as e:
             raise RecordingError(f"{_where(path, f'row {reader.line_num}')}: malformed CSV ({e})") from None
-    data = {c: np.array(v, dtype=float) for c, v in rows.items()}
-    g = Group(data[time_col], {n: data[c] for n, c in columns.items()}, lambda i: f"row {lines[i]}")
 
     def fail(i, col, msg):
         raise RecordingError(f"{_where(path, f'row {lines[i]}', col)}: {msg}")
+    data = {c: _iso_seconds(v, lambda i, msg: fail(i, c, msg)) if iso and c == time_col else np.array(v, dtype=float)
+            for c, v in rows.items()}
+    g = Group(data[time_col], {n: data[c] for n, c in columns.items()}, lambda i: f"row {lines[i]}", iso)
     check_group(g, columns, time_col, real, fail)
     return g
 
@@ -238,10 +309,12 @@ def _read_csv(path, names, mapping, time, real) -> Samples:
     time_col = _time_column(header, time, path)
     _require(columns, header, path, time_col)
     wanted = list(dict.fromkeys([time_col, *columns.values()]))
+    iso = _iso_time(path, header, time_col)
     try:
-        g = _csv_fast(path, header, wanted, columns, time_col, real)
+        g = _csv_fast(path, header, wanted, columns, time_col, real, iso)
     except _Retry:
-        g = _csv_exact(path, header, wanted, columns, time_col, real)
+        g = _csv_exact(path, header, wanted, columns, time_col, real, iso)
+    _check_advances(g, path, time_col, header)
     return Samples(str(path), [g], columns, time_col)
 
 
@@ -262,6 +335,7 @@ class CsvStream:
     block_size: int = STREAM_BLOCK_SIZE
     rows: int | None = None              # re-cut the blocks into pieces of at most this many rows (tests)
     notes: list[str] = field(default_factory=list)
+    iso: bool = False                    # the time column holds ISO-8601 stamps (read as seconds since 1970)
 
     def __iter__(self):
         import pyarrow as pa
@@ -272,14 +346,15 @@ class CsvStream:
         def retry(i, col, msg):
             raise NotStreamable(msg)
         try:
-            reader = _open_csv(self.source, self.header, wanted, self.block_size)
+            reader = _open_csv(self.source, self.header, wanted, self.block_size,
+                               text=self.time_column if self.iso else None)
             for batch in reader:
-                data = {c: batch.column(c).to_numpy(zero_copy_only=False) for c in wanted}
+                data = _block_values(batch, wanted, self.time_column if self.iso else None)
                 step = self.rows or max(len(data[self.time_column]), 1)
                 for a in range(0, len(data[self.time_column]), step):
                     t = data[self.time_column][a:a + step]
                     g = Group(t, {n: data[c][a:a + step] for n, c in self.columns.items()},
-                              lambda i, o=first + a: f"row {o + i + 2}")
+                              lambda i, o=first + a: f"row {o + i + 2}", self.iso)
                     check_group(g, self.columns, self.time_column, self.real, retry)
                     if last is not None and t[0] < last:
                         raise NotStreamable("time goes backwards between blocks")
@@ -310,7 +385,8 @@ def stream_csv(path, names, *, columns=None, time=None, real: str = "double", bl
     cols = _columns_for(list(names), columns)
     time_col = _time_column(header, time, path)
     _require(cols, header, path, time_col)
-    return CsvStream(str(path), cols, time_col, real, header, block_size, rows)
+    return CsvStream(str(path), cols, time_col, real, header, block_size, rows,
+                     iso=_iso_time(path, header, time_col))
 
 
 # --------------------------------------------------------------------------- Parquet and DataFrame
@@ -351,6 +427,8 @@ def _frame_group(source, frame, columns, time_col, where, real) -> Group:
 
 
 def _read_parquet(path, names, mapping, time, real) -> Samples:
+    """A Parquet file's used columns; a pandas index stored in it (``df.to_parquet``) is read as
+    :func:`_read_frame` reads a DataFrame's index."""
     import pyarrow as pa
     import pyarrow.parquet as pq
 
@@ -358,50 +436,104 @@ def _read_parquet(path, names, mapping, time, real) -> Samples:
         pf = pq.ParquetFile(path)
     except (OSError, pa.ArrowInvalid) as e:
         raise RecordingError(f"{path}: cannot read Parquet file ({e})") from None
-    header = pf.schema_arrow.names
+    meta = pf.schema_arrow.pandas_metadata or {}
+    stored = [c for c in meta.get("index_columns", []) if isinstance(c, str)]   # a RangeIndex is not stored
+    header = [n for n in pf.schema_arrow.names if n not in stored]
+    index = next((str(c["name"] or "index") for c in meta.get("columns", []) if stored == [c.get("field_name")]),
+                 None)
     columns = _columns_for(names, mapping)
-    time_col = _time_column(header, time, path)
-    _require(columns, header, path, time_col)
-    wanted = list(dict.fromkeys([time_col, *columns.values()]))
-    frame = pa.concat_tables([pa.Table.from_batches([b]) for b in pf.iter_batches(columns=wanted)]
-                             or [pf.schema_arrow.empty_table().select(wanted)]).to_pandas()
-    g = _frame_group(path, frame, columns, time_col, lambda i: f"row {i + 1}", real)
-    return Samples(str(path), [g], columns, time_col)
+    _require(columns, header, path, None)
+    if time is not None and time != index:
+        _time_column(header, time, path)
+    keep = [h for h in header if h in columns.values() or h == time or h.lower() in TIME_NAMES]
+    try:
+        frame = pf.read(columns=keep, use_pandas_metadata=True).to_pandas()
+    except (OSError, pa.ArrowInvalid) as e:
+        raise RecordingError(f"{path}: cannot read Parquet file ({e})") from None
+    return _read_frame(frame, names, mapping, time, real, str(path), header, lambda i: f"row {i + 1}")
 
 
-def _read_frame(frame, names, mapping, time, real) -> Samples:
+def _read_frame(frame, names, mapping, time, real, source="DataFrame", header=None, where=None) -> Samples:
+    """A DataFrame's columns; its index is the time when ``time`` names it, or when no ``time`` is
+    given and no column is named like time. ``header``: the source's columns, when ``frame`` holds
+    only those used."""
     import pandas as pd
 
-    source = "DataFrame"
-    header = [str(c) for c in frame.columns]
+    header = header or [str(c) for c in frame.columns]
     columns = _columns_for(names, mapping)
-    index_time = time is None and not any(h.lower() in TIME_NAMES for h in header)
-    if index_time:                          # the index is the time when no column is
-        idx = frame.index
+    idx = frame.index
+    index = str("index" if idx.name is None else idx.name)
+    if (time is None and not any(h.lower() in TIME_NAMES for h in header)) or (time == index and time not in header):
         if isinstance(idx, pd.RangeIndex) or not (pd.api.types.is_numeric_dtype(idx)
                                                   or pd.api.types.is_datetime64_any_dtype(idx)
                                                   or pd.api.types.is_timedelta64_dtype(idx)):
             raise RecordingError(f"{source}: no time: give a column named {', '.join(TIME_NAMES)}, name one "
-                                 f"with time=..., or use a numeric or datetime index (columns: {', '.join(header)})")
-        time_col = str(idx.name or "index")
-        frame = frame.reset_index(names=[time_col]) if time_col not in header else frame.set_index(
+                                 f"with time=..., or use a numeric or datetime index (columns: {_found(header)})")
+        time_col = index
+        frame = frame.reset_index(names=[time_col]) if time_col not in frame.columns else frame.set_index(
             pd.RangeIndex(len(frame))).assign(**{time_col: idx.to_numpy()})
-        header = [str(c) for c in frame.columns]
+        header = [*header, time_col]
     else:
         time_col = _time_column(header, time, source)
     _require(columns, header, source, time_col)
-    labels = frame.index
+    labels = frame.index if where is None else None
     frame = frame.rename(columns=str)
-    g = _frame_group(source, frame, columns, time_col, lambda i: f"row {i + 1} (index {labels[i]!r})", real)
+    g = _frame_group(source, frame, columns, time_col, where or (lambda i: f"row {i + 1} (index {labels[i]!r})"),
+                     real)
+    _check_advances(g, source, time_col, header)
     return Samples(source, [g], columns, time_col)
 
 
 # --------------------------------------------------------------------------- ULog
 
-def _read_ulog(path, names, mapping, time, real) -> Samples:
-    """PX4 ULog: COLUMN = ``topic.field``, ``topic.field[i]`` or ``topic:instance.field``; µs stamps."""
+class _Watched:
+    """A file for pyulog that notes a read cut short by the end of the file (pyulog stops there quietly)."""
+
+    def __init__(self, path):
+        self.file, self.cut = open(path, "rb"), False
+
+    def read(self, n=-1):
+        data = self.file.read(n)
+        self.cut = self.cut or 0 < len(data) < n
+        return data
+
+    def seek(self, *args):
+        return self.file.seek(*args)
+
+    def tell(self):
+        return self.file.tell()
+
+    def close(self):
+        self.file.close()
+
+
+def _parse_ulog(path, topics=None):
+    """(pyulog's ULog of ``topics``, a phrase saying where the file is truncated or corrupt, or
+    None). pyulog's prints are kept off stdout (they go into the sentence)."""
     from pyulog import ULog
 
+    f, said = _Watched(path), io.StringIO()
+    try:
+        with contextlib.redirect_stdout(said):
+            log = ULog(f, topics)
+    finally:
+        f.close()
+    if not f.cut and not log.file_corruption:
+        return log, None
+    last, start = log.last_timestamp * 1e-6, log.start_timestamp * 1e-6
+    data = f"{last - start:.3f} s after its start (t = {last:.3f} s)" if last > start else None
+    if f.cut:
+        return log, (f"the log is truncated: it ends inside a message, at byte {Path(path).stat().st_size}; "
+                     + (f"its data end {data}" if data else "it ends before any data"))
+    said = said.getvalue().strip()
+    return log, ("the log is corrupt" + (f" (pyulog: {printable(said.splitlines()[0])})" if said else "") + ": "
+                 + (f"pyulog skipped damaged bytes; data around them may be missing; its data end {data}" if data
+                    else "no data could be read"))
+
+
+def _read_ulog(path, names, mapping, time, real) -> Samples:
+    """PX4 ULog: COLUMN = ``topic.field``, ``topic.field[i]`` or ``topic:instance.field``; µs stamps.
+    A truncated or corrupt file is read as far as pyulog can, with a note saying where it ends."""
     columns = _columns_for(names, mapping)
     specs = {}
     for n, c in columns.items():
@@ -411,21 +543,23 @@ def _read_ulog(path, names, mapping, time, real) -> Samples:
                                  f"topic.field, topic.field[i] or topic:instance.field (--map {n}=COLUMN)")
         specs[n] = (m["topic"], int(m["instance"] or 0), m["field"])
     try:
-        log = ULog(str(path), sorted({s[0] for s in specs.values()}))
+        log, damage = _parse_ulog(path, sorted({s[0] for s in specs.values()}))
     except FileNotFoundError:
         raise RecordingError(f"{path}: file not found") from None
     except Exception as e:  # pyulog raises plain exceptions for corrupt files
         raise RecordingError(f"{path}: cannot read ULog file ({type(e).__name__}: {e})") from None
     topics = {(d.name, d.multi_id): d for d in log.data_list}
-    groups, notes = {}, []
+    groups, notes = {}, [f"{path}: {damage}"] if damage else []
     for n, (topic, inst, fld) in specs.items():
         d = topics.get((topic, inst))
         if d is None:
             have = sorted({k[1] for k in topics if k[0] == topic})
+            every = sorted({x.name for x in _parse_ulog(path)[0].data_list}) if not have else []
             raise RecordingError(
                 f"{path}: '{n}' reads '{columns[n]}', but the log has no topic '{topic}'" +
                 (f" instance {inst} (instances: {', '.join(map(str, have))})" if have else
-                 f" (topics: {', '.join(sorted({x.name for x in ULog(str(path)).data_list}))})"))
+                 f" (topics: {', '.join(every)})" if every else f" (no topic holds data{': ' if damage else ''}"
+                                                                f"{damage or ''})"))
         if fld not in d.data:
             fields = [f for f in d.data if f != "timestamp"]
             raise RecordingError(f"{path}: topic '{topic}' has no field '{fld}' (fields: {', '.join(fields[:40])}"

@@ -254,3 +254,21 @@ def test_a_log_that_could_not_be_read_does_not_reorder_the_fleet():
     ordered, order = order_rows(rows)
     assert order == "time stamp" and [r["log"] for r in ordered] == ["z_first", "m_second", "a_third", "empty"]
     assert order_rows(rows[:3] + [dict(rows[3], status="ok")])[1] == "file name"
+
+
+def test_a_binary_log_is_a_failed_row_whose_message_is_printable(tmp_path):
+    """A zip file named flight_08.csv: its bytes (NUL, escape sequences) reach neither summary.csv nor the
+    terminal, and a message quoting content is cut short."""
+    from skigen.batch.summary import write_summary
+    from skigen.batch.task import run_log
+    log = tmp_path / "flight_08.csv"
+    log.write_bytes(b"PK\x03\x04garbage\x00\x1b[2J" * 400 + b"\n")
+    options = dict(spec=MODEL, digest="d", mode="run", filter=FILTER, backend="python", real="double",
+                   build=str(tmp_path / ".build"), track=[], estimate=[], read={}, fingerprint="f")
+    row = run_log(MODEL, str(log), str(tmp_path / "out"), "flight_08", options)
+    assert row["status"] == "failed" and row["message"].startswith(f"{log}: not a CSV file: it holds binary data")
+    assert row["message"].isprintable() and len(row["message"]) < 300
+    odd = dict(row, log="odd", message="a\x00b\x1b[2J " + "x" * 2000, notes=["c\x07d"])
+    text = write_summary(tmp_path / "summary.csv", [row, odd], []).read_text()
+    assert "\x00" not in text and "\x1b" not in text and "\x07" not in text
+    assert "a\\x00b\\x1b[2J x" in text and "c\\x07d" in text and len(text) < 2000

@@ -1,5 +1,6 @@
 """Real logs in: the model's grid is the clock (holes, rates, units, jitter), names and
 formats (mapping, text columns, separate rows, DataFrame, Parquet, ULog)."""
+import re
 from pathlib import Path
 
 import numpy as np
@@ -176,6 +177,64 @@ def test_a_csv_separated_by_semicolons_or_tabs_is_named_as_such(tmp_path, flight
         flight.to_csv(path, sep=sep, index=False)
         with pytest.raises(RecordingError, match=rf"log.csv, row 1: one column .*{words}.*sep="):
             skigen.run(MODEL, path)
+    flight.to_csv(path, sep=";", decimal=",", index=False)              # and decimal commas: say so
+    with pytest.raises(RecordingError, match=r"pandas.read_csv\(path, sep=';', decimal=','\)"):
+        skigen.run(MODEL, path)
+    flight.to_csv(path, sep=";", index=False)
+    with pytest.raises(RecordingError, match=r"pandas.read_csv\(path, sep=';'\)"):
+        skigen.run(MODEL, path)
+
+
+def test_a_constant_column_named_like_time_is_named_with_the_other_one(tmp_path, flight):
+    path = tmp_path / "log.csv"
+    flight.assign(time=flight.t, t=999.0)[["t", "time", "delta", "phi"]].to_csv(path, index=False)
+    with pytest.raises(RecordingError, match=r"log.csv, column 't': every time stamp is 999 \(751 rows\): time "
+                                             r"does not advance; column 'time' looks like time too \(--time time\)"):
+        skigen.run(MODEL, path)
+    with pytest.raises(RecordingError, match=r"DataFrame, column 't': every time stamp is 999 \(751 rows\): time "
+                                             r"does not advance$"):
+        skigen.run(MODEL, flight.assign(t=999.0))
+
+
+def test_iso_time_stamps_in_a_csv_are_seconds_like_a_datetime_column(tmp_path, flight, clean):
+    """'2026-03-01T10:00:00.020000Z' (or without a zone: UTC), whatever --time-unit says; a cell that is
+    not a stamp is named by row."""
+    stamps = pd.Timestamp("2026-03-01T10:00:00Z") + pd.to_timedelta(flight.t, unit="s")
+    path = tmp_path / "iso.csv"
+    for text in (stamps.dt.strftime("%Y-%m-%dT%H:%M:%S.%fZ"), stamps.dt.strftime("%Y-%m-%d %H:%M:%S.%f")):
+        flight.assign(t=text).to_csv(path, index=False)
+        for unit in ("s", "auto"):
+            rec = load_recording(path, MODEL, time_unit=unit)
+            assert rec.t[0] == stamps[0].timestamp() and np.allclose(rec.t - rec.t[0], flight.t, atol=1e-6)
+        res = skigen.run(MODEL, path, filter="ukf")
+        assert np.allclose(res.mean, clean.mean, atol=1e-9)
+    lines = path.read_text().splitlines()
+    lines[5] = "0.08," + lines[5].split(",", 1)[1]
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(RecordingError, match=r"iso.csv, row 6, column 't': '0.08' is not an ISO-8601 time stamp"):
+        load_recording(path, MODEL)
+
+
+@pytest.mark.parametrize("index", ["t", "t_naive", "stamp", None])
+def test_a_parquet_file_s_pandas_index_is_read_as_a_dataframe_s(tmp_path, flight, clean, index):
+    """df.to_parquet keeps a datetime index as a column of its own name (or __index_level_0__): it is
+    the time, as the DataFrame's index is, chosen the same way and by the same --time."""
+    stamps = pd.Timestamp("2024-05-01T12:00:00Z") + pd.to_timedelta(flight.t, unit="s")
+    if index == "t_naive":
+        stamps, index = stamps.dt.tz_localize(None), "t"
+    frame = flight.drop(columns="t").set_index(pd.DatetimeIndex(stamps.rename(index)))
+    path = tmp_path / "log.parquet"
+    frame.to_parquet(path)
+    res = skigen.run(MODEL, path, filter="ukf")
+    assert np.allclose(res.mean, clean.mean, atol=1e-9)
+    assert np.array_equal(res.mean, skigen.run(MODEL, pd.read_parquet(path), filter="ukf").mean)
+    named = index or "index"
+    assert len(load_recording(path, MODEL, time=named).t) == len(load_recording(frame, MODEL, time=named).t) == 751
+    with pytest.raises(RecordingError, match=r"log.parquet: no time column 'nope' \(columns found: delta, phi\)"):
+        load_recording(path, MODEL, time="nope")
+    frame.assign(time=1.0).to_parquet(path)                   # a time column comes first, as in a DataFrame
+    with pytest.raises(RecordingError, match=r"log.parquet, column 'time': every time stamp is 1 "):
+        load_recording(path, MODEL)
 
 
 def test_parquet_round_trip(tmp_path, flight, clean):
@@ -272,6 +331,40 @@ def test_ulog_topics_at_their_own_rates_arrays_and_instances(tmp_path, flight):
         load_recording(path, MODEL, columns={**mapping, "delta": "actuator:2.control[1]"})
     with pytest.raises(RecordingError, match="topic 'attitude' has no field 'pitch' \\(fields: roll\\)"):
         load_recording(path, MODEL, columns={**mapping, "phi": "attitude.pitch"})
+
+
+def test_a_truncated_ulog_is_read_as_far_as_it_goes_and_said_so(tmp_path, flight, capsys):
+    us = np.round(flight.t.to_numpy() * 1e6).astype(np.uint64) + 10_000_000
+    whole = tmp_path / "whole.ulg"
+    write_ulog(whole, {("actuator", 0): {"timestamp": us, "control": flight.delta},
+                       ("attitude", 0): {"timestamp": us, "roll": flight.phi}})
+    mapping = {"delta": "actuator.control", "phi": "attitude.roll"}
+    assert load_recording(whole, MODEL, columns=mapping).notes == ()
+    data = whole.read_bytes()
+    cut = tmp_path / "cut.ulg"
+    cut.write_bytes(data[:int(0.6 * len(data))])
+    rec = load_recording(cut, MODEL, columns=mapping)
+    assert 200 < len(rec.t) < 751
+    assert re.fullmatch(rf"{cut}: the log is truncated: it ends inside a message, at byte {len(cut.read_bytes())};"
+                        rf" its data end \d+\.\d{{3}} s after its start \(t = {rec.t[-1]:.3f} s\)", rec.notes[0])
+    cut.write_bytes(data[:150])                               # within the message definitions
+    with pytest.raises(RecordingError, match=rf"{cut}: 'delta' reads 'actuator.control', but the log has no topic "
+                                             rf"'actuator' \(no topic holds data: the log is (truncated|corrupt)"):
+        load_recording(cut, MODEL, columns=mapping)
+    assert capsys.readouterr().out == ""
+
+
+@pytest.mark.skipif(not ULOG.is_file(), reason=f"PX4 log not found: {ULOG} (../shared/data)")
+def test_the_px4_log_cut_at_50_kb_says_it_is_corrupt_and_prints_nothing(tmp_path, capsys):
+    cut = tmp_path / "px4.ulg"
+    cut.write_bytes(ULOG.read_bytes()[:50_000])
+    m = skigen.Model("one", dt=0.02)
+    m.output("z", m.state("h", std=0.1, process_std=1e-3), noise_std=0.1)
+    with pytest.raises(RecordingError, match=r"has no topic 'vehicle_local_position' \(no topic holds data: the log "
+                                             r"is truncated: it ends inside a message, at byte 50000; it ends "
+                                             r"before any data\)"):
+        load_recording(cut, m, columns={"z": "vehicle_local_position.z"})
+    assert capsys.readouterr().out == ""          # pyulog's "File corruption detected ..." is not printed
 
 
 @pytest.mark.skipif(not ULOG.is_file(), reason=f"PX4 log not found: {ULOG} (../shared/data)")

@@ -121,6 +121,19 @@ def test_empty_missing_short(tmp_path):
     assert "bin.csv" in _error(str(bad))
 
 
+def test_a_binary_file_is_named_and_its_bytes_are_shown_escaped(tmp_path):
+    """A zip file named .csv: no raw bytes (NUL, escape sequences) in the message, and no page of them."""
+    zipped = tmp_path / "flight_08.csv"
+    zipped.write_bytes(b"PK\x03\x04garbage\x00\x1b[31m" * 500 + b"\n")
+    message = _error(str(zipped))
+    assert message.startswith(f"{zipped}: not a CSV file: it holds binary data (it begins 'PK\\x03\\x04garbage\\x00")
+    assert message.isprintable() and len(message) < 200 + len(str(zipped))
+    control = tmp_path / "control.csv"                  # text, but a header of control characters
+    control.write_bytes(b"\x1b[31mred," + b"x" * 500 + b"\n1,2\n")
+    message = _error(str(control))
+    assert "columns found: \\x1b[31mred, xxx" in message and message.isprintable() and len(message) < 400
+
+
 class FakeTTY(io.StringIO):
     def isatty(self):
         return True

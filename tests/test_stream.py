@@ -109,6 +109,28 @@ def test_blocks_of_a_few_bytes_and_mapped_columns(tmp_path):
     assert np.array_equal(outputs, rec.outputs, equal_nan=True)
 
 
+@pytest.mark.parametrize("rows", [None, 7])
+def test_iso_time_stamps_stream_to_the_whole_file_grid(tmp_path, monkeypatch, capsys, rows):
+    """ISO-8601 stamps in the time column: seconds since 1970, streamed as read whole; a cell that is not
+    a stamp in a later block is named by the whole-file reader."""
+    df = awkward_log(seed=2, seconds=6)
+    stamps = pd.Timestamp("2026-03-01T10:00:00Z") + pd.to_timedelta(df.t - df.t[0], unit="s")
+    path = tmp_path / "iso.csv"
+    df.assign(t=stamps.dt.strftime("%Y-%m-%dT%H:%M:%S.%fZ")).to_csv(path, index=False)
+    model = small_model()
+    rec = load_recording(path, model)
+    grid, t, inputs, outputs, _ = streamed_grid(path, model, rows=rows, time_unit="ms")
+    assert rec.t[0] == pytest.approx(stamps[0].timestamp()) and np.array_equal(t, rec.t)
+    assert np.array_equal(inputs, rec.inputs) and np.array_equal(outputs, rec.outputs, equal_nan=True)
+    assert grid.holes == rec.holes and tuple(grid.notes) == rec.notes
+    lines = path.read_text().splitlines()
+    lines[200] = "12.5," + lines[200].split(",", 1)[1]
+    path.write_text("\n".join(lines) + "\n")
+    monkeypatch.setattr(__import__("skigen").sources.CsvStream, "rows", 50)
+    assert main(["run", "tests.test_stream:MODEL", str(path), "--filter", "ekf", "--out", str(tmp_path / "o.csv")]) == 2
+    assert "iso.csv, row 201, column 't': '12.5' is not an ISO-8601 time stamp" in capsys.readouterr().err
+
+
 def test_a_late_input_and_outputs_before_it(tmp_path):
     """The grid starts where the last input is first known, many blocks in: the outputs before are
     counted as not used, and what is kept meanwhile does not grow."""

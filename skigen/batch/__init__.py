@@ -29,6 +29,7 @@ from pathlib import Path
 
 from ..modelfile import canonical_spec
 from ..progress import progress
+from ..sources import printable
 from .summary import moves, order_rows, plot_summary, write_summary
 from .task import MARKER, log_digest, model_digest, quantity_names, run_log
 
@@ -257,7 +258,7 @@ def _submit(client, todo, out: Path, retries: int, show_progress: bool) -> dict:
             except Exception as exc:  # the task itself failed (e.g. its worker died each time): a failed row
                 msg = str(exc).strip().splitlines()
                 rows[name] = dict(file=str(path), log=name, status="failed", quantities={}, findings=[],
-                                  message=f"{type(exc).__name__}: {msg[0] if msg else ''}".rstrip(": "))
+                                  message=printable(f"{type(exc).__name__}: {msg[0] if msg else ''}".rstrip(": "), 300))
     except BaseException:
         client.cancel(futures)
         raise

@@ -22,6 +22,8 @@ from pathlib import Path
 import numpy as np
 from scipy.stats import norm
 
+from ..sources import printable
+
 __all__ = ["order_rows", "moves", "write_summary", "plot_summary", "threshold", "ALPHA", "EPOCH"]
 
 ALPHA = 0.05
@@ -75,8 +77,8 @@ def _cell(x) -> str:
     if isinstance(x, float):
         return "" if not math.isfinite(x) else f"{x:.10g}"
     if isinstance(x, (list, tuple)):
-        return "; ".join(map(str, x))
-    return str(x)
+        return "; ".join(map(_cell, x))
+    return printable(x, 1000)
 
 
 def write_summary(path, rows: list[dict], moved: list[dict]) -> Path:

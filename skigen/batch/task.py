@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..modelfile import is_module_spec
+from ..sources import printable
 
 __all__ = ["run_log", "MARKER", "model_digest", "log_digest"]
 
@@ -163,10 +164,10 @@ def _diagnose(spec, digest, path, tmp: Path, final: Path, opt: dict, row: dict) 
 
 
 def _one_line(exc: BaseException) -> str:
-    """The error's first line; an unexpected kind of error (not a ValueError, RuntimeError or
+    """The error's first line (printable, at most 300 characters); an unexpected kind of error (not a ValueError, RuntimeError or
     OSError, which name what is wrong) is prefixed by its type."""
     lines = str(exc).strip().splitlines()
-    text = lines[0] if lines else ""
+    text = printable(lines[0], 300) if lines else ""
     if isinstance(exc, (ValueError, RuntimeError, OSError)) and text:
         return text
     return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
