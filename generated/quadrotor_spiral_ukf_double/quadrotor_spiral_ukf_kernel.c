@@ -129,7 +129,7 @@ static void forward(const real* L, real* B, int n, int m)
             b3[i] = (b3[i] - t3) / L[i + i * n];
         }
     }
-    for (; j < m; ++j) {
+    for (j = m - m % 4; j < m; ++j) {         /* explicit start: gcc -O3 lost j's bound */
         real* b = B + j * n;
         for (i = 0; i < n; ++i) {
             real t = 0;
