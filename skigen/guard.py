@@ -7,12 +7,16 @@ Per sample, around the derived step (``<prefix>_step`` in ``filter.c.in``, and
 2. **Stuck sensor.** A finite reading equal, bit for bit, to the previous one of that
    output for ``stuck_limit`` samples in a row is not used (0: never).
 3. **Recovery.** When a measurement is present and either ``gap_limit`` samples have
-   passed without one being used, or the last ``reject_limit`` samples with a
-   measurement all had it rejected (gate or numerical failure), the physical states
-   restart: their mean at the declared initial value, their covariance the declared one
-   times ``reinit_scale`` and uncorrelated with the rest; the weights and estimated
+   passed without one being used, or one of the present outputs had its last
+   ``reject_limit`` readings rejected (gate or numerical failure; each output counts its
+   own run, which its next used reading ends), the physical states restart: their mean
+   at the declared initial value, their covariance the declared one times
+   ``reinit_scale`` and uncorrelated with the rest; the weights and estimated
    parameters keep their mean and covariance. That sample then updates without the
-   gate; the widened covariance lets the next readings through it while the states settle.
+   gate; the widened covariance lets the next readings through it while the states
+   settle. So an output the others outvote (a heading 200° off while the gyro is used)
+   restarts the states at its next reading, and a sensor that stays faulty restarts
+   them every ``reject_limit`` of its readings: raise ``reject_limit`` to trust the others.
 4. **Gate.** Otherwise a measurement whose innovation is more than ``gate`` standard
    deviations, |e_i| > gate·√(Pyy_ii), is rejected (counted per output) and the step
    runs again without it: a rejected sample never changes the state (0: no gate).
@@ -36,7 +40,7 @@ class Guard:
     """The recovery policy's settings (defaults of the generated C's settings struct).
 
     gate: innovation gate in standard deviations per output (0: off).
-    reject_limit: samples in a row with their measurement rejected before a restart.
+    reject_limit: readings of one output rejected in a row before a restart at its next one.
     gap_limit: samples without a used measurement before the next one restarts.
     stuck_limit: identical readings in a row from which an output counts as stuck (0: off).
     reinit_scale: variance multiple of the declared initial covariance at a restart.

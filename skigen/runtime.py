@@ -273,7 +273,8 @@ class PythonStepper:
         ny = self.filt.aug.shapes["ny"]
         self.y_last, self.repeats = np.zeros(ny), np.zeros(ny, int)
         self.rejected, self.stuck = np.zeros(ny, int), np.zeros(ny, int)
-        self.reinits = self.reject_run = self.since_update = 0
+        self.reject_run = np.zeros(ny, int)
+        self.reinits = self.since_update = 0
         self._reset_posterior()
 
     def _reset_posterior(self):
@@ -311,8 +312,9 @@ class PythonStepper:
             self.since_update += 1
             return Status.BAD_INPUT
         valid, code = self._present(y)
-        present = valid.any()
-        recover = present and (self.since_update >= g.gap_limit or self.reject_run >= g.reject_limit)
+        seen, present = valid.copy(), valid.any()
+        stale = seen & (self.reject_run >= g.reject_limit)      # outputs refused reject_limit times in a row
+        recover = present and (self.since_update >= g.gap_limit or stale.any())
         if recover:
             st = self.filt.initial()
             self.z, self.C = reinit(self.z, self.C, aug.shapes["nx"], st["z"], st["C"], g.reinit_scale,
@@ -327,11 +329,9 @@ class PythonStepper:
                 valid = valid & ~gated
                 out, ok = self._run(u, y, valid)
                 code = Status.OUTLIER_REJECTED
-        if ok and valid.any():
-            self.since_update = self.reject_run = 0
-        else:
-            self.since_update += 1
-            self.reject_run += int(bool(present))
+        used = valid & ok
+        self.reject_run = np.where(used, 0, self.reject_run + seen)
+        self.since_update = 0 if used.any() else self.since_update + 1
         self.reinits += int(recover)
         self.mem = out["mem_next"].ravel()
         if not ok:

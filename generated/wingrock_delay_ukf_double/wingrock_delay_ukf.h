@@ -36,8 +36,9 @@ enum skigen_status {
                                        the state predicted */
     SKIGEN_SENSOR_STUCK = 5,        /* a y[i] repeated bit for bit stuck_limit times or more: it was
                                        not used (counted in stuck[i]) */
-    SKIGEN_REINITIALISED = 6        /* recovery after reject_limit rejected samples in a row or a
-                                       gap of gap_limit samples: the physical states restarted
+    SKIGEN_REINITIALISED = 6        /* recovery at a reading of an output whose last reject_limit
+                                       readings were rejected (reject_run[i]), or after a gap of
+                                       gap_limit samples: the physical states restarted
                                        at their declared mean and reinit_scale times their
                                        declared covariance, weights kept, then updated with y */
 };
@@ -82,7 +83,7 @@ typedef struct {
     wingrock_delay_ukf_real gate; /* innovation gate per output, in standard deviations (0: off) */
     wingrock_delay_ukf_real reinit_scale; /* variance multiple of the declared initial covariance at a restart */
     wingrock_delay_ukf_real std_max[10]; /* bound on each prior standard deviation (INFINITY: none) */
-    long reject_limit; /* samples in a row with their measurement rejected before a restart */
+    long reject_limit; /* readings of an output rejected in a row before its next one restarts the states */
     long gap_limit; /* samples without a used measurement before the next one restarts */
     long stuck_limit; /* identical readings in a row from which an output is stuck (0: off) */
 } wingrock_delay_ukf_settings;
@@ -107,7 +108,7 @@ typedef struct {
     long stuck[1]; /* readings not used as stuck, per output, in total */
     long repeats[1]; /* identical readings in a row so far, per output */
     long reinits; /* restarts of the physical states (recovery), in total */
-    long reject_run; /* samples in a row whose measurement was rejected */
+    long reject_run[1]; /* readings in a row rejected (gated or a failed step), per output */
     long since_update; /* samples since a measurement was last used */
     int iw[1]; /* kernel work */
     wingrock_delay_ukf_real w[1]; /* kernel work */

@@ -168,7 +168,7 @@ void wingrock_ski_reset(wingrock_ski_state* st, const real* z_start, const real*
     zero_l(st->stuck, 1);
     zero_l(st->repeats, 1);
     zero_l(&st->reinits, 1);
-    zero_l(&st->reject_run, 1);
+    zero_l(st->reject_run, 1);
     zero_l(&st->since_update, 1);
     if (z_start) copy_n(st->z, z_start, WINGROCK_SKI_N);
     if (C_start) copy_n(st->C, C_start, WINGROCK_SKI_N * WINGROCK_SKI_N);
@@ -225,6 +225,7 @@ static int run_kernel(wingrock_ski_state* st, const real* u, const real* yv, con
 int wingrock_ski_step(wingrock_ski_state* st, const real* u, const real* y)
 {
     real yv[1], valid[1];
+    int seen[1];
     int i, failed, present = 0, used = 0, gated = 0, recover, code = SKIGEN_OK;
 
     for (i = 0; i < WINGROCK_SKI_NU; ++i) if (!isfinite(u[i])) {
@@ -246,10 +247,12 @@ int wingrock_ski_step(wingrock_ski_state* st, const real* u, const real* y)
         }
         yv[i] = ok ? y[i] : 0;
         valid[i] = ok ? 1 : 0;
+        seen[i] = ok;
         present += ok;
     }
-    recover = present && (st->since_update >= st->settings.gap_limit
-                          || st->reject_run >= st->settings.reject_limit);
+    recover = present && st->since_update >= st->settings.gap_limit;
+    for (i = 0; i < WINGROCK_SKI_NY; ++i)          /* an output refused reject_limit times in a row */
+        if (seen[i] && st->reject_run[i] >= st->settings.reject_limit) recover = 1;
     if (recover) reinit(st);
     failed = run_kernel(st, u, yv, valid);
     if (!recover && st->settings.gate > 0) {
@@ -268,14 +271,16 @@ int wingrock_ski_step(wingrock_ski_state* st, const real* u, const real* y)
             code = SKIGEN_OUTLIER_REJECTED;
         }
     }
-    for (i = 0; i < WINGROCK_SKI_NY; ++i) used += !failed && valid[i] != 0;
-    if (used) {
-        st->since_update = 0;
-        st->reject_run = 0;
-    } else {
-        count(&st->since_update);
-        if (present) count(&st->reject_run);
+    for (i = 0; i < WINGROCK_SKI_NY; ++i) {
+        if (!failed && valid[i] != 0) {
+            ++used;
+            st->reject_run[i] = 0;
+        } else if (seen[i]) {
+            count(&st->reject_run[i]);
+        }
     }
+    if (used) st->since_update = 0;
+    else count(&st->since_update);
     if (recover) count(&st->reinits);
     if (failed) {
         /* Reject: keep the prior, report it as the posterior, shift the input history. */

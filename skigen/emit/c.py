@@ -124,7 +124,7 @@ def _settings(filt: DerivedFilter) -> list[tuple[str, str, tuple, str]]:
             ("gate", "real", (), "innovation gate per output, in standard deviations (0: off)"),
             ("reinit_scale", "real", (), "variance multiple of the declared initial covariance at a restart"),
             ("std_max", "real", (n,), "bound on each prior standard deviation (INFINITY: none)"),
-            ("reject_limit", "long", (), "samples in a row with their measurement rejected before a restart"),
+            ("reject_limit", "long", (), "readings of an output rejected in a row before its next one restarts the states"),
             ("gap_limit", "long", (), "samples without a used measurement before the next one restarts"),
             ("stuck_limit", "long", (), "identical readings in a row from which an output is stuck (0: off)")]
 
@@ -136,7 +136,7 @@ def _health(filt: DerivedFilter) -> list[tuple[str, tuple, str]]:
             ("stuck", (ny,), "readings not used as stuck, per output, in total"),
             ("repeats", (ny,), "identical readings in a row so far, per output"),
             ("reinits", (), "restarts of the physical states (recovery), in total"),
-            ("reject_run", (), "samples in a row whose measurement was rejected"),
+            ("reject_run", (ny,), "readings in a row rejected (gated or a failed step), per output"),
             ("since_update", (), "samples since a measurement was last used")]
 
 
