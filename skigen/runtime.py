@@ -844,11 +844,15 @@ def _part(filt, t, outputs, raw, holes=(), notes=()) -> RunResult:
 
 def _steps(filt, stepper, backend, pieces, again, holes=(), notes=(), strict=False, trace=False):
     """Step over ``pieces`` (grid index of the first sample, t, step inputs, outputs), restarting the
-    states before a piece whose first index is in ``again``; a RunResult per piece."""
+    states before a piece whose first index is in ``again`` (that sample's code: REINITIALISED, as
+    the policy's restart, unless the step was not done or failed); a RunResult per piece."""
     for a, t, u, y in pieces:
-        if a in again and a > 0:
+        restart = a in again and a > 0
+        if restart:
             forget_states(stepper, filt)
         raw = _step_python(stepper, u, y, trace) if backend == "python" else stepper.run_many(u, y)
+        if restart and raw["code"][0] not in (Status.BAD_INPUT, Status.NUMERICAL_FAILURE):
+            raw["code"][0] = Status.REINITIALISED
         if strict and np.any(np.asarray(raw["code"]) == Status.NUMERICAL_FAILURE):
             raise FloatingPointError(f"the {filt.kind} filter of '{filt.aug.model.name}' produced non-finite "
                                      f"numbers at t = {t[np.argmax(raw['code'] == Status.NUMERICAL_FAILURE)]:g} s")

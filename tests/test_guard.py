@@ -370,3 +370,26 @@ def test_an_output_rejected_for_reject_limit_samples_restarts_while_another_is_u
     summary = res.summary().lines()
     assert any("1 recovered (states restarted)" in line for line in summary), summary
 
+
+@pytest.mark.parametrize("backend", ["python", "c", "casadi"])
+def test_a_restart_after_an_input_hole_is_reported(backend):
+    """The states restart where the input is known again after a hole: that sample's status is
+    'recovered' and the run's summary counts it, on every backend."""
+    import pandas as pd
+    from skigen.recording import load_recording
+    from skigen.runtime import restarts
+    from tests.test_stream import small_model
+
+    model = small_model()
+    t = np.arange(500) * 0.02
+    noise = np.random.default_rng(1).normal(0, 0.1, (2, len(t)))
+    frame = pd.DataFrame({"t": t, "u": np.sin(t), "g": 0.0, "xm": noise[0], "vm": noise[1]})
+    frame.loc[(frame.t > 3.0) & (frame.t < 5.0), "u"] = np.nan           # a 2 s input hole
+    rec = load_recording(frame, model)
+    (k,) = restarts(rec, model)
+    res = run(derive(model, "ukf"), rec, backend=backend, show_progress=False)
+    status = res.columns()["status"]
+    assert status[k] == "recovered" and list(np.flatnonzero(status == "recovered")) == [k]
+    assert res.std[k, 1] > 3 * res.std[k - 1, 1]                  # the restart: v's std jumps
+    lines = res.summary().lines()
+    assert f"events: 1 recovered (states restarted); first restart at t = {rec.t[k]:g} s" in lines, lines
