@@ -117,10 +117,12 @@ def _ran(args, model, n, t0, t1, summary) -> int:
 
 def _generate(args) -> int:
     from .derive import derive
-    from .emit.c import choose_style, emit_c
+    from .emit.c import check_prefix, choose_style, emit_c
 
     model = load_model(args.model)
     try:
+        if args.prefix is not None:
+            check_prefix(args.prefix)                # before the derivation, which may take a while
         filt = derive(model, args.filter)
         style = choose_style(filt, args.style)
         files = emit_c(filt, args.out, real=args.real, style=style, prefix=args.prefix)

@@ -40,6 +40,18 @@ class ModelError(ValueError):
     """A model declaration that cannot be used; the message names the culprit."""
 
 
+def function_name_problem(name: str) -> str | None:
+    """Why ``name`` cannot begin CasADi Function names (skigen names them ``<name>_<suffix>``:
+    CasADi's start with a letter and have no two underscores in a row), or None."""
+    if not name[:1].isalpha():
+        return "it does not start with a letter"
+    if "__" in name:
+        return "it has two underscores in a row"
+    if name.endswith("_"):
+        return "it ends with '_' (skigen appends '_<suffix>': two underscores in a row)"
+    return None
+
+
 @dataclass(frozen=True)
 class Variable:
     """A named scalar symbol with its unit and, for states, a physical role."""
@@ -118,6 +130,11 @@ class Model:
                 and self.name not in C_KEYWORDS):
             raise ModelError(f"model name {self.name!r} must be an ASCII identifier (letters, digits, _; "
                              f"not starting with a digit, not a C keyword): it prefixes the generated C")
+        why = function_name_problem(self.name)
+        if why:
+            raise ModelError(f"model name '{self.name}' cannot name CasADi Functions: {why}; CasADi's start "
+                             f"with a letter and have no two underscores in a row ('{self.name}_ekf_step'); "
+                             f"choose another")
         if not (isinstance(self.dt, (int, float)) and np.isfinite(self.dt) and self.dt > 0):
             raise ModelError(f"model '{self.name}': sample time dt must be positive, got {self.dt}")
         if self.discretization not in DISCRETIZATIONS:

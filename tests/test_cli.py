@@ -177,3 +177,21 @@ def test_every_benchmark_imports_outside_the_repository(tmp_path):
     code = "import importlib\n" + "".join(f"importlib.import_module('benchmarks.{b}')\n" for b in BENCHMARKS)
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=tmp_path)
     assert r.returncode == 0, r.stderr
+
+
+@pytest.mark.parametrize("prefix, why", [("_x", "it does not start with a letter"),
+                                         ("a__b", "it has two underscores in a row"),
+                                         ("x_", "it ends with '_'")])
+def test_generate_refuses_a_prefix_casadi_cannot_use(tmp_path, prefix, why):
+    """The prefix names CasADi Functions (`<prefix>_kernel`): refused before anything is derived,
+    by the CLI and by emit_c, with the rule it breaks."""
+    from models.wingrock import build
+    from skigen import derive
+    from skigen.emit import emit_c
+
+    r = skigen("generate", MODEL, "--filter", "ekf", "--prefix", prefix, "--out", str(tmp_path / "gen"))
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert f"prefix '{prefix}' cannot name CasADi Functions: {why}" in r.stderr, r.stderr
+    assert not (tmp_path / "gen").exists()
+    with pytest.raises(ValueError, match=f"prefix '{prefix}' cannot name CasADi Functions: {why}"):
+        emit_c(derive(build(), "ekf"), tmp_path / "emit", prefix=prefix)

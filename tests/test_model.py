@@ -118,3 +118,14 @@ def test_euler_and_discrete_match_by_hand():
         f = ca.Function("f", [aug.z, aug.u], [aug.f])
         expected = 1.0 + 0.1 * (-2 + 3) if method == "euler" else -2 + 3
         assert float(f(1.0, 3.0)) == pytest.approx(expected, rel=1e-15)
+
+
+@pytest.mark.parametrize("name, why", [("my__ship", "it has two underscores in a row"),
+                                       ("_ship", "it does not start with a letter"),
+                                       ("ship_", "it ends with '_'")])
+def test_a_model_name_casadi_cannot_use_is_refused_at_declaration(name, why):
+    """CasADi's Function names start with a letter and have no two underscores in a row; the
+    model name prefixes them (`<model>_<filter>_step`), so it is refused where it is given."""
+    with pytest.raises(ModelError, match=f"model name '{name}' cannot name CasADi Functions: {why}"):
+        Model(name, dt=0.1)
+    Model("my_ship2", dt=0.1)

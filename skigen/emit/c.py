@@ -43,9 +43,10 @@ import numpy as np
 from ..derive import DerivedFilter
 from ..derive import TUNABLE
 from ..guard import Guard
+from ..model import function_name_problem
 
 __all__ = ["DEFAULT_FLAGS", "LOOPS_KINDS", "STYLES", "CFilter", "CompileError", "Status",
-           "choose_style", "compile_shared", "default_prefix", "emit_c", "load_c"]
+           "check_prefix", "choose_style", "compile_shared", "default_prefix", "emit_c", "load_c"]
 
 REALS = {"double": (ctypes.c_double, np.float64), "float": (ctypes.c_float, np.float32)}
 DEFAULT_FLAGS = ("-std=c99", "-Wall", "-Wextra", "-pedantic", "-Werror", "-O2")
@@ -315,6 +316,18 @@ def _single_precision(c: str) -> str:
     return _LITERAL_RE.sub(r"\1f", _MATH_RE.sub(r"\1f(", c))
 
 
+def check_prefix(prefix: str) -> str:
+    """``prefix``, or ValueError naming the rule it breaks: a C identifier that can begin CasADi
+    Function names (``<prefix>_kernel``)."""
+    if not prefix.isidentifier() or not prefix.isascii():
+        raise ValueError(f"prefix '{prefix}' is not a C identifier")
+    why = function_name_problem(prefix)
+    if why:
+        raise ValueError(f"prefix '{prefix}' cannot name CasADi Functions: {why}; CasADi's start with a "
+                         f"letter and have no two underscores in a row ('{prefix}_kernel'); choose another")
+    return prefix
+
+
 def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | None = None,
            style: str = "auto") -> list[Path]:
     """Write ``<prefix>.h/.c`` and the kernel's files to ``out_dir``; return their paths.
@@ -323,9 +336,7 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
     """
     if real not in REALS:
         raise ValueError(f"real must be one of {', '.join(REALS)}, got '{real}'")
-    prefix = prefix or default_prefix(filt)
-    if not prefix.isidentifier() or not prefix.isascii():
-        raise ValueError(f"prefix '{prefix}' is not a C identifier")
+    prefix = check_prefix(prefix or default_prefix(filt))
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     filt = single_precision_options(filt) if real == "float" else filt
