@@ -9,6 +9,7 @@ from pathlib import Path
 
 from .derive import FILTERS
 from .emit.c import AUTO_LOOPS_ABOVE_OPERATIONS, LOOPS_KINDS, STYLES
+from .grid import clock
 from .model import Model, ModelError
 from .modelfile import ModelFileError, canonical_spec, load_model as _load_model
 from .recording import RecordingError
@@ -110,7 +111,7 @@ def _run(args) -> int:
 
 def _ran(args, model, n, t0, t1, summary) -> int:
     print(f"{model.name} {args.filter} ({args.backend}): {n} samples of dt = {model.dt:g} s, "
-          f"t = {t0:.6g}–{t1:.6g} s -> {args.out}")
+          f"t = {clock(t0)}–{clock(t1)} s -> {args.out}")
     print("\n".join(summary.lines()))
     return 0
 

@@ -19,11 +19,17 @@ import numpy as np
 from .recording import Recording, RecordingError
 from .sources import Samples
 
-__all__ = ["UNITS", "Hole", "time_scale", "to_grid", "GridStream", "GridBlock"]
+__all__ = ["UNITS", "Hole", "clock", "time_scale", "to_grid", "GridStream", "GridBlock"]
 
 UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 RATE_MISMATCH = 300.0        # stamps this many times further apart (or closer) than dt: a wrong unit
 GRID_PER_STAMP = 100         # a grid this many times longer than the stamps: a wrong time stamp
+
+
+def clock(t: float) -> str:
+    """A time stamp in seconds as a person reads it: 6 significant digits, to the millisecond
+    from 10⁵ s on (an epoch stamp, 1772360000.125, not 1.77236e+09)."""
+    return f"{t:.3f}" if abs(t) >= 1e5 else f"{t:.6g}"
 
 
 @dataclass(frozen=True)
@@ -37,7 +43,7 @@ class Hole:
 
 
     def __str__(self) -> str:
-        return f"{self.t0:.6g}–{self.t1:.6g} s ({self.t1 - self.t0:.3g} s) without {', '.join(self.columns)}"
+        return f"{clock(self.t0)}–{clock(self.t1)} s ({self.t1 - self.t0:.3g} s) without {', '.join(self.columns)}"
 
 
 def _spacing(samples: Samples) -> float:

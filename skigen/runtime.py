@@ -32,7 +32,7 @@ import numpy as np
 
 from .derive import DerivedFilter, step_inputs
 from .emit.c import Status
-from .grid import first_known
+from .grid import clock, first_known
 from .guard import Guard, bound_std, reinit
 from .model import Model
 from .progress import note, progress
@@ -168,7 +168,7 @@ class RunSummary:
         self.nis_sum, self.nis_count, self.expected_sum, self.last, self.t = 0.0, 0, 0.0, None, [np.nan, np.nan]
         self.holes, self.notes = (), ()
         self.events = {c: 0 for c in EVENTS}
-        self.first_restart = None
+        self.first = {c: None for c in EVENTS}       # the time of each event's first sample (s)
         self.per_output = np.zeros(len(filt.aug.model.output_names), int)   # samples where each reading was used
 
     def add(self, part: RunResult) -> "RunSummary":
@@ -182,10 +182,10 @@ class RunSummary:
         self.expected_sum += float(used[ok].sum())
         self.holes, self.notes = part.holes, part.notes
         for c in EVENTS:
-            self.events[c] += int(np.sum(part.code == c))
-        restarted = np.flatnonzero(part.code == Status.REINITIALISED)
-        if self.first_restart is None and restarted.size:
-            self.first_restart = float(part.t[restarted[0]])
+            at = np.flatnonzero(part.code == c)
+            self.events[c] += len(at)
+            if self.first[c] is None and len(at):
+                self.first[c] = float(part.t[at[0]])
         if len(part.t):
             self.t = [self.t[0] if self.samples > len(part.t) else float(part.t[0]), float(part.t[-1])]
             good = np.flatnonzero(np.isfinite(part.mean[:, 0]))
@@ -203,11 +203,14 @@ class RunSummary:
         return ([f"{len(self.holes)} hole(s)"] if self.holes else []) + self.event_counts()
 
     def kept(self) -> np.ndarray | None:
-        """SKI: True for the weights whose term is kept; None for other filters."""
+        """SKI: True for the weights whose term is kept; None for other filters. A variance the
+        gradient update has driven to its bound ``s_min`` is pruned, whatever its declared scale."""
         if self.last is None or self.last[2] is None:
             return None
-        r = np.sqrt(np.asarray(self.last[2], float) / self.filter.aug.s0)
-        return r >= self.KEEP * r.max()
+        s, opts = np.asarray(self.last[2], float), self.filter.options
+        r = np.sqrt(s / self.filter.aug.s0)
+        floored = s <= opts.s_min * (1 + 1e-9) if opts.ard == "gradient" else np.zeros(len(s), bool)
+        return (r >= self.KEEP * r.max()) & ~floored
 
     def lines(self) -> list[str]:
         aug, out = self.filter.aug, []
@@ -223,8 +226,8 @@ class RunSummary:
                 mark = "" if kept is None else ("   kept" if kept[j] else "   pruned")
                 out.append(f"  {aug.names[i]:16s} {self.last[0][i]:+.4g} ± {2 * self.last[1][i]:.2g}{mark}")
         if any(self.events.values()):
-            out.append("events: " + ", ".join(self.event_counts())
-                       + (f"; first restart at t = {self.first_restart:g} s" if self.first_restart is not None else ""))
+            out.append("events: " + ", ".join(f"{n} {EVENT_WORDS[c]}, the first at t = {clock(self.first[c])} s"
+                                              for c, n in self.events.items() if n))
         else:
             out.append("events: none (no outlier, stuck reading, bad input, rejection or restart)")
         if self.nis_count:

@@ -123,6 +123,36 @@ def test_jitter_of_40_percent(flight, clean):
     assert error(res) < 3 * error(clean)
 
 
+def test_each_event_says_when_it_first_happened_and_epoch_times_read_as_times(flight):
+    """A finite but absurd input (1e39 V) makes one step non-finite: the summary says when; a
+    log stamped in epoch seconds prints its times to the millisecond, not as 1.77236e+09."""
+    from skigen.grid import Hole, clock
+    bad = flight.copy()
+    bad.loc[300, "delta"] = 1e39
+    lines = skigen.run(MODEL, bad, filter="ukf").summary().lines()
+    assert f"events: 1 rejected (non-finite), the first at t = {bad.t[300]:g} s" in lines, lines
+    assert clock(1772360000.125) == "1772360000.125" and clock(6.02) == "6.02"
+    assert str(Hole(1772360000.0, 1772360002.5, ("phi",))) == "1772360000.000–1772360002.500 s (2.5 s) without phi"
+
+
+def test_a_weight_at_the_gradient_updates_bound_is_pruned():
+    """With ard='gradient' a variance driven to its bound s_min = 1e-10 is pruned: for a term
+    declared with a prior of 4e-8 that is still 5 % of its declared std, and it was called kept."""
+    from skigen import Model
+    from skigen.derive import FilterOptions, derive
+    from skigen.library import term
+    from skigen.runtime import RunSummary
+    m = Model("yaw", dt=0.1)
+    r, d = m.state("r", std=0.1, process_std=0.01), m.input("d")
+    m.dynamics({r: -r + d})
+    m.unknown(r, [term("r", r), term("d3", d ** 3)], prior_variance=[1.0, 4e-8])
+    m.output("r_m", r, noise_std=0.01)
+    for ard, kept in (("gradient", [True, False]), ("em", [True, True])):
+        summary = RunSummary(derive(m, "ski", FilterOptions(ard=ard)))
+        summary.last = (np.zeros(3), np.ones(3), np.array([1.0, 1e-10]))
+        assert list(summary.kept()) == kept
+
+
 def test_an_absurd_time_stamp_is_an_error_naming_its_row(tmp_path, flight):
     bad = flight.copy()
     bad.loc[len(bad) - 1, "t"] = 1e308
