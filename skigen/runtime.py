@@ -226,8 +226,11 @@ class RunSummary:
                 mark = "" if kept is None else ("   kept" if kept[j] else "   pruned")
                 out.append(f"  {aug.names[i]:16s} {self.last[0][i]:+.4g} ± {2 * self.last[1][i]:.2g}{mark}")
         if any(self.events.values()):
-            out.append("events: " + ", ".join(f"{n} {EVENT_WORDS[c]}, the first at t = {clock(self.first[c])} s"
+            out.append("events: " + "; ".join(f"{n} {EVENT_WORDS[c]}, first at t = {clock(self.first[c])} s"
                                               for c, n in self.events.items() if n))
+            trouble = self.events[Status.NUMERICAL_FAILURE] or self.events[Status.REINITIALISED]
+            if trouble and (why := aug.model.unstable_step()):
+                out.append(f"why steps may fail: {why}")
         else:
             out.append("events: none (no outlier, stuck reading, bad input, rejection or restart)")
         if self.nis_count:

@@ -392,4 +392,4 @@ def test_a_restart_after_an_input_hole_is_reported(backend):
     assert status[k] == "recovered" and list(np.flatnonzero(status == "recovered")) == [k]
     assert res.std[k, 1] > 3 * res.std[k - 1, 1]                  # the restart: v's std jumps
     lines = res.summary().lines()
-    assert f"events: 1 recovered (states restarted), the first at t = {rec.t[k]:g} s" in lines, lines
+    assert f"events: 1 recovered (states restarted), first at t = {rec.t[k]:g} s" in lines, lines

@@ -130,7 +130,7 @@ def test_each_event_says_when_it_first_happened_and_epoch_times_read_as_times(fl
     bad = flight.copy()
     bad.loc[300, "delta"] = 1e39
     lines = skigen.run(MODEL, bad, filter="ukf").summary().lines()
-    assert f"events: 1 rejected (non-finite), the first at t = {bad.t[300]:g} s" in lines, lines
+    assert f"events: 1 rejected (non-finite), first at t = {bad.t[300]:g} s" in lines, lines
     assert clock(1772360000.125) == "1772360000.125" and clock(6.02) == "6.02"
     assert str(Hole(1772360000.0, 1772360002.5, ("phi",))) == "1772360000.000–1772360002.500 s (2.5 s) without phi"
 
@@ -412,3 +412,15 @@ def test_px4_takeoff_log_vertical_channel():
     assert rec.measured.mean() == pytest.approx(0.2, abs=0.01)     # 10 Hz position, 50 Hz grid
     assert rec.holes == ()
     assert -3 < np.nanmin(rec.outputs) < -1.5                        # NED: the climb to about 2 m
+
+
+def test_failed_steps_of_a_step_too_long_for_a_fast_mode_are_explained(flight):
+    """A 4 ms servo lag integrated by one RK4 step of 20 ms: the run's states restart again and again,
+    and the summary says why (what fit and diagnose say before they start)."""
+    from skigen import Model
+    m = Model("lagged", dt=0.02, discretization="rk4")
+    th, p, act = m.state("theta", std=1.0, process_std=0.01), m.state("p", std=1.0, process_std=0.01), m.state("act")
+    m.dynamics({th: p, p: -p + act, act: (m.input("delta") - act) / 0.004})
+    m.output("phi", th, noise_std=0.1)
+    lines = skigen.run(m, flight, filter="ukf").summary().lines()
+    assert any(line.startswith("why steps may fail: model 'lagged': its rk4 step of 0.02 s amplifies") for line in lines), lines
