@@ -267,3 +267,32 @@ def test_an_input_that_drives_two_equations_is_offered_terms_added_to_it():
     h.dynamics({p: v, v: u * u1 - v, w: u - w})
     h.output("y", p, noise_std=0.1)
     assert channel_candidates(h, ["v", "w"], {"v": 1.0, "w": 1.0}, states[:, :3], inputs) == []
+
+
+def test_a_term_added_to_an_input_reaches_the_outputs_that_read_it():
+    """A cell's terminal voltage reads the current directly (−R₀·I): an offset of the current
+    sensor moves both the charge and that voltage. A term through I enters the output as it
+    enters the rates — exactly in the corrected model (I → I + c), to first order (∂h/∂I·c·φ)
+    while naming — and a structural change of I (a saturation) does too. Before, the output kept
+    the raw current and a user's 0.3 A current bias came with an invented 14.9 mV voltage-sensor
+    offset (R₀ × 0.3 A) beside it."""
+    from skigen import Model
+    from skigen.diagnose import transform as T
+    from skigen.diagnose.catalog import channel_candidates
+    from skigen.diagnose.correct import parametrised
+    from skigen.diagnose.name import Correction
+    m = Model("cell", dt=1.0)
+    soc, v1, cur = m.state("soc", initial=0.9, std=0.05), m.state("v1", std=0.01), m.input("I", unit="A")
+    m.dynamics({soc: -cur / 9000.0, v1: -v1 / 30.0 + cur / 1000.0})
+    m.output("v_term", 3.3 + 0.7 * soc - 0.05 * cur - v1, unit="V", noise_std=1e-3)
+    rng = np.random.default_rng(3)
+    current = rng.uniform(0.0, 4.0, (300, 1))
+    states = np.c_[np.linspace(0.9, 0.8, 300), rng.normal(0, 0.05, 300)]
+    (bias,) = [c for c in channel_candidates(m, ["soc", "v1"], {"soc": 1e-4, "v1": 1e-3}, states, current)
+               if c.effect == "bias"]
+    truth = T.replace_input(m, "I", cur + 0.3)
+    for corrected in (Correction([(bias, 0.3, 0.01)]).build(m), parametrised(m, Correction([(bias, 0.3, 0.01)]))[0]):
+        assert np.allclose(free_run(T.constants(corrected), current)[1], free_run(truth, current)[1], atol=1e-12)
+    _, y = free_run(T.input_saturation(m, "I", None, 2.0), current)
+    _, y_clipped = free_run(m, np.minimum(current, 2.0))
+    assert np.allclose(y, y_clipped, atol=1e-12) and not np.allclose(y, free_run(m, current)[1])

@@ -108,6 +108,12 @@ class Additive:
         return {e: phi * g for e, g in channel(model, self.through).items()}
 
 
+def feedthrough(model: Model, u: str) -> dict[str, ca.SX]:
+    """∂h/∂u of every output that reads input ``u`` directly (output units per unit of u)."""
+    sym = T.symbols(model)[u]
+    return {v.name: ca.jacobian(v.sym, sym) for v in model.outputs if ca.depends_on(v.sym, sym)}
+
+
 def channel(model: Model, u: str) -> dict[str, ca.SX]:
     """∂(rate)/∂u of every state equation input ``u`` enters (rate units per unit of u)."""
     sym = T.symbols(model)[u]

@@ -53,7 +53,7 @@ from ..model import Model
 from ..recording import Recording
 from ..runtime import parallel
 from . import transform as T
-from .catalog import Additive, Structural, _num
+from .catalog import Additive, Structural, _num, feedthrough
 from .cv import Folds, ekf_priors, ekf_run, fit_without, fits_without, fold_loglik, loglik
 from .errors import DiagnosisError
 from .plausible import compensating, significant, term_item
@@ -85,6 +85,8 @@ class Correction:
         for c, coef, _ in self.additive:            # through an input: its direction at the nominal
             for eq, e in c.contributions(nominal).items():
                 m = T.add_term(m, eq, coef, e)
+            for y, g in (feedthrough(nominal, c.through) if c.through else {}).items():
+                m = T.read(m, y, lambda h, g=g: h + coef * c.sx(nominal) * g)
         if unknown:                                 # one block per candidate: weights in their order
             r = np.ones(len(unknown)) if scales is None else np.asarray(scales, float)
             prior = np.broadcast_to(np.asarray(prior_variance, float), (len(unknown),))

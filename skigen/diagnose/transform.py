@@ -17,7 +17,7 @@ from scipy.linalg import block_diag
 from ..derive.augment import memory_values as input_history
 from ..model import Model, Variable
 
-__all__ = ["copy_model", "constants", "symbols", "formula", "rate", "add_term", "add_state", "replace_input",
+__all__ = ["copy_model", "constants", "symbols", "formula", "rate", "add_term", "add_state", "replace_input", "read",
            "input_delay", "fractional_delay", "actuator_lag", "input_saturation", "dead_zone", "smooth_dead_zone",
            "backlash", "output_offset", "output_gain", "output_saturation",
            "with_disturbance", "memory_values", "load_model_file"]
@@ -130,11 +130,13 @@ def _input(model: Model, u: str) -> ca.SX:
 
 
 def replace_input(model: Model, u: str, new, skip: tuple[str, ...] = ()) -> Model:
-    """Every use of input ``u`` in the dynamics and in the unknown term's basis (not in the
-    outputs) replaced by ``new``, except in the equations listed in ``skip``."""
+    """Every use of input ``u`` in the dynamics, in the outputs that read it directly (a
+    feedthrough: a terminal voltage −R₀·I sees the current the cell sees) and in the unknown
+    term's basis replaced by ``new``, except in the equations listed in ``skip``."""
     m = copy_model(model)
     sym, new = _input(m, u), ca.SX(new)
     m.rhs = {k: e if k in skip else ca.substitute(e, sym, new) for k, e in m.rhs.items()}
+    m.outputs = [dataclasses.replace(v, sym=ca.substitute(ca.SX(v.sym), sym, new)) for v in m.outputs]
     for b in m.unknowns:   # candidate terms see what the plant sees
         b.terms = [dataclasses.replace(t, expr=ca.substitute(t.expr, sym, new)) for t in b.terms]
     return m
@@ -226,14 +228,14 @@ def backlash(model: Model, u: str, width: float, initial: float = 0.0) -> Model:
 def output_offset(model: Model, y: str, offset: float) -> Model:
     """The sensor of output ``y`` reads its expression plus ``offset`` (output unit): a misaligned
     vane, an encoder zeroed away from its reference, a gyro's bias."""
-    return _read(model, y, lambda h: h + _number(offset))
+    return read(model, y, lambda h: h + _number(offset))
 
 
 def output_gain(model: Model, y: str, gain: float) -> Model:
     """The sensor of output ``y`` reads ``gain`` (> 0) times its expression: a scale-factor error."""
     if not isinstance(gain, ca.SX) and not float(gain) > 0:
         raise ValueError(f"output '{y}': a sensor gain is positive, got {gain}")
-    return _read(model, y, lambda h: _number(gain) * h)
+    return read(model, y, lambda h: _number(gain) * h)
 
 
 def output_saturation(model: Model, y: str, bound: float, side: str) -> Model:
@@ -242,10 +244,10 @@ def output_saturation(model: Model, y: str, bound: float, side: str) -> Model:
     if side not in ("upper", "lower"):
         raise ValueError(f"output '{y}': a saturation side is 'upper' or 'lower', got {side!r}")
     clip = ca.fmin if side == "upper" else ca.fmax
-    return _read(model, y, lambda h: clip(h, _number(bound)))
+    return read(model, y, lambda h: clip(h, _number(bound)))
 
 
-def _read(model: Model, y: str, reading) -> Model:
+def read(model: Model, y: str, reading) -> Model:
     """A copy whose output ``y`` reads ``reading(h)`` instead of its expression h."""
     m = copy_model(model)
     i = next((j for j, v in enumerate(m.outputs) if v.name == y), None)
