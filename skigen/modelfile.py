@@ -31,6 +31,8 @@ def load_model(spec: str) -> Model:
     spec = str(spec)
     if is_module_spec(spec):
         module_name, attr = spec.split(":", 1)
+        if str(Path.cwd()) not in sys.path and "" not in sys.path:    # as `python -m` would find it
+            sys.path.append(str(Path.cwd()))
         try:
             module = importlib.import_module(module_name)
         except ImportError as exc:
@@ -40,7 +42,7 @@ def load_model(spec: str) -> Model:
         if not path.is_file():
             raise ModelFileError(f"model file '{spec}' not found (give a .py file or package.module:attribute)")
         name, root = _module_name(path)
-        if root is not None and root not in sys.path:    # a file inside a package: its relative imports resolve from root
+        if root not in sys.path:    # its own imports resolve as when Python runs it (relative ones from its package)
             sys.path.insert(0, root)
         module_spec = importlib.util.spec_from_file_location(name, path)
         module = importlib.util.module_from_spec(module_spec)
@@ -59,14 +61,15 @@ def load_model(spec: str) -> Model:
 
 
 def _module_name(path: Path) -> tuple[str, str | None]:
-    """(the module name a model file is executed under, the directory its package is imported
-    from): ``models.quadrotor_vertical`` and the directory above ``models`` for a file in a package
-    (a directory with ``__init__.py``), so that its relative imports work; else a private name and None."""
+    """(the module name a model file is executed under, the directory its imports resolve from):
+    ``models.quadrotor_vertical`` and the directory above ``models`` for a file in a package (a
+    directory with ``__init__.py``), so that its relative imports work; else a private name and
+    the file's own directory (a sibling module imports, as when Python runs the file)."""
     parts, d = [path.stem], path.resolve().parent
     while (d / "__init__.py").is_file():
         parts.insert(0, d.name)
         d = d.parent
-    return (".".join(parts), str(d)) if len(parts) > 1 else (f"skigen_user_model_{path.stem}", None)
+    return (".".join(parts) if len(parts) > 1 else f"skigen_user_model_{path.stem}"), str(d)
 
 
 def _line_in(exc: BaseException, path: Path) -> str:

@@ -119,6 +119,28 @@ def test_a_model_file_in_a_package_loads_by_path_from_anywhere(recording, tmp_pa
     assert r.returncode == 0 and "mean NIS" in r.stdout, r.stderr
 
 
+def test_a_model_file_imports_its_siblings_and_a_module_spec_resolves_from_the_working_directory(
+        recording, tmp_path, monkeypatch):
+    """A model file that imports a module beside it loads from any directory, as Python would run
+    it; ``module:attribute`` finds a module in the working directory, also from the installed
+    ``skigen`` script, whose sys.path does not hold it."""
+    import sys as _sys
+    from skigen.modelfile import load_model
+    home = tmp_path / "ship"
+    home.mkdir()
+    (home / "ship_constants.py").write_text("GAIN = 2.0\n")
+    (home / "ship_model.py").write_text(
+        "from skigen import Model\nfrom ship_constants import GAIN\nmodel = Model('ship', dt=0.02)\n"
+        "p = model.state('p', std=1.0)\nd = model.input('delta')\nmodel.dynamics({p: -p + GAIN * d})\n"
+        "model.output('phi', p, noise_std=0.1)\n")
+    r = skigen("run", str(home / "ship_model.py"), str(recording), "--filter", "ekf", "--out", "o.csv", cwd=tmp_path)
+    assert r.returncode == 0 and "mean NIS" in r.stdout, r.stderr
+    monkeypatch.chdir(home)
+    monkeypatch.setattr(_sys, "path", [p for p in _sys.path if p not in ("", str(home))])
+    monkeypatch.delitem(_sys.modules, "ship_constants", raising=False)
+    assert load_model("ship_model:model").name == "ship"
+
+
 def test_generate_then_run_with_the_c_backend(recording, tmp_path):
     r = skigen("generate", MODEL, "--filter", "ukf", "--real", "float", "--out", str(tmp_path / "c"))
     assert r.returncode == 0, r.stderr
