@@ -227,8 +227,9 @@ def _fit(args) -> int:
         print(f"  {name:>12} = {p['value']:.6g} ± {p['std']:.2g}" + (f" {p['unit']}" if p.get("unit") else ""))
     for r in result.recordings + checks:
         kind = "validation" if r in checks else "fit"
+        what = "one-step prediction RMSE" if kind == "fit" and args.method == "filter-error" else "free-run RMSE"
         span = f" (free runs restarted every {r['window']:.3g} s)" if r.get("window") else ""
-        print(f"  {kind} {Path(r['file']).name}: RMSE{span} " + per_output(r["rmse"]))
+        print(f"  {kind} {Path(r['file']).name}: {what}{span} " + per_output(r["rmse"]))
     for line in result.notes + [n for c in checks for n in c["notes"]]:
         print(f"note: {line}")
     print(f"results: {Path(args.out) / 'fit.json'}, {Path(args.out) / 'report.md'}")

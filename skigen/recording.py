@@ -67,7 +67,7 @@ class Recording:
             if len(y) > 1 and np.all(y == y[0]):
                 return (f"{self.path}: output '{name}' reads {y[0]:g} in all {len(y)} samples where it is "
                         f"measured: a stuck or disconnected sensor carries nothing to fit (drop the output "
-                        f"from the model, or read another column with --map {name}=COLUMN)")
+                        f"from the model, or read another column with --map {name}=COLUMN or columns=)")
         return None
 
     def unstuck(self) -> tuple[Recording, list[str]]:

@@ -89,7 +89,7 @@ def _columns_for(names, mapping) -> dict[str, str]:
     mapping = dict(mapping or {})
     unknown = [k for k in mapping if k not in names]
     if unknown:
-        raise RecordingError(f"--map names {', '.join(repr(k) for k in unknown)}, which the model does not "
+        raise RecordingError(f"--map (columns= in Python) names {', '.join(repr(k) for k in unknown)}, which the model does not "
                              f"have (inputs and outputs: {', '.join(names)})")
     return {n: mapping.get(n, n) for n in names}
 
@@ -105,14 +105,15 @@ def _time_column(header, time, source) -> str:
         if name in lower:
             return lower[name]
     raise RecordingError(f"{source}: no time column: expected one named {', '.join(TIME_NAMES)} or given with "
-                         f"--time COLUMN (columns found: {_found(header)})")
+                         f"--time COLUMN (time=COLUMN in Python; columns found: {_found(header)})")
 
 
 def _require(columns: dict, header, source, time_col) -> None:
     missing = [f"'{c}'" + (f" (for '{n}')" if c != n else "") for n, c in columns.items() if c not in header]
     if missing:
         raise RecordingError(f"{source}: missing required column(s) {', '.join(missing)} "
-                             f"(columns found: {_found(header)}); map others with --map NAME=COLUMN")
+                             f"(columns found: {_found(header)}); map others with --map NAME=COLUMN (in Python, "
+                             f"columns={{NAME: COLUMN}})")
     if time_col in columns.values():
         raise RecordingError(f"{source}: column '{time_col}' is the time column and cannot be a model "
                              f"input or output")
@@ -540,7 +541,7 @@ def _read_ulog(path, names, mapping, time, real) -> Samples:
         m = _ULOG_COLUMN.match(c)
         if not m:
             raise RecordingError(f"{path}: '{n}' reads column '{c}', which is not a ULog column: use "
-                                 f"topic.field, topic.field[i] or topic:instance.field (--map {n}=COLUMN)")
+                                 f"topic.field, topic.field[i] or topic:instance.field (--map {n}=COLUMN, or columns= in Python)")
         specs[n] = (m["topic"], int(m["instance"] or 0), m["field"])
     try:
         log, damage = _parse_ulog(path, sorted({s[0] for s in specs.values()}))

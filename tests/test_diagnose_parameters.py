@@ -89,10 +89,12 @@ def test_calibrated_measurement_noise_stops_at_the_sensor_resolution(sweep):
     assert std(rounded) == pytest.approx(q / np.sqrt(12), rel=1e-6)
 
 
-def test_a_finding_the_joint_refit_no_longer_needs_is_flagged():
+def test_a_finding_the_joint_refit_no_longer_needs_is_left_out():
     """The Silverbox training range's limit: 5797 ± 107 in cross-validation, 225 ± 188 after the
-    joint refit (the refitted stiffness takes it over); the cubic spring stays significant."""
-    from skigen.diagnose import _update_findings
+    joint refit (the refitted stiffness takes it over); the cubic spring stays significant. The
+    limit is left out when the refit without it is not significantly less likely (χ²₁ at α = 0.01:
+    2·Δ below 6.63), and kept with a note when it is."""
+    from skigen.diagnose import _not_needed, _update_findings
     from skigen.diagnose.catalog import Additive
     limit, cubic = (Additive(e, "v", f, "") for e, f in (("physical_limit", "-fmax(y - 0.2, 0)"),
                                                          ("cubic_stiffness", "-y**3")))
@@ -103,8 +105,12 @@ def test_a_finding_the_joint_refit_no_longer_needs_is_flagged():
               "physical_limit_v_2": dict(value=2.1, std=0.06)}
     _update_findings(findings, {"physical_limit_v": limit, "cubic_stiffness_v": cubic, "physical_limit_v_2": lower},
                      fitted, alpha=0.01)
-    assert findings[0]["coefficient"] == 224.9 and "within 2.58 std of zero" in findings[0]["note"]
-    assert findings[1]["coefficient"] == 7.371e5 and "note" not in findings[1]
+    assert findings[0]["coefficient"] == 224.9 and findings[0]["refit_insignificant"]
+    assert findings[1]["coefficient"] == 7.371e5 and "refit_insignificant" not in findings[1]
+    (left,) = _not_needed(findings[:1], {"loglik": 1000.0}, {"loglik": 996.8}, alpha=0.01)
+    assert left["coefficient"] == 224.9 and "-3.2 log-likelihood" in left["note"] and "note" not in findings[0]
+    assert _not_needed(findings[:1], {"loglik": 1000.0}, {"loglik": 996.6}, alpha=0.01) == []
+    assert "but the refit without it is 3.4 less likely" in findings[0]["note"]
     # a second limit on the same equation keeps its own parameter (both once showed the last one's)
     assert (findings[2]["coefficient"], findings[2]["parameter"]) == (2.1, "physical_limit_v_2")
     assert findings[0]["parameter"] == "physical_limit_v"
@@ -214,3 +220,11 @@ def test_a_recording_in_degrees_against_a_model_in_radians_is_named():
     assert hints[1].startswith("output 'rate' [rad/s] is 1000") and "1000× smaller" in hints[1]
     assert unit_hints(model, recording(model, [1, 1])) == []
     assert unit_hints(model, recording(pendulum(b=2.4), [1, 1])) == []
+
+
+def test_a_worse_free_run_is_named_per_output():
+    """The caveat for a correction that free-runs worse than the nominal, on the recording or on
+    a --validate one, names each output that got worse (one never measured is not compared)."""
+    from skigen.diagnose import _worse
+    before, after = {"v": 0.01306, "soc": None, "i": 0.5}, {"v": 0.01387, "soc": 0.1, "i": 0.4}
+    assert _worse(before, after) == "v (0.01306 → 0.01387)" and _worse(after, after) == ""

@@ -272,10 +272,23 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         for m in (base, anchored):
             if m is not None:
                 m.covariances(**noise)
-        corrected, names, notes, refit_info = refit_jointly(nominal, base, corr.without_parameters(), rec,
-                                                            loc.equations, refit, anchored, window, user_noise)
+        joint = lambda c: refit_jointly(nominal, base, c, rec, loc.equations, refit, anchored, window, user_noise)
+        corrected, names, notes, refit_info = joint(corr.without_parameters())
         data["refit"] = refit_info
+        if "failed" in refit_info.get("note", ""):
+            caveats.append(f"the joint refit: {refit_info['note'].strip()}")
         _update_findings(data["findings"], names, refit_info.get("parameters", {}), alpha)
+        if unneeded := [f for f in data["findings"] if f.pop("refit_insignificant", False)]:
+            stage("refitting without the findings the joint refit no longer needs")
+            gone = [names[f["parameter"]] for f in unneeded]
+            again = joint(corr.without_parameters().without(*gone))
+            if dropped := _not_needed(unneeded, refit_info, again[3], alpha):
+                corrected, names, notes, refit_info = again
+                corr = report.correction = corr.without(*gone)
+                data["findings"] = [f for f in data["findings"] if all(f is not u for u in unneeded)]
+                data["not_identifiable"] += dropped
+                data["refit"] = refit_info
+                _update_findings(data["findings"], names, refit_info.get("parameters", {}), alpha)
         path = out / "corrected_model.py"
         head = header_lines(user.name, spec or "a model given in Python", rec.path, data["findings"])
         corrected = write_model_file(path, T.copy_model(corrected, f"{nominal.name}_corrected"), notes, header=head)
@@ -287,11 +300,9 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         stage("fit of the corrected model")
         after = evaluate_fit(corrected, rec, window=window)
         data["fit"]["after"] = after.metrics
-        b, a = before.metrics["free_run_rmse"], after.metrics["free_run_rmse"]
-        if worse := [k for k in a if None not in (a[k], b[k]) and a[k] > b[k]]:
-            caveats.append("the corrected model free-runs worse than the nominal on " + ", ".join(
-                f"{k} ({b[k]:.4g} → {a[k]:.4g})" for k in worse) + ": its findings improve the one-step "
-                "predictions, not the simulation; weigh them with care")
+        if worse := _worse(before.metrics["free_run_rmse"], after.metrics["free_run_rmse"]):
+            caveats.append(f"the corrected model free-runs worse than the nominal on {worse}: its findings improve "
+                           "the one-step predictions, not the simulation; weigh them with care")
         w, regime = windows_where_it_acts(calibrated, after, rec, loc.equations, loc.states)
         data["located"].update(windows=[[float(a), float(b)] for a, b in w], regime=regime or loc.regime,
                                windows_from="where the found terms add at least 20 % of their 99th-percentile "
@@ -311,6 +322,10 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     if units:
         data["remaining"]["units"] = units
     data["fit"]["recordings"] = [_compared(calibrated, corrected, r) for r in others]
+    for r, v in zip(others, data["fit"]["recordings"]):
+        if v["after"] and (worse := _worse(v["before"]["free_run_rmse"], v["after"]["free_run_rmse"])):
+            caveats.append(f"on the validation recording {r.path} the corrected model free-runs worse than the "
+                           f"nominal ({worse}): it does not carry over to that recording; weigh the findings with care")
     if figures:
         stage("figures")
         meta["figures"] = diagnosis_figures(out, calibrated, rec, eps, loc, before, after, None) + meta["figures"]
@@ -340,6 +355,12 @@ def _unnamed(user_cands, additive, data: dict, model: Model, rec, states) -> lis
                               "cross-validated gain, SKI's selection among all additive candidates or one "
                               "structural change; report.md lists the proposals)"))
     return out
+
+
+def _worse(before: dict, after: dict) -> str:
+    """'y (0.1 → 0.2), …': the outputs whose free-run RMSE ``after`` exceeds ``before``, or ''."""
+    return ", ".join(f"{k} ({before[k]:.4g} → {after[k]:.4g})" for k in after
+                     if None not in (after[k], before.get(k)) and after[k] > before[k])
 
 
 def _compared(nominal: Model, corrected: Model | None, rec) -> dict:
@@ -386,9 +407,27 @@ def _update_findings(findings: list[dict], names: dict, fitted: dict, alpha: flo
         f["std"] = float(np.hypot(std, spread)) if std is not None and np.isfinite(std) else std
         f["parameter"] = n
         if std is not None and not significant(f["coefficient"], std, alpha):   # needed at all, in its shape
-            _note(f, f"after the joint refit its coefficient is within {stats.norm.isf(alpha / 2):.2f} std "
-                     f"of zero (cross-validated: {f['cv_coefficient']:.4g} ± {f['cv_std']:.2g}): "
-                     f"the refitted constants take over most of what it explained")
+            f["refit_insignificant"] = True
+
+
+def _not_needed(unneeded: list[dict], full: dict, fewer: dict, alpha: float) -> list[dict]:
+    """The findings ``unneeded`` (each within the z of ``alpha`` std of zero after the joint refit
+    ``full``) as not-identifiable items, when the refit without them, ``fewer``, is not significantly
+    less likely (2·Δ log-likelihood below the χ² quantile 1 − α for as many coefficients); else []
+    (each then keeps a note)."""
+    drop = full.get("loglik", np.nan) - fewer.get("loglik", np.nan)
+    z = stats.norm.isf(alpha / 2)
+    if not 2 * drop < stats.chi2.ppf(1 - alpha, len(unneeded)):
+        for f in unneeded:
+            _note(f, f"after the joint refit its coefficient is within {z:.2f} std of zero (cross-validated: "
+                     f"{f['cv_coefficient']:.4g} ± {f['cv_std']:.2g}), but the refit without it is "
+                     + (f"{drop:.1f} less likely" if np.isfinite(drop) else "not comparable"))
+        return []
+    return [{k: f[k] for k in ("effect", "equation", "expression", "coefficient", "std", "through") if k in f}
+            | {"note": f"not needed: after the joint refit its coefficient is within {z:.2f} std of zero "
+                       f"(cross-validated before it: {f['cv_coefficient']:.4g} ± {f['cv_std']:.2g}) and the "
+                       f"refit without it is as likely ({-drop:+.1f} log-likelihood): the refitted constants "
+                       f"take over what it explained; left out of the corrected model"} for f in unneeded]
 
 
 def _flag_one_step_only(findings: list[dict], free_all: float) -> None:

@@ -218,6 +218,7 @@ def refit_jointly(nominal: Model, calibrated: Model, corr: Correction, rec, equa
             info["note"] += ("refitted with the calibration's std as the declared parameters' prior: their "
                              "error bars count this recording twice. ")
         info.update(parameters=res.parameters, noise=res.noise.get("scales"), converged=res.converged,
+                    loglik=-res.objective,
                     seconds=res.seconds, iterations=res.iterations,
                     lifted=[dict(effect=e, equation=q, formula=f) for e, q, f in attempt])
         return _polished(res.model, rec, pieces, names, notes, info, window)

@@ -148,7 +148,7 @@ def regime_stump(features: dict[str, tuple[np.ndarray, str]], active: np.ndarray
                 pred = x > q if above else x < q
                 j = pred[active].mean() - pred[~active].mean()
                 if j > best[0]:
-                    best = (j, f"when {name} {'>' if above else '<'} {q:.3g}{' ' + unit if unit else ''}")
+                    best = (j, f"when {name} {'>' if above else '<'} {q:.3g}{' ' + unit if unit not in ('', '1', '-') else ''}")
     return best[1]
 
 

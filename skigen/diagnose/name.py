@@ -98,9 +98,9 @@ class Correction:
             m = s.build(m, value)
         return m
 
-    def without(self, which) -> "Correction":
-        return Correction([a for a in self.additive if a[0] is not which],
-                          [s for s in self.structural if s[0] is not which])
+    def without(self, *which) -> "Correction":
+        return Correction([a for a in self.additive if not any(a[0] is w for w in which)],
+                          [s for s in self.structural if not any(s[0] is w for w in which)])
 
     @property
     def found(self) -> list[tuple[Additive, float, float]]:
