@@ -1,7 +1,10 @@
 """The model's sample grid is the clock: time-stamped samples laid onto it.
 
 The grid has step ``dt`` (the model's) and runs from the first time stamp at
-which every input is known to the last time stamp of any used column. Every
+which every input is known to the last time stamp of any used column, its phase
+centred on the inputs' first PHASE_STAMPS stamps (the outputs', without inputs)
+when they keep to a grid of step dt (:func:`grid_phase`: a jittered first stamp
+does not set it). Every
 sample belongs to the grid sample nearest its time stamp (within dt/2), so
 jittered stamps land where they were meant to. Inputs are held from there
 (zero-order hold) or interpolated linearly between their stamps (first-order
@@ -24,6 +27,8 @@ __all__ = ["UNITS", "Hole", "clock", "time_scale", "to_grid", "GridStream", "Gri
 UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 RATE_MISMATCH = 300.0        # stamps this many times further apart (or closer) than dt: a wrong unit
 GRID_PER_STAMP = 100         # a grid this many times longer than the stamps: a wrong time stamp
+PHASE_STAMPS = 256           # the inputs' first stamps that set the grid's phase
+PHASE_ALPHA = 0.01           # Rayleigh test: stamps whose phase is uniform this likely set none
 
 
 def clock(t: float) -> str:
@@ -143,6 +148,22 @@ def _column_notes(name, column, output, count, early, dropped, repeated, first_r
     return notes
 
 
+def grid_phase(r: np.ndarray, dt: float) -> float:
+    """The shift in (−dt/2, dt/2] of a grid of step ``dt`` that centres stamps ``r`` (seconds from
+    its first sample) on it: the circular mean of their phase, when the Rayleigh test rejects a
+    uniform phase at PHASE_ALPHA (n·R² > −ln α: stamps that keep to a grid of step dt, jittered or
+    not); else 0 (a log at another rate, or too few stamps). Shifts below 10⁻⁶ dt are 0."""
+    if not len(r):
+        return 0.0
+    with np.errstate(over="ignore", invalid="ignore"):    # an absurd stamp: its length check names it
+        a = 2 * np.pi * np.asarray(r, float) / dt
+        c, s = np.mean(np.cos(a)), np.mean(np.sin(a))
+    if not len(a) * (c * c + s * s) > -np.log(PHASE_ALPHA):
+        return 0.0
+    phase = dt * np.arctan2(s, c) / (2 * np.pi)
+    return float(phase) if abs(phase) > 1e-6 * dt else 0.0
+
+
 def _nearest(ts, start, dt, n):
     """(grid index of each sample used, the samples' positions): the nearest within dt/2, nearest wins."""
     k = np.rint((ts - start) / dt).astype(np.int64)
@@ -190,6 +211,8 @@ def to_grid(samples: Samples, dt: float, input_names, output_names, input_hold: 
     if not firsts:
         raise RecordingError(f"{samples.source}: no output has a value")
     start = float(max(firsts) if input_names else min(firsts))
+    first = np.sort(np.concatenate([series[n][0][:PHASE_STAMPS] for n in input_names or output_names]))
+    start += grid_phase(first[:PHASE_STAMPS] - start, dt)
     end = float(max(s[0][-1] for s in series.values() if len(s[0])))
     n = _check_length(samples, series, start, end, dt)
     if n < min_samples:
@@ -283,6 +306,7 @@ class GridStream:
         self.next_k, self.end, self.row_t, self.n = 0, -np.inf, -np.inf, None
         self.spans, self.restarts = {}, set()
         self.notes, self.holes = list(stream.notes), ()
+        self.first = []                 # the inputs' first PHASE_STAMPS stamps (the grid's phase)
 
     def __iter__(self):
         """Every grid block of the file, in order."""
@@ -306,6 +330,9 @@ class GridStream:
             self.notes += [note] if note else []
             self.origin = float(g.t[0]) * (1.0 if g.seconds else self.scale)
         t = (g.t if g.seconds else g.t * self.scale) - self.origin
+        if len(self.first) < PHASE_STAMPS:
+            ts = [t[np.isfinite(g.values[n])] for n in self.input_names or self.output_names]
+            self.first += list(np.sort(np.concatenate(ts))[:PHASE_STAMPS - len(self.first)])
         for name in self.names:
             v = g.values[name]
             ok = np.isfinite(v)
@@ -314,14 +341,17 @@ class GridStream:
                 self.end = max(self.end, float(t[ok][-1]))
         self.row_t = float(t[-1])
         if self.start is None:
-            self._find_start()
+            self._find_start(len(self.first) < PHASE_STAMPS)
         if self.start is not None:
             self._scan_holes()
             self._check_length()
             yield from self._emit(self._frontier())
 
-    def _find_start(self):
+    def _find_start(self, wait: bool = False):
+        """The grid start, once every input is known (``wait``: not before the phase's stamps are read)."""
         ins = [self.cols[n] for n in self.input_names]
+        if wait and (not ins or all(c.first is not None for c in ins)):
+            return
         if ins and all(c.first is not None for c in ins):
             self.start = max(c.first for c in ins)
         elif not ins and any(self.cols[n].first is not None for n in self.output_names):
@@ -337,6 +367,7 @@ class GridStream:
                 c.early += gone
                 c.drop(gone)
             return
+        self.start += grid_phase(np.asarray(self.first) - self.start, self.dt)
         for c in self.cols.values():
             c.prev = self.start
 
@@ -450,7 +481,10 @@ class GridStream:
         from .sources import NotStreamable
 
         if self.start is None:
+            self._find_start()
+        if self.start is None:
             raise NotStreamable("no grid start")
+        self._scan_holes()
         self.n = self._check_length()
         if self.n < self.min_samples:
             raise NotStreamable("too few grid samples")
