@@ -673,9 +673,16 @@ def reprofiled(nominal: Model, corr: Correction, rec: Recording) -> Correction:
 def recalibrated(nominal: Model, corr: Correction, rec: Recording, noise_from=None) -> Model:
     """``nominal`` with the noise the corrected model calibrates to: what the accepted terms
     explain is no longer left to the process noise (started from the user's declared noise
-    ``noise_from`` as well: the nominal's calibration may sit where that was all process noise)."""
+    ``noise_from`` as well: the nominal's calibration may sit where that was all process noise).
+    Where the recording cannot tell the noises apart under the correction (it explains so much that
+    process and sensor noise trade off along a flat valley), the noise it was scored under is kept."""
     from .calibrate import calibrate
-    cal, _ = calibrate(corr.build(nominal), [rec], noise_from=noise_from)
+    try:
+        cal, _ = calibrate(corr.build(nominal), [rec], noise_from=noise_from)
+    except DiagnosisError as exc:
+        if "cannot be told apart" not in str(exc):
+            raise
+        return nominal
     nx = len(nominal.states)
     m = T.copy_model(nominal)
     m.covariances(Q=cal.process_noise()[:nx, :nx], R=cal.measurement_noise(), P0=nominal.initial_covariance())
