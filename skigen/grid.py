@@ -138,7 +138,7 @@ def _column_notes(name, column, output, count, early, dropped, repeated, first_r
     if repeated:
         use = "the first at each stamp is used" if output else "the last at each stamp is used from it on"
         notes.append(f"{kind} '{name}': {repeated} sample(s) repeat the time stamp before them "
-                     f"(first at t = {origin + first_repeat:.12g} s): {use}")
+                     f"(first at t = {clock(origin + first_repeat)} s): {use}")
     faster = dropped - repeated
     if faster > 0:
         notes.append(f"output '{name}': {faster} sample(s) not used: a nearer sample of '{name}' had "
@@ -217,7 +217,7 @@ def to_grid(samples: Samples, dt: float, input_names, output_names, input_hold: 
     n = _check_length(samples, series, start, end, dt)
     if n < min_samples:
         raise RecordingError(f"{samples.source}: {n} sample(s) of the model's grid (dt = {dt:g} s) from "
-                             f"t = {start:.12g} to {end:.12g} s, at least {min_samples} needed")
+                             f"t = {clock(start)} to {clock(end)} s, at least {min_samples} needed")
     t = start + dt * np.arange(n)
     inputs = np.empty((n, len(input_names)))
     for j, name in enumerate(input_names):
