@@ -59,10 +59,13 @@ class Guard:
             v = getattr(self, name)
             if not (isinstance(v, (int, np.integer)) and v >= 0):
                 raise ValueError(f"Guard.{name} must be a non-negative integer, got {v!r}")
-        for name in ("gate", "reinit_scale", "std_scale"):
+        # As the C's <prefix>_settings_check, which refuses the settings otherwise.
+        for name, fine, what in (("gate", lambda v: 0 <= v < np.inf, "a finite number >= 0"),
+                                 ("reinit_scale", lambda v: 0 < v < np.inf, "a finite number > 0"),
+                                 ("std_scale", lambda v: v > 0, "a number > 0 (inf: no bound)")):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and v >= 0 and not np.isnan(v)):
-                raise ValueError(f"Guard.{name} must be a non-negative number, got {v!r}")
+            if not (isinstance(v, (int, float)) and fine(v)):
+                raise ValueError(f"Guard.{name} must be {what}, got {v!r}")
 
     @classmethod
     def off(cls) -> "Guard":

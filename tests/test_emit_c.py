@@ -275,6 +275,52 @@ def test_numerical_failure_is_rejected(kind, real, filters, libs, record):
     assert cf.step([1.0], [0.5]) == Status.OK
 
 
+@pytest.mark.parametrize("kind", KINDS)
+def test_bad_settings_do_nothing_until_fixed(kind, filters, libs, record):
+    """R_sqrt's diagonal 0 (R singular): the step returns BAD_SETTINGS and leaves every byte of the
+    state as it was; with R_sqrt restored the run goes on as one that never had the bad setting."""
+    a, b = _c(libs, filters, kind), _c(libs, filters, kind)
+    for cf in (a, b):
+        _warm(cf, record)
+    R = a.setting("R_sqrt")
+    a.configure(R_sqrt=0 * R)
+    assert a.settings_check() == "R_sqrt"
+    before = bytes(a._buf)
+    for k in range(20, 23):
+        assert a.step([record.delta[k]], [record.phi[k]]) == Status.BAD_SETTINGS
+        assert bytes(a._buf) == before
+    a.configure(R_sqrt=R)
+    assert a.settings_check() is None
+    for k in range(20, 60):
+        code = a.step([record.delta[k]], [record.phi[k]])
+        assert code == b.step([record.delta[k]], [record.phi[k]])
+        assert bytes(a._buf) == bytes(b._buf), k           # every field, counter and work buffer
+    assert code == Status.OK
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_reset_refuses_an_invalid_start(kind, filters, libs, record):
+    """A NaN in z0 or on C0's diagonal, a negative variance, and for S an entry above the diagonal:
+    ValueError, the state unchanged; a valid start is then taken."""
+    d, cf = filters[kind], _c(libs, filters, kind)
+    _warm(cf, record)
+    z0, C0 = d.initial()["z"], d.initial()["C"]
+    bad_C = [np.where(np.eye(cf.n, dtype=bool) & (np.arange(cf.n) == 1), np.nan, C0), C0 - 2 * np.diag(np.diag(C0))]
+    if d.square_root:
+        bad_C.append(C0 + np.triu(np.full_like(C0, 1e-3), 1))
+    before = bytes(cf._buf)
+    with pytest.raises(ValueError, match="z0 has a non-finite entry"):
+        cf.reset(np.where(np.arange(cf.n) == 0, np.nan, z0))
+    for C in bad_C:
+        with pytest.raises(ValueError, match="reset refused: C0 is not a"):
+            cf.reset(z0, C)
+    assert bytes(cf._buf) == before
+    shifted = z0 + np.eye(cf.n)[0]
+    cf.reset(shifted, C0)
+    assert np.array_equal(cf.z, shifted) and np.array_equal(cf.C, C0)
+    assert cf.step([record.delta[0]], [record.phi[0]]) == Status.OK
+
+
 # ---------------------------------------------------------------------------- generated text
 
 @pytest.mark.parametrize("style", ["unrolled", "loops"])

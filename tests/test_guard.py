@@ -5,6 +5,7 @@ around the reference filters), per step; fault injection through the flight-comp
 in double and float and through the Python runner; the C API's settings, reset, index macros
 and prefixes from C.
 """
+import re
 import subprocess
 from pathlib import Path
 
@@ -241,6 +242,37 @@ def test_settings_changed_mid_run_equal_a_rebuild(kind, style, sim):
         for name in ("z_post", "C_post", "z", "C", "nis"):
             np.testing.assert_array_equal(a.get(name), b.get(name), err_msg=name)
     _close(b.setting("R_sqrt"), [[0.3]])
+
+
+def test_settings_check_names_the_first_invalid_field(tmp_path):
+    """<prefix>_settings_check returns 1 + the field's index in the struct, in the order the header
+    documents; the step refuses while it is nonzero; Status follows the header's enum."""
+    d = derive(_gain_model(), "ukf")
+    cf = load_c(d)
+    header = emit_c(d, tmp_path)[0].read_text()
+    assert {k: int(v) for k, v in re.findall(r"SKIGEN_(\w+) = (\d+)", header)} == {s.name: s.value for s in Status}
+    order = " ".join(f"{i} {name}" for i, name in enumerate(cf.settings, 1))   # 1 Q_sqrt 2 R_sqrt ...
+    assert order in " ".join(re.sub(r"\([^)]*\)|[,*]", " ", header).split()), order
+    nan, Q, R = float("nan"), cf.setting("Q_sqrt"), cf.setting("R_sqrt")
+    fine = [dict(Q_sqrt=np.where(np.tri(len(Q), dtype=bool), Q, nan)),   # the upper triangle is ignored
+            dict(R_sqrt=-R), dict(gate=0), dict(std_max=np.inf), dict(stuck_limit=0)]
+    bad = [("Q_sqrt", np.where(np.tri(len(Q), k=-1, dtype=bool), nan, Q)), ("R_sqrt", 0 * R), ("R_sqrt", R + nan),
+           ("param", [np.inf]), ("gate", -1.0), ("gate", np.inf), ("reinit_scale", 0.0), ("reinit_scale", nan),
+           ("std_max", np.r_[1.0, 0.0, 1, 1, 1]), ("std_max", nan), ("reject_limit", -1), ("gap_limit", -1),
+           ("stuck_limit", -1)]
+    assert cf.settings_check() is None
+    for change in fine:
+        keep = {k: cf.setting(k) for k in change}
+        cf.configure(**change)
+        assert cf.settings_check() is None, change
+        cf.configure(**keep)
+    for name, value in bad:
+        keep = cf.setting(name)
+        cf.configure(**{name: value})
+        assert cf.settings_check() == name, (name, value)
+        assert cf.step([0.1], [0.2]) == Status.BAD_SETTINGS
+        cf.configure(**{name: keep})
+    assert cf.step([0.1], [0.2]) == Status.OK and cf.since_update == 0
 
 
 def test_reset_starts_from_the_given_state(sim):

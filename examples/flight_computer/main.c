@@ -62,14 +62,14 @@ static int number(const char* cell, int allow_empty, double* out)
 }
 
 static const char* const WORDS[] = {"ok", "measurement skipped", "bad input", "numerical failure",
-                                    "outlier rejected", "sensor stuck", "states restarted"};
+                                    "outlier rejected", "sensor stuck", "states restarted", "bad settings"};
 
 /* One step, with its code reported on stderr unless OK or a plain missing measurement. */
 static int step(wingrock_ski_state* st, const real* u, const real* y, long row)
 {
     int code = wingrock_ski_step(st, u, y);
     if (code != SKIGEN_OK && code != SKIGEN_MEASUREMENT_SKIPPED)
-        fprintf(stderr, "row %ld: %s (code %d)\n", row, code >= 0 && code <= 6 ? WORDS[code] : "?", code);
+        fprintf(stderr, "row %ld: %s (code %d)\n", row, code >= 0 && code <= SKIGEN_BAD_SETTINGS ? WORDS[code] : "?", code);
     return code;
 }
 
@@ -128,6 +128,11 @@ int main(int argc, char** argv)
 
     wingrock_ski_init(&st);
     if (gate >= 0) st.settings.gate = (real)gate;
+    if (wingrock_ski_settings_check(&st.settings) != 0) {   /* e.g. -g inf: refused by every step */
+        fprintf(stderr, "invalid settings (field %d of wingrock_ski_settings_check)\n",
+                wingrock_ski_settings_check(&st.settings));
+        return 1;
+    }
     while (fgets(line, sizeof line, in) != NULL) {
         double t = 0, v = 0;
         int ok, code;

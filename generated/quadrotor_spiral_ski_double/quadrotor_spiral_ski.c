@@ -189,8 +189,38 @@ void quadrotor_spiral_ski_settings_init(quadrotor_spiral_ski_settings* set)
     set->stuck_limit = 10;
 }
 
-void quadrotor_spiral_ski_reset(quadrotor_spiral_ski_state* st, const real* z_start, const real* C_start)
+int quadrotor_spiral_ski_settings_check(const quadrotor_spiral_ski_settings* set)
 {
+    const int n = QUADROTOR_SPIRAL_SKI_N, ny = QUADROTOR_SPIRAL_SKI_NY;
+    int i, j;
+    for (j = 0; j < n; ++j)                              /* lower triangles: the upper are ignored */
+        for (i = j; i < n; ++i) if (!isfinite(set->Q_sqrt[i + j * n])) return 1;
+    for (j = 0; j < ny; ++j) {
+        if (set->R_sqrt[j + j * ny] == 0) return 2;
+        for (i = j; i < ny; ++i) if (!isfinite(set->R_sqrt[i + j * ny])) return 2;
+    }
+    if (!all_finite(set->param, 0)) return 3;
+    if (!(set->gate >= 0 && isfinite(set->gate))) return 4;
+    if (!(set->reinit_scale > 0 && isfinite(set->reinit_scale))) return 5;
+    for (i = 0; i < n; ++i) if (!(set->std_max[i] > 0)) return 6;
+    if (set->reject_limit < 0) return 7;
+    if (set->gap_limit < 0) return 8;
+    if (set->stuck_limit < 0) return 9;
+    return 0;
+}
+
+int quadrotor_spiral_ski_reset(quadrotor_spiral_ski_state* st, const real* z_start, const real* C_start)
+{
+    const int n = QUADROTOR_SPIRAL_SKI_N;
+    int i, j;
+    if (z_start && !all_finite(z_start, n)) return 1;
+    if (C_start) {
+        if (!all_finite(C_start, n * n)) return 2;
+        for (j = 0; j < n; ++j) {
+            if (C_start[j + j * n] < 0) return 2;
+            for (i = 0; i < j; ++i) if (QUADROTOR_SPIRAL_SKI_SQUARE_ROOT && C_start[i + j * n] != 0) return 2;
+        }
+    }
     copy_n(st->z, z0, 14);
     copy_n(st->C, C0, 196);
     copy_n(st->s, s0, 8);
@@ -207,16 +237,17 @@ void quadrotor_spiral_ski_reset(quadrotor_spiral_ski_state* st, const real* z_st
     zero_l(&st->reinits, 1);
     zero_l(st->reject_run, 3);
     zero_l(&st->since_update, 1);
-    if (z_start) copy_n(st->z, z_start, QUADROTOR_SPIRAL_SKI_N);
-    if (C_start) copy_n(st->C, C_start, QUADROTOR_SPIRAL_SKI_N * QUADROTOR_SPIRAL_SKI_N);
-    copy_n(st->z_post, st->z, QUADROTOR_SPIRAL_SKI_N);
-    copy_n(st->C_post, st->C, QUADROTOR_SPIRAL_SKI_N * QUADROTOR_SPIRAL_SKI_N);
+    if (z_start) copy_n(st->z, z_start, n);
+    if (C_start) copy_n(st->C, C_start, n * n);
+    copy_n(st->z_post, st->z, n);
+    copy_n(st->C_post, st->C, n * n);
+    return 0;
 }
 
 void quadrotor_spiral_ski_init(quadrotor_spiral_ski_state* st)
 {
     quadrotor_spiral_ski_settings_init(&st->settings);
-    quadrotor_spiral_ski_reset(st, 0, 0);
+    (void)quadrotor_spiral_ski_reset(st, 0, 0);
 }
 
 /* The derived step on the prior with the measurements valid[i] = 1; 1 if it failed. */
@@ -265,6 +296,7 @@ int quadrotor_spiral_ski_step(quadrotor_spiral_ski_state* st, const real* u, con
     int seen[3];
     int i, failed, present = 0, used = 0, gated = 0, recover, code = SKIGEN_OK;
 
+    if (quadrotor_spiral_ski_settings_check(&st->settings)) return SKIGEN_BAD_SETTINGS;
     for (i = 0; i < QUADROTOR_SPIRAL_SKI_NU; ++i) if (!isfinite(u[i])) {
         count(&st->since_update);
         return SKIGEN_BAD_INPUT;

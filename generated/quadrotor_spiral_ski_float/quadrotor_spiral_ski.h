@@ -36,11 +36,14 @@ enum skigen_status {
                                        the state predicted */
     SKIGEN_SENSOR_STUCK = 5,        /* a y[i] repeated bit for bit stuck_limit times or more: it was
                                        not used (counted in stuck[i]) */
-    SKIGEN_REINITIALISED = 6        /* recovery at a reading of an output whose last reject_limit
+    SKIGEN_REINITIALISED = 6,       /* recovery at a reading of an output whose last reject_limit
                                        readings were rejected (reject_run[i]), or after a gap of
                                        gap_limit samples: the physical states restarted
                                        at their declared mean and reinit_scale times their
                                        declared covariance, weights kept, then updated with y */
+    SKIGEN_BAD_SETTINGS = 7         /* st->settings cannot give a valid step (<prefix>_settings_check
+                                       is nonzero): nothing done, the state and its counters are
+                                       unchanged; fix the settings and step again */
 };
 #endif
 
@@ -138,10 +141,20 @@ void quadrotor_spiral_ski_init(quadrotor_spiral_ski_state* st);
 /* The declared settings. */
 void quadrotor_spiral_ski_settings_init(quadrotor_spiral_ski_settings* set);
 
+/* 0 if the settings can give a valid step, else 1 + the index of the first invalid field in the
+ * struct's order: 1 Q_sqrt (a non-finite entry in its lower triangle), 2 R_sqrt (likewise, or a
+ * zero diagonal entry: R must be positive definite), 3 param (non-finite), 4 gate (negative or
+ * non-finite), 5 reinit_scale (not positive and finite), 6 std_max (an entry not > 0; INFINITY is
+ * no bound), 7 reject_limit, 8 gap_limit, 9 stuck_limit (negative). While it is nonzero
+ * quadrotor_spiral_ski_step returns SKIGEN_BAD_SETTINGS; check settings uploaded in flight before using them. */
+int quadrotor_spiral_ski_settings_check(const quadrotor_spiral_ski_settings* set);
+
 /* Restart from the prior mean z0[QUADROTOR_SPIRAL_SKI_N] and C0[QUADROTOR_SPIRAL_SKI_N * QUADROTOR_SPIRAL_SKI_N] (the covariance P
  * (EKF) or its lower Cholesky factor S, as C); NULL takes the declared value. The input history
- * and counters restart at 0, s at its declared value; st->settings is kept. */
-void quadrotor_spiral_ski_reset(quadrotor_spiral_ski_state* st, const float* z0, const float* C0);
+ * and counters restart at 0, s at its declared value; st->settings is kept. Returns 0, or refuses and leaves the
+ * state unchanged: 1 when z0 has a non-finite entry, 2 when C0 has one or a negative diagonal
+ * entry, or (S is lower-triangular) a non-zero entry above the diagonal. */
+int quadrotor_spiral_ski_reset(quadrotor_spiral_ski_state* st, const float* z0, const float* C0);
 
 /* One sample: u[QUADROTOR_SPIRAL_SKI_NU] inputs, y[QUADROTOR_SPIRAL_SKI_NY] measurements (NaN = missing; y may be
  * NULL when nothing is measured). Returns a skigen_status code, see above. */

@@ -79,6 +79,7 @@ class Status(enum.IntEnum):
     OUTLIER_REJECTED = 4
     SENSOR_STUCK = 5
     REINITIALISED = 6
+    BAD_SETTINGS = 7
 
 
 class CompileError(RuntimeError):
@@ -392,6 +393,8 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
                    "ski": "SKI (square-root UKF with ARD)", "mukf": "marginalised square-root UKF (MUKF)",
                    "ski_mukf": "SKI on the marginalised UKF (MUKF with ARD)"}[filt.kind],
         s_note=", s" if "s" in fields else "", s_reset=", s at its declared value" if "s" in fields else "",
+        c0_rule=", or (S is lower-triangular) a non-zero entry above the diagonal" if filt.square_root else "",
+        NPAR=filt.aug.fixed.shape[0],
         DT=_literal(float(model.dt), real), index=_index_macros(filt, prefix.upper()),
         N=d["n"], NX=d["nx"], NW=d["nw"], NU=d["nu"], NY=d["ny"], NMEM=d["nmem"],
         NU1=max(d["nu"], 1), NY1=max(d["ny"], 1), SQUARE_ROOT=int(filt.square_root),
@@ -461,6 +464,7 @@ class CFilter:
     def __init__(self, lib_path, filt: DerivedFilter, real: str = "double", prefix: str | None = None):
         ct, self.dtype = REALS[real]
         self.prefix, self.kind, self.n = prefix or default_prefix(filt), filt.kind, filt.aug.n
+        self.square_root = filt.square_root
         self.shapes = {name: shape for name, shape, _ in _fields(filt)}
         self.counters = {name: shape for name, shape, _ in _health(filt)}
         self.settings = {name: (t, shape) for name, t, shape, _ in _settings(filt)}
@@ -483,7 +487,8 @@ class CFilter:
         self._buf = ctypes.create_string_buffer(size())
         self._st = State.from_buffer(self._buf)
         self._init, self._step, self._std, self._reset = fn("init"), fn("step"), fn("std"), fn("reset")
-        self._step.restype = ctypes.c_int
+        self._check = fn("settings_check")
+        self._step.restype = self._reset.restype = self._check.restype = ctypes.c_int
         d = filt.aug.shapes
         self._u, self._y, self._out = (ct * d["nu"])(), (ct * d["ny"])(), (ct * self.n)()
         self._ct, self.P0 = ct, filt.aug.P0
@@ -493,10 +498,23 @@ class CFilter:
         self._init(ctypes.byref(self._st))
 
     def reset(self, z0=None, C0=None) -> None:
-        """``<prefix>_reset``: restart from (z0, C0) (None: the declared value), settings kept."""
+        """``<prefix>_reset``: restart from (z0, C0) (None: the declared value), settings kept.
+        ValueError, the state unchanged, when the C refuses them."""
         arr = lambda a: None if a is None else (self._ct * (self.n * self.n if np.ndim(a) == 2 else self.n))(
             *np.ravel(a, order="F").tolist())
-        self._reset(ctypes.byref(self._st), arr(z0), arr(C0))
+        refused = self._reset(ctypes.byref(self._st), arr(z0), arr(C0))
+        if refused == 1:
+            raise ValueError("reset refused: z0 has a non-finite entry; the state is unchanged")
+        if refused:
+            why = ("a lower Cholesky factor S: an entry non-finite, negative on the diagonal or non-zero above it"
+                   if self.square_root else "a covariance P: an entry non-finite or negative on the diagonal")
+            raise ValueError(f"reset refused: C0 is not {why}; the state is unchanged")
+
+    def settings_check(self) -> str | None:
+        """``<prefix>_settings_check``: None, or the name of the first setting that makes every
+        step return :attr:`Status.BAD_SETTINGS`."""
+        bad = self._check(ctypes.byref(self._st.settings))
+        return list(self.settings)[bad - 1] if bad else None
 
     def configure(self, guard=None, **values) -> None:
         """Set fields of ``st.settings``: those of a :class:`~skigen.guard.Guard` and/or by name."""
