@@ -504,10 +504,11 @@ def _scales(prob: Problem, theta0: np.ndarray, data: np.ndarray) -> tuple[np.nda
     V = prob.variables
     nominal = np.array(V.scale)
     J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(theta0 / nominal, np.r_[nominal, data]))
-    info = np.sum(J * J, axis=0) + prior.ravel()
+    with np.errstate(over="ignore"):         # a start whose filter diverges: its information is no unit
+        info = np.sum(J * J, axis=0) + prior.ravel()
     scale = nominal.copy()
     for i, kind in enumerate(V.kinds):
-        if kind in ("parameter", "weight") and theta0[i] == 0 and info[i] > 0:
+        if kind in ("parameter", "weight") and theta0[i] == 0 and np.isfinite(info[i]) and info[i] > 0:
             scale[i] = nominal[i] / np.sqrt(info[i])
     ratio = scale / nominal
     return scale, J * ratio, prior * ratio.reshape(prior.shape) ** 2

@@ -102,11 +102,12 @@ def covariance(J: np.ndarray, rho: np.ndarray | None, lengths: list[int], prior:
 def unidentified(J: np.ndarray, prior: np.ndarray, names: list[str], G: np.ndarray | None = None) -> list[str]:
     """Sentences naming the variables (or combinations) the Fisher information cannot see."""
     p = J.shape[1]
-    F = J.T @ J + np.diag(prior)
+    with np.errstate(over="ignore", invalid="ignore"):
+        F = J.T @ J + np.diag(prior)
     d = np.sqrt(np.clip(np.diag(F), 0, None))
     out = [f"'{names[i]}' has no effect on the likelihood" for i in range(p) if d[i] == 0]
     keep = d > 0
-    if keep.sum() < 1:
+    if keep.sum() < 1 or not np.isfinite(F).all():     # overflowed (a diverging filter): nothing to read
         return out
     Fn = F[np.ix_(keep, keep)] / np.outer(d[keep], d[keep])
     Z = null_space(G[:, keep]) if G is not None and G.shape[0] else np.eye(keep.sum())
