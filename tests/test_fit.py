@@ -826,3 +826,15 @@ def test_cli_fit_writes_the_contract_and_a_loadable_fitted_model(tmp_path, metho
         assert q.value == p["value"] and q.std == pytest.approx(p["std"])
     assert "fitted by" in capsys.readouterr().out
     assert (out / "report.md").exists()
+
+
+def test_an_overflowing_information_is_not_read_and_not_warned_about():
+    """A start whose filter diverges gives Jacobians of 1e200: their information overflows; the
+    identifiability check reads nothing from it and numpy's overflow warning stays off the terminal."""
+    import warnings
+    from skigen.fit.uncertainty import unidentified
+    J = np.array([[1e200, 1.0], [1e200, 2.0]])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert unidentified(J, np.zeros(2), ["a", "b"]) == []
+        assert unidentified(np.array([[1.0, 2.0], [2.0, 4.0]]), np.zeros(2), ["a", "b"])[0].startswith("'a', 'b' cannot")
