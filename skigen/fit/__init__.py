@@ -295,11 +295,18 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     Y = np.asarray(prob.predict(xi, p)).T
     result = _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_at,
                      nll, Y, stats, status, perf_counter() - t0, float(sol["f"]), info, robust)
-    result.notes, result.fitted_recordings = notes + _bound_notes(result.parameters), recs
+    result.notes = notes + _bound_notes(result.parameters) + _prior_notes(model, result.parameters)
+    if method == "filter-error" and not np.any(np.diag(model.process_noise()) > 0):
+        result.notes.append(f"'{model.name}' declares no process noise on any state, so filter error calibrates "
+                            f"none: it is output error through a filter, and process noise in the plant goes to "
+                            f"the sensor noise and narrows the error bars. Declare a process_std on the states "
+                            f"it drives to have it calibrated")
+    result.fitted_recordings = recs
     return result
 
 
 AT_BOUND = 1e-3     # standard errors: an estimate this close to a bound sits on it
+PRIOR_CONFLICT = 3.0   # prior std: an estimate this far from its declared prior says they disagree
 
 
 def _bound_notes(parameters: dict) -> list[str]:
@@ -311,11 +318,25 @@ def _bound_notes(parameters: dict) -> list[str]:
         side = "lower" if value - lo <= AT_BOUND * std else "upper" if hi - value <= AT_BOUND * std else None
         if side:
             notes.append(f"{name} = {value:.6g} ± {std:.2g} sits on its {side} bound {lo if side == 'lower' else hi:g}: "
-                         f"the best fit lies beyond it, and its std is no confidence interval there. Check the "
-                         f"bound, or whether the recordings excite {name}")
+                         f"the fit stopped there, where the best fit lies beyond the bound or the search met a "
+                         f"local optimum on it, and its std is no confidence interval. Check the bound, start "
+                         f"{name} elsewhere, or check whether the recordings excite it")
         elif 4 * std > hi - lo:
             notes.append(f"{name} = {value:.6g} ± {std:.2g}: its 2σ interval is wider than its bounds "
                          f"[{lo:g}, {hi:g}]; the data hardly determine it")
+    return notes
+
+
+def _prior_notes(model: Model, parameters: dict) -> list[str]:
+    """A note per estimate more than PRIOR_CONFLICT of its declared prior std from the prior's
+    value: the prior and the recordings disagree, and the estimate is a compromise of the two."""
+    notes = []
+    for name, p in parameters.items():
+        sd = model.parameter_named(name).std
+        if sd and abs(p["value"] - p["initial"]) > PRIOR_CONFLICT * sd:
+            notes.append(f"{name} = {p['value']:.6g} ± {p['std']:.2g} lies {abs(p['value'] - p['initial']) / sd:.0f} "
+                         f"prior std from its declared prior {p['initial']:.6g} ± {sd:.2g}: the prior and the "
+                         f"recordings disagree, and the estimate is a compromise of the two. Check the prior")
     return notes
 
 
@@ -610,7 +631,8 @@ def _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_
     for i, name in enumerate(V.names):
         if V.kinds[i] == "parameter" and name in estimate:
             p = model.parameter_named(name)
-            params[name] = dict(value=float(value[i]), std=float(std[i]), initial=p.value,
+            v = float(np.clip(value[i], *p.bounds))     # IPOPT may stop a rounding error past a bound
+            params[name] = dict(value=v, std=float(std[i]), initial=p.value,
                                 bounds=[_num(b) for b in p.bounds], unit=p.unit)
         elif V.kinds[i] == "weight" and name in estimate:
             weights[name] = dict(value=float(value[i]), std=float(std[i]))
