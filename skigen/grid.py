@@ -134,7 +134,7 @@ def _column_notes(name, column, output, count, early, dropped, repeated, first_r
     notes = []
     if early:
         notes.append(f"output '{name}': {early} sample(s) before the inputs are known "
-                     f"(t < {origin + start:g} s) not used")
+                     f"(t < {clock(origin + start)} s) not used")
     if repeated:
         use = "the first at each stamp is used" if output else "the last at each stamp is used from it on"
         notes.append(f"{kind} '{name}': {repeated} sample(s) repeat the time stamp before them "

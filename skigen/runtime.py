@@ -861,7 +861,7 @@ def _steps(filt, stepper, backend, pieces, again, holes=(), notes=(), strict=Fal
             raw["code"][0] = Status.REINITIALISED
         if strict and np.any(np.asarray(raw["code"]) == Status.NUMERICAL_FAILURE):
             raise FloatingPointError(f"the {filt.kind} filter of '{filt.aug.model.name}' produced non-finite "
-                                     f"numbers at t = {t[np.argmax(raw['code'] == Status.NUMERICAL_FAILURE)]:g} s")
+                                     f"numbers at t = {clock(t[np.argmax(raw['code'] == Status.NUMERICAL_FAILURE)])} s")
         part = _part(filt, t, y, raw, holes, notes)
         C = np.asarray(stepper.C_post, float)
         part.final_cov = C @ C.T if filt.square_root else C

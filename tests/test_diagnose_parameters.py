@@ -112,9 +112,9 @@ def test_a_finding_the_joint_refit_no_longer_needs_is_left_out():
                      fitted, alpha=0.01)
     assert findings[0]["coefficient"] == 224.9 and findings[0]["refit_insignificant"]
     assert findings[1]["coefficient"] == 7.371e5 and "refit_insignificant" not in findings[1]
-    (left,) = _not_needed(findings[:1], {"loglik": 1000.0}, {"loglik": 996.8}, alpha=0.01)
+    (left,) = _not_needed(findings[:1], [limit], {"loglik": 1000.0}, {"loglik": 996.8}, alpha=0.01)
     assert left["coefficient"] == 224.9 and "-3.2 log-likelihood" in left["note"] and "note" not in findings[0]
-    assert _not_needed(findings[:1], {"loglik": 1000.0}, {"loglik": 996.6}, alpha=0.01) == []
+    assert _not_needed(findings[:1], [limit], {"loglik": 1000.0}, {"loglik": 996.6}, alpha=0.01) == []
     assert "but the refit without it is 3.4 less likely" in findings[0]["note"]
     # a second limit on the same equation keeps its own parameter (both once showed the last one's)
     assert (findings[2]["coefficient"], findings[2]["parameter"]) == (2.1, "physical_limit_v_2")

@@ -44,7 +44,7 @@ from .fit import DIVERGED, evaluate_fit, free_run_window, simulation_worth
 from .inputs import MIN_SAMPLES, check, load, usable
 from .locate import Location, locate
 from .name import Correction, basis_rms, beyond_parameters, focus_window, name_terms, shape_search
-from .plausible import screen, significant
+from .plausible import screen, significant, term_item
 from .name import refit as refit_terms
 from .report import where, write_json, write_markdown
 
@@ -282,7 +282,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
             stage("refitting without the findings the joint refit no longer needs")
             gone = [names[f["parameter"]] for f in unneeded]
             again = joint(corr.without_parameters().without(*gone))
-            if dropped := _not_needed(unneeded, refit_info, again[3], alpha):
+            if dropped := _not_needed(unneeded, gone, refit_info, again[3], alpha):
                 corrected, names, notes, refit_info = again
                 corr = report.correction = corr.without(*gone)
                 data["findings"] = [f for f in data["findings"] if all(f is not u for u in unneeded)]
@@ -410,9 +410,9 @@ def _update_findings(findings: list[dict], names: dict, fitted: dict, alpha: flo
             f["refit_insignificant"] = True
 
 
-def _not_needed(unneeded: list[dict], full: dict, fewer: dict, alpha: float) -> list[dict]:
+def _not_needed(unneeded: list[dict], terms: list, full: dict, fewer: dict, alpha: float) -> list[dict]:
     """The findings ``unneeded`` (each within the z of ``alpha`` std of zero after the joint refit
-    ``full``) as not-identifiable items, when the refit without them, ``fewer``, is not significantly
+    ``full``; ``terms`` their candidates) as not-identifiable items, when the refit without them, ``fewer``, is not significantly
     less likely (2·Δ log-likelihood below the χ² quantile 1 − α for as many coefficients); else []
     (each then keeps a note)."""
     drop = full.get("loglik", np.nan) - fewer.get("loglik", np.nan)
@@ -423,11 +423,11 @@ def _not_needed(unneeded: list[dict], full: dict, fewer: dict, alpha: float) -> 
                      f"{f['cv_coefficient']:.4g} ± {f['cv_std']:.2g}), but the refit without it is "
                      + (f"{drop:.1f} less likely" if np.isfinite(drop) else "not comparable"))
         return []
-    return [{k: f[k] for k in ("effect", "equation", "expression", "coefficient", "std", "through") if k in f}
-            | {"note": f"not needed: after the joint refit its coefficient is within {z:.2f} std of zero "
-                       f"(cross-validated before it: {f['cv_coefficient']:.4g} ± {f['cv_std']:.2g}) and the "
-                       f"refit without it is as likely ({-drop:+.1f} log-likelihood): the refitted constants "
-                       f"take over what it explained; left out of the corrected model"} for f in unneeded]
+    return [term_item(c, f["coefficient"], f["std"],
+                      f"not needed: after the joint refit its coefficient is within {z:.2f} std of zero "
+                      f"(cross-validated before it: {f['cv_coefficient']:.4g} ± {f['cv_std']:.2g}) and the "
+                      f"refit without it is as likely ({-drop:+.1f} log-likelihood): the refitted constants "
+                      f"take over what it explained; left out of the corrected model") for f, c in zip(unneeded, terms)]
 
 
 def _flag_one_step_only(findings: list[dict], free_all: float) -> None:
