@@ -271,7 +271,11 @@ class PythonStepper:
         self.reset()
 
     def reset(self, z0=None, C0=None) -> None:
-        """Restart from (z0, C0) (None: the declared value); history and counters at 0."""
+        """Restart from (z0, C0) (None: the declared value); history and counters at 0.
+        ValueError, the state unchanged, for a start the step cannot take (as the C reset)."""
+        why = self.filt.start_refusal(z0, C0)
+        if why:
+            raise ValueError(f"reset refused: {why}; the state is unchanged")
         st = self.filt.initial()
         self.z = st["z"] if z0 is None else np.array(z0, float)
         self.C = st["C"] if C0 is None else np.array(C0, float)
@@ -822,6 +826,9 @@ def with_constants(f):
 
 def _start(stepper, init: dict) -> None:
     """Set the filter state before the first sample: z, C, mem and (SKI) s."""
+    why = stepper.filt.start_refusal(init["z"], init["C"])
+    if why:
+        raise ValueError(f"init refused: {why}")
     stepper.z, stepper.C = np.array(init["z"], float).ravel(), np.array(init["C"], float)
     stepper.mem = np.array(init["mem"], float).ravel()
     if stepper.filt.has_ard and init.get("s") is not None:

@@ -23,7 +23,7 @@ from models.wingrock_sim import simulate
 from skigen import derive
 from skigen.emit import CFilter, Status, compile_shared, emit_c
 from skigen.recording import Recording
-from skigen.runtime import run
+from skigen.runtime import PythonStepper, run
 from skigen.emit.c import DEFAULT_FLAGS
 
 VARIANTS = {"ekf": ("ekf", "unrolled"), "ukf": ("ukf", "unrolled"), "ski": ("ski", "unrolled"),
@@ -319,6 +319,36 @@ def test_reset_refuses_an_invalid_start(kind, filters, libs, record):
     cf.reset(shifted, C0)
     assert np.array_equal(cf.z, shifted) and np.array_equal(cf.C, C0)
     assert cf.step([record.delta[0]], [record.phi[0]]) == Status.OK
+
+
+@pytest.mark.parametrize("real", REALS)
+@pytest.mark.parametrize("kind", ["ski", "ski_loops"])
+def test_ski_reset_keeps_the_weights_within_their_prior(kind, real, filters, libs, record):
+    """The EM update needs P_ww <= diag(s0): a start with the weights' factor 1.5x the declared one
+    (accepted before, then every step failed) is refused by C and Python alike, fields unchanged; a
+    saved posterior and a narrower start are taken; a random walk on the weights set at run time
+    is refused by settings_check (the step was generated for constant weights)."""
+    d, cf = filters[kind], _c(libs, filters, kind, real)
+    _warm(cf, record)
+    z0, C0, nx = d.initial()["z"], d.initial()["C"], d.aug.shapes["nx"]
+    wide, narrow = C0.copy(), C0.copy()
+    wide[nx:, nx:] *= 1.5
+    narrow[nx:, nx:] *= 0.999
+    before = _fields(cf)
+    for reset in (cf.reset, PythonStepper(d).reset):
+        with pytest.raises(ValueError, match=r"not within the ARD prior, P_ww <= diag\(s0\)"):
+            reset(z0, wide)
+    for name, v in _fields(cf).items():
+        np.testing.assert_array_equal(v, before[name], err_msg=name)
+    cf.reset(cf.z, cf.C)                                     # the posterior after 20 steps
+    cf.reset(z0, narrow)
+    codes = [cf.step([record.delta[k]], [record.phi[k]]) for k in range(100)]
+    assert codes.count(Status.OK) == 100
+    Q = cf.setting("Q_sqrt")
+    Q[nx + 1, nx + 1] = 1e-3
+    cf.configure(Q_sqrt=Q)
+    assert cf.settings_check() == "Q_sqrt"
+    assert cf.step([record.delta[100]], [record.phi[100]]) == Status.BAD_SETTINGS
 
 
 # ---------------------------------------------------------------------------- generated text

@@ -132,7 +132,8 @@ void wingrock_delay_ski_init(wingrock_delay_ski_state* st);
 void wingrock_delay_ski_settings_init(wingrock_delay_ski_settings* set);
 
 /* 0 if the settings can give a valid step, else 1 + the index of the first invalid field in the
- * struct's order: 1 Q_sqrt (a non-finite entry in its lower triangle), 2 R_sqrt (likewise, or a
+ * struct's order: 1 Q_sqrt (a non-finite entry in its lower triangle, or an entry in a weight's row:
+ * the EM update was generated for constant weights, which keep P_ww <= diag(s0)), 2 R_sqrt (likewise, or a
  * zero diagonal entry: R must be positive definite), 3 param (non-finite), 4 gate (negative or
  * non-finite), 5 reinit_scale (not positive and finite), 6 std_max (an entry not > 0; INFINITY is
  * no bound), 7 reject_limit, 8 gap_limit, 9 stuck_limit (negative). While it is nonzero
@@ -143,7 +144,9 @@ int wingrock_delay_ski_settings_check(const wingrock_delay_ski_settings* set);
  * (EKF) or its lower Cholesky factor S, as C); NULL takes the declared value. The input history
  * and counters restart at 0, s at its declared value; st->settings is kept. Returns 0, or refuses and leaves the
  * state unchanged: 1 when z0 has a non-finite entry, 2 when C0 has one or a negative diagonal
- * entry, or (S is lower-triangular) a non-zero entry above the diagonal. */
+ * entry, or (S is lower-triangular) a non-zero entry above the diagonal; 3 when its weight block is not within the ARD prior, P_ww <= diag(s0)
+ * (the EM update's bound: updates only shrink P_ww; restart with the weights' rows of a saved
+ * posterior, or scale them down; C_next, a scratch, is used). */
 int wingrock_delay_ski_reset(wingrock_delay_ski_state* st, const float* z0, const float* C0);
 
 /* One sample: u[WINGROCK_DELAY_SKI_NU] inputs, y[WINGROCK_DELAY_SKI_NY] measurements (NaN = missing; y may be

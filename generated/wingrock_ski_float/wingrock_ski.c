@@ -157,7 +157,7 @@ int wingrock_ski_settings_check(const wingrock_ski_settings* set)
     const int n = WINGROCK_SKI_N, ny = WINGROCK_SKI_NY;
     int i, j;
     for (j = 0; j < n; ++j)                              /* lower triangles: the upper are ignored */
-        for (i = j; i < n; ++i) if (!isfinite(set->Q_sqrt[i + j * n])) return 1;
+        for (i = j; i < n; ++i) if (!isfinite(set->Q_sqrt[i + j * n]) || (i >= WINGROCK_SKI_NX && set->Q_sqrt[i + j * n] != 0)) return 1;
     for (j = 0; j < ny; ++j) {
         if (set->R_sqrt[j + j * ny] == 0) return 2;
         for (i = j; i < ny; ++i) if (!isfinite(set->R_sqrt[i + j * ny])) return 2;
@@ -172,6 +172,35 @@ int wingrock_ski_settings_check(const wingrock_ski_settings* set)
     return 0;
 }
 
+/* 1 if the weight rows F of the factor C give P_ww = F F' <= diag(s0) (to 100 machine epsilons):
+ * the EM update views the posterior under s from the filter's under the declared s0, which holds
+ * only while that bound does (updates shrink P_ww, constant weights keep it). The Cholesky factor
+ * of diag(s0) - P_ww is taken in the scratch C_next. */
+static int within_prior(wingrock_ski_state* st, const real* C)
+{
+    const int nx = WINGROCK_SKI_NX, m = WINGROCK_SKI_NW, n = WINGROCK_SKI_N;
+    real* A = st->C_next;
+    int i, j, k;
+    for (j = 0; j < m; ++j)
+        for (i = j; i < m; ++i) {
+            real p = 0;
+            for (k = 0; k < n; ++k) p += C[nx + i + k * n] * C[nx + j + k * n];
+            A[i + j * m] = (i == j ? s0[i] : 0) - p;
+        }
+    for (j = 0; j < m; ++j) {
+        real d = A[j + j * m];
+        for (k = 0; k < j; ++k) d -= A[j + k * m] * A[j + k * m];
+        if (d < -1.1920928955078125e-05f * s0[j]) return 0;
+        A[j + j * m] = d > 0 ? sqrtf(d) : 0;
+        for (i = j + 1; i < m; ++i) {
+            real t = A[i + j * m];
+            for (k = 0; k < j; ++k) t -= A[i + k * m] * A[j + k * m];
+            A[i + j * m] = d > 0 ? t / A[j + j * m] : 0;
+        }
+    }
+    return 1;
+}
+
 int wingrock_ski_reset(wingrock_ski_state* st, const real* z_start, const real* C_start)
 {
     const int n = WINGROCK_SKI_N;
@@ -183,6 +212,7 @@ int wingrock_ski_reset(wingrock_ski_state* st, const real* z_start, const real* 
             if (C_start[j + j * n] < 0) return 2;
             for (i = 0; i < j; ++i) if (WINGROCK_SKI_SQUARE_ROOT && C_start[i + j * n] != 0) return 2;
         }
+        if (!within_prior(st, C_start)) return 3;
     }
     copy_n(st->z, z0, 8);
     copy_n(st->C, C0, 64);

@@ -109,6 +109,27 @@ class DerivedFilter:
         """True when the step carries the ARD prior variances s (SKI kinds)."""
         return self.kind in SKI_KINDS
 
+    def start_refusal(self, z, C) -> str | None:
+        """Why the step cannot start from mean z and C (P, or its lower factor S), as
+        ``<prefix>_reset`` refuses it; None when it can. Either may be None (the declared one)."""
+        if z is not None and not np.all(np.isfinite(z)):
+            return "z0 has a non-finite entry"
+        if C is None:
+            return None
+        C = np.asarray(C, float)
+        if not np.all(np.isfinite(C)) or np.any(np.diag(C) < 0) or (self.square_root and np.any(np.triu(C, 1))):
+            return ("C0 is not a lower Cholesky factor S: an entry non-finite, negative on the diagonal or "
+                    "non-zero above it" if self.square_root else
+                    "C0 is not a covariance P: an entry non-finite or negative on the diagonal")
+        from .ski import bounded_by_prior
+        if self.has_ard and bounded_by_prior(self.aug, self.options):
+            w = self.aug.w_index
+            P = C[w] @ C[w].T if self.square_root else C[np.ix_(w, w)]
+            if np.linalg.eigvalsh(np.diag(self.aug.s0) - P).min() < -100 * np.finfo(float).eps * self.aug.s0.max():
+                return ("C0's weight block is not within the ARD prior, P_ww <= diag(s0) (the EM update's "
+                        "bound: updates only shrink P_ww): start from a saved posterior's weight rows, or scale them down")
+        return None
+
     def initial(self) -> dict[str, np.ndarray]:
         """The filter state before the first sample: z, C (and s for SKI), mem."""
         C = np.linalg.cholesky(self.aug.P0) if self.square_root else self.aug.P0.copy()

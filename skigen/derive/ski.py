@@ -7,7 +7,19 @@ import numpy as np
 from .ard import ard_correct, ard_guard, ard_optimise, ard_view
 from .linalg import cholupdate
 
-__all__ = ["ard_step"]
+__all__ = ["ard_step", "random_walk_weights", "bounded_by_prior"]
+
+
+def random_walk_weights(aug) -> bool:
+    """Whether the declared numeric Q gives the weights a random walk (Q_ww ≠ 0)."""
+    w = list(aug.w_index)
+    return bool(np.any(aug.Q[np.ix_(w, w)]))
+
+
+def bounded_by_prior(aug, opts) -> bool:
+    """Whether the step needs P_ww ≤ diag(s₀) (Loewner order) at every step: the EM update on
+    constant weights, whose view (ard.ard_view) is well posed for every s only under that bound."""
+    return opts.ard == "em" and not random_walk_weights(aug)
 
 
 def ard_step(aug, opts, z, S, s):
@@ -30,7 +42,6 @@ def ard_step(aug, opts, z, S, s):
     # run-time setting): drift is read from the declared numeric Q_w (aug.Q, not aug.Q_sqrt).
     s0 = ca.DM(aug.s0)
     z_s, p_s = ard_view(z, S, w, s, s0)
-    drift = bool(np.any(aug.Q[np.ix_(w, w)]))               # random-walk weights
-    s_new = ard_guard(z_s[w] * z_s[w] + p_s, s0, ca.sum2(S[w, :] * S[w, :]), opts, drift)
+    s_new = ard_guard(z_s[w] * z_s[w] + p_s, s0, ca.sum2(S[w, :] * S[w, :]), opts, random_walk_weights(aug))
     z_rep = ard_view(z, S, w, s_new, s0)[0]
     return z_rep, cholupdate(S, z_rep - z, 1.0), s_new, z, S

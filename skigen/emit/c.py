@@ -42,6 +42,7 @@ import numpy as np
 
 from ..derive import DerivedFilter
 from ..derive import TUNABLE
+from ..derive.ski import bounded_by_prior, random_walk_weights
 from ..guard import Guard
 from ..model import function_name_problem
 
@@ -62,6 +63,11 @@ AUTO_LOOPS_ABOVE_OPERATIONS = 20_000   # 'auto' loops above this many unrolled o
 # (about 170 kB of Cortex-M7 code at the ~8.5 bytes per operation `skigen bench footprint` measures;
 # the looped kernel stays 30-60 kB at any size)
 _UPDATES = {"z": "z_next", "C": "C_next", "s": "s_next", "mem": "mem_next"}   # committed on success
+_C0_BOUND = ("; 3 when its weight block is not within the ARD prior, P_ww <= diag(s0)\n"
+             " * (the EM update's bound: updates only shrink P_ww; restart with the weights' rows of a saved\n"
+             " * posterior, or scale them down; C_next, a scratch, is used)")
+_Q_BOUND = (", or an entry in a weight's row:\n"
+            " * the EM update was generated for constant weights, which keep P_ww <= diag(s0)")
 _FOH_NOTE = (" * First-order input hold: u holds u_k then u_{k+1} (NU values), and the prediction\n"
              " * interpolates the input linearly between them. On a vehicle, where u_{k+1} is known\n"
              " * one sample later, call the step one sample late: step(u_k, u_{k+1}, y_k) at time k+1.\n")
@@ -259,13 +265,12 @@ def _kernel_loops(filt: DerivedFilter, prefix: str, real: str) -> tuple[dict[str
     lit = lambda x: _literal(x, real)
     array = lambda a: ", ".join(lit(x) for x in np.ravel(a, order="F")) or lit(0.0)
     em = ard and opts.ard == "em"
-    w_idx = list(aug.w_index)
     work, work_size = _work_layout(n, ny, nw if ard else 0, n, msz["w"], em)
     # Q, R and the parameters are run-time settings (arg[ARD + 6..8]), but the EM update's
     # ARD_DRIFT (random-walk weights, decided from the declared numeric Q_w here) and its
-    # declared prior S0 stay generation-time constants for now: a Q_sqrt set at run time that
-    # gives the weights a random walk the declared Q did not keeps the widening unguarded.
-    drift = int(bool(np.any(aug.Q[np.ix_(w_idx, w_idx)])))
+    # declared prior S0 stay generation-time constants: a Q_sqrt set at run time that gives
+    # constant weights a random walk is refused by <prefix>_settings_check.
+    drift = int(random_walk_weights(aug))
     values = dict(
         prefix=prefix, kind=filt.kind, model=aug.model.name, real=real, N=n, NX=d["nx"], NW=nw, NY=ny,
         NMEM=d["nmem"], ARD=ard, ARD_STEPS=opts.ard_steps, BACKTRACKS=opts.backtracks,
@@ -387,6 +392,7 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
         else:
             settings_init.append(f"    set->{name} = {_literal(getattr(guard, name), real) if isinstance(getattr(guard, name), float) else getattr(guard, name)};")
     model = filt.aug.model
+    em_bound = filt.has_ard and bounded_by_prior(filt.aug, filt.options)
     values = dict(
         prefix=prefix, PREFIX=prefix.upper(), real=real, model=model.name,
         kind_long={"ekf": "augmented EKF", "ukf": "augmented square-root UKF",
@@ -394,6 +400,9 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
                    "ski_mukf": "SKI on the marginalised UKF (MUKF with ARD)"}[filt.kind],
         s_note=", s" if "s" in fields else "", s_reset=", s at its declared value" if "s" in fields else "",
         c0_rule=", or (S is lower-triangular) a non-zero entry above the diagonal" if filt.square_root else "",
+        c0_bound=_C0_BOUND if em_bound else "", q_bound=_Q_BOUND if em_bound else "",
+        c0_bound_check="        if (!within_prior(st, C_start)) return 3;\n" if em_bound else "",
+        q_bound_check=f" || (i >= {prefix.upper()}_NX && set->Q_sqrt[i + j * n] != 0)" if em_bound else "",
         NPAR=filt.aug.fixed.shape[0],
         DT=_literal(float(model.dt), real), index=_index_macros(filt, prefix.upper()),
         N=d["n"], NX=d["nx"], NW=d["nw"], NU=d["nu"], NY=d["ny"], NMEM=d["nmem"],
@@ -407,6 +416,9 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
         hold_note=_FOH_NOTE if model.input_hold == "foh" else "",
         nu_note=" per step: u_k, then u_{k+1} (first-order hold)" if model.input_hold == "foh" else "",
         output_names=_c_strings(v.name for v in model.outputs))
+    values["prior_bound"] = string.Template((_HERE / "prior_bound.c.in").read_text()).substitute(
+        values, TOL=_literal(100 * np.finfo(np.float32 if real == "float" else float).eps, real)) + "\n" \
+        if em_bound else ""
     texts = {f"{prefix}.h": string.Template((_HERE / "filter.h.in").read_text()).substitute(values),
              f"{prefix}.c": string.Template((_HERE / "filter.c.in").read_text()).substitute(values),
              **kernel_files}
@@ -464,7 +476,7 @@ class CFilter:
     def __init__(self, lib_path, filt: DerivedFilter, real: str = "double", prefix: str | None = None):
         ct, self.dtype = REALS[real]
         self.prefix, self.kind, self.n = prefix or default_prefix(filt), filt.kind, filt.aug.n
-        self.square_root = filt.square_root
+        self.filt, self.square_root = filt, filt.square_root
         self.shapes = {name: shape for name, shape, _ in _fields(filt)}
         self.counters = {name: shape for name, shape, _ in _health(filt)}
         self.settings = {name: (t, shape) for name, t, shape, _ in _settings(filt)}
@@ -502,13 +514,10 @@ class CFilter:
         ValueError, the state unchanged, when the C refuses them."""
         arr = lambda a: None if a is None else (self._ct * (self.n * self.n if np.ndim(a) == 2 else self.n))(
             *np.ravel(a, order="F").tolist())
-        refused = self._reset(ctypes.byref(self._st), arr(z0), arr(C0))
-        if refused == 1:
-            raise ValueError("reset refused: z0 has a non-finite entry; the state is unchanged")
-        if refused:
-            why = ("a lower Cholesky factor S: an entry non-finite, negative on the diagonal or non-zero above it"
-                   if self.square_root else "a covariance P: an entry non-finite or negative on the diagonal")
-            raise ValueError(f"reset refused: C0 is not {why}; the state is unchanged")
+        code = self._reset(ctypes.byref(self._st), arr(z0), arr(C0))
+        if code:
+            why = self.filt.start_refusal(z0, C0) or f"{self.prefix}_reset returned {code} (in {self.dtype.__name__})"
+            raise ValueError(f"reset refused: {why}; the state is unchanged")
 
     def settings_check(self) -> str | None:
         """``<prefix>_settings_check``: None, or the name of the first setting that makes every
