@@ -31,6 +31,7 @@ from ..model import Model, ModelError, _complex
 from ..progress import shown
 from ..recording import RecordingError
 from ..simulate import free_run
+from ..start import recorded_start
 from . import catalog as C
 from . import transform as T
 from .calibrate import calibrate
@@ -137,6 +138,9 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         rec, caveats = usable(rec)
         nominal = T.copy_model(user, unknowns=False)
         check(nominal, rec, folds)
+        nominal, moved = started(nominal, rec, "every filter of the diagnosis starts from that state; the "
+                                 "corrected model file keeps the declared one")
+        caveats += moved
         others = []
         for r in validate or []:
             other, more = usable(load(nominal, r, **read)[2])
@@ -291,12 +295,15 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
                 _update_findings(data["findings"], names, refit_info.get("parameters", {}), alpha)
         path = out / "corrected_model.py"
         head = header_lines(user.name, spec or "a model given in Python", rec.path, data["findings"])
-        corrected = write_model_file(path, T.copy_model(corrected, f"{nominal.name}_corrected"), notes, header=head)
-        report.corrected = corrected
+        filed = T.copy_model(corrected, f"{nominal.name}_corrected")
+        filed.x0[:len(user.x0)] = user.x0
+        filed = report.corrected = write_model_file(path, filed, notes, header=head)
         data["corrected_model"] = str(path)
         if emit:
             stage("emitting the corrected filter's C")
-            meta["generated"] = [str(p) for p in emit_filter(corrected, out / "generated")]
+            meta["generated"] = [str(p) for p in emit_filter(filed, out / "generated")]
+        corrected = T.copy_model(filed)
+        corrected.x0[:len(nominal.x0)] = nominal.x0            # this recording's start, as every model above
         stage("fit of the corrected model")
         after = evaluate_fit(corrected, rec, window=window)
         data["fit"]["after"] = after.metrics
@@ -363,8 +370,24 @@ def _worse(before: dict, after: dict) -> str:
                      if None not in (after[k], before.get(k)) and after[k] > before[k])
 
 
+def started(model: Model, rec, what: str) -> tuple[Model, list[str]]:
+    """``model``, or a copy starting in the state ``rec`` starts in where that rejects the declared
+    initial state (:func:`skigen.start.recorded_start`), with a note ending in ``what``."""
+    rs = recorded_start(model, rec)
+    if rs is None or rs.consistent:
+        return model, []
+    moved = T.copy_model(model)
+    moved.x0[:len(rs.mean)] = rs.mean.tolist()
+    return moved, [rs.note(rec.path, what)]
+
+
 def _compared(nominal: Model, corrected: Model | None, rec) -> dict:
-    """A held-out recording's statistics, nominal and corrected, on the nominal's free-run window."""
+    """A held-out recording's statistics, nominal and corrected, on the nominal's free-run window;
+    each model started in the state the recording starts in (:func:`started`)."""
+    nominal, _ = started(nominal, rec, "")
+    if corrected is not None:
+        corrected = T.copy_model(corrected)
+        corrected.x0[:len(nominal.x0)] = nominal.x0
     before = evaluate_fit(nominal, rec)
     return {"before": before.metrics,
             "after": evaluate_fit(corrected, rec, window=before.window).metrics if corrected is not None else None}

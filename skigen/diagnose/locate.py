@@ -28,7 +28,7 @@ from ..model import Model
 from ..recording import Recording
 from .detect import Consistency, normalised_innovations, whiteness
 from . import transform as T
-from .smoother import smooth
+from ..smoother import smooth
 from .cv import loglik
 from .transform import with_disturbance
 

@@ -23,6 +23,7 @@ from scipy.optimize import minimize, minimize_scalar
 from ..model import Model, ModelError
 from ..progress import note
 from ..recording import Recording, load_recording, resolution
+from ..start import recorded_start
 from ..simulate import AMPLIFICATION, growth_rate, simulation_window
 from .problem import LOG_SCALE_BOUND, METHODS, Problem, build_problem, data_matrix
 from .uncertainty import covariance, unidentified
@@ -211,8 +212,10 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     per recording; give a few hundred samples when a free run diverges). tol: IPOPT's
     convergence tolerance. starts: filter error only, per recording the filter's state before its
     first sample, (mean (nx,), covariance (nx, nx)), or None for the model's initial state and
-    covariance (the default for every recording): a recording cut from a longer one starts where
-    a filter run over that one stood. time, time_unit, columns, max_gap: how to read recordings
+    covariance — unless the recording rejects it (:mod:`skigen.start`, χ² at 1 %: a log that
+    begins in motion), then the state it starts in with the declared covariance, and a note (the
+    default for every recording); ``"declared"``: the model's initial state for every recording,
+    untested. A recording cut from a longer one starts where a filter run over that one stood. time, time_unit, columns, max_gap: how to read recordings
     given as paths or DataFrames (see :func:`skigen.recording.load_recording`). noise_from:
     filter error only, another (Q, R) to start the noise from as well, the more likely optimum
     kept (a diagnosis gives the user's declared noise to a model that carries a calibrated one).
@@ -229,7 +232,10 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
         raise FitError("no recording to fit")
     for rec in recs:
         _check_recording(model, rec)
-    recs, starts, notes = _usable(recs, starts)
+    declared = isinstance(starts, str)
+    if declared and starts != "declared":
+        raise ValueError(f"starts must be a list or 'declared', got '{starts}'")
+    recs, starts, notes = _usable(recs, None if declared else starts)
     estimate = _check_estimate(model, estimate)
     if shooting is not None and (method != "output-error" or int(shooting) < 2):
         raise ValueError("shooting applies to output error and needs at least 2 samples per interval")
@@ -239,8 +245,8 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     blocks = [data_matrix(model, r) for r in recs]
     data = np.concatenate([np.ravel(b, order="F") for b in blocks])
     if method == "filter-error":                 # the NLP's parameter: [scale; data; starts]
-        data = np.r_[data, _starts(model, recs, starts)]
-    elif starts is not None:
+        data = np.r_[data, _starts(model, recs, starts, declared, notes)]
+    elif starts is not None or declared:
         raise ValueError("starts applies to filter error (output error estimates the initial states)")
     theta0 = np.array(prob.solver_inputs["x0"], float)
     if method == "output-error":
@@ -440,8 +446,9 @@ def _usable(recs: list[Recording], starts) -> tuple[list[Recording], list | None
     return parts, None if starts is None else part_starts, notes
 
 
-def _starts(model: Model, recs: list[Recording], starts) -> np.ndarray:
-    """Each recording's filter start [x; vec P] (see :func:`fit`'s ``starts``), checked."""
+def _starts(model: Model, recs: list[Recording], starts, declared: bool, notes: list[str]) -> np.ndarray:
+    """Each recording's filter start [x; vec P] (see :func:`fit`'s ``starts``), checked; a note
+    for each recording that starts from its recorded state."""
     nx = len(model.states)
     starts = [None] * len(recs) if starts is None else list(starts)
     if len(starts) != len(recs):
@@ -449,6 +456,9 @@ def _starts(model: Model, recs: list[Recording], starts) -> np.ndarray:
     out = []
     for rec, st in zip(recs, starts):
         x, P = (model.x0, model.initial_covariance()) if st is None else (np.asarray(v, float) for v in st)
+        if st is None and not declared and (rs := recorded_start(model, rec)) is not None and not rs.consistent:
+            x = rs.mean
+            notes.append(rs.note(rec.path, "its filter starts from that state, with the declared covariance"))
         if np.shape(x) != (nx,) or np.shape(P) != (nx, nx) or not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
             raise ValueError(f"starts for '{rec.path}': a finite mean of {nx} states ({', '.join(model.state_names)}) "
                              f"and a {nx}×{nx} covariance are needed")

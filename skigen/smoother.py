@@ -14,10 +14,10 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from ..derive.augment import step_inputs
-from ..derive import DerivedFilter
-from ..recording import Recording
-from ..runtime import RunResult, run
+from .derive.augment import step_inputs
+from .derive import DerivedFilter
+from .recording import Recording
+from .runtime import RunResult, run
 
 __all__ = ["Smoothed", "smooth"]
 
@@ -27,6 +27,7 @@ class Smoothed:
     run: RunResult     # the forward pass, with its trace
     mean: np.ndarray   # (N, n)
     std: np.ndarray    # (N, n)
+    first: np.ndarray  # (n, n): the smoothed covariance at the first sample
 
 
 def _jacobians(filt: DerivedFilter, res: RunResult, inputs: np.ndarray) -> np.ndarray:
@@ -37,11 +38,12 @@ def _jacobians(filt: DerivedFilter, res: RunResult, inputs: np.ndarray) -> np.nd
     return np.asarray(out).reshape(n, N, n).transpose(1, 0, 2)
 
 
-def smooth(filt: DerivedFilter, rec: Recording) -> Smoothed:
-    """EKF forward, RTS backward over the whole recording."""
+def smooth(filt: DerivedFilter, rec: Recording, init: dict | None = None) -> Smoothed:
+    """EKF forward, RTS backward over the whole recording; init: the filter's start (as
+    :func:`skigen.runtime.run`'s; default the declared one)."""
     if filt.kind != "ekf":
         raise ValueError("the smoother works on an EKF run")
-    res = run(filt, rec, backend="casadi", trace=True, strict=True, show_progress=False)
+    res = run(filt, rec, backend="casadi", trace=True, strict=True, show_progress=False, init=init)
     tr = res.trace
     A = _jacobians(filt, res, step_inputs(filt.aug.model, rec.inputs))
     x, P = res.mean, tr.C_post
@@ -54,4 +56,4 @@ def smooth(filt: DerivedFilter, rec: Recording) -> Smoothed:
         xs[k] = x[k] + G @ (xs[k + 1] - tr.z_next[k])
         Ps[k] = P[k] + G @ (Ps[k + 1] - tr.C_next[k]) @ G.T
     std = np.sqrt(np.clip(np.einsum("kii->ki", Ps), 0, None))
-    return Smoothed(res, xs, std)
+    return Smoothed(res, xs, std, Ps[0])
