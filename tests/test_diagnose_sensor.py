@@ -56,7 +56,8 @@ def test_a_sensor_stuck_partway_and_an_input_hole_are_left_out_and_said(tmp_path
     frame.loc[1200:1400, "F"] = np.nan
     d = diagnose(sc.model_file, frame, tmp_path, show_progress=False, figures=False, emit=False).data
     assert not d["mismatch_detected"] and d["consistency"]["nis_mean"] < 1.1
-    stuck, hole = d["notes"]
+    stuck, hole, moving = d["notes"]
     assert "output 'p_meas' holds one reading in 201 samples" in stuck and "from t = 36 to 38 s), far longer" in stuck
     assert "11.99–14.01 s (2.02 s) without F" in hole and "14.01–59.99 s (4599 of 6000 samples)" in hole
+    assert "[14.01–59.99 s]: the recording does not start at the model's initial state" in moving   # the cart moves
     assert "Note: DataFrame: output 'p_meas' holds one reading" in (tmp_path / "report.md").read_text()

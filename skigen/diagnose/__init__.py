@@ -199,7 +199,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     if not verdict.mismatch:
         data["candidates_not_named"] = [_candidate(c, "not tried: no significant mismatch to explain")
                                         for c in user_cands]
-        data["fit"]["recordings"] = [_compared(calibrated, None, r) for r in others]
+        data["fit"]["recordings"] = [_compared(calibrated, None, r, user.x0, caveats) for r in others]
         if figures:
             meta["figures"].append(plot_residuals(out / "residuals.png", rec.t, eps, nominal.output_names, [],
                                                   None, "normalised innovations of the calibrated nominal model"))
@@ -328,7 +328,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         data["remaining"]["integration"] = hint
     if units:
         data["remaining"]["units"] = units
-    data["fit"]["recordings"] = [_compared(calibrated, corrected, r) for r in others]
+    data["fit"]["recordings"] = [_compared(calibrated, corrected, r, user.x0, caveats) for r in others]
     for r, v in zip(others, data["fit"]["recordings"]):
         if v["after"] and (worse := _worse(v["before"]["free_run_rmse"], v["after"]["free_run_rmse"])):
             caveats.append(f"on the validation recording {r.path} the corrected model free-runs worse than the "
@@ -381,10 +381,14 @@ def started(model: Model, rec, what: str) -> tuple[Model, list[str]]:
     return moved, [rs.note(rec.path, what)]
 
 
-def _compared(nominal: Model, corrected: Model | None, rec) -> dict:
+def _compared(nominal: Model, corrected: Model | None, rec, x0: list, notes: list[str]) -> dict:
     """A held-out recording's statistics, nominal and corrected, on the nominal's free-run window;
-    each model started in the state the recording starts in (:func:`started`)."""
-    nominal, _ = started(nominal, rec, "")
+    both started from the declared ``x0``, or the state the recording starts in where that rejects
+    it (:func:`started`, noted in ``notes``)."""
+    nominal = T.copy_model(nominal)
+    nominal.x0[:len(x0)] = x0
+    nominal, moved = started(nominal, rec, "both models start from that state on it")
+    notes += moved
     if corrected is not None:
         corrected = T.copy_model(corrected)
         corrected.x0[:len(nominal.x0)] = nominal.x0
