@@ -17,9 +17,20 @@ over its first second for a start that was right). For the same reason both filt
 of the head run with Q and R times the dispersion, the vague filter's mean NIS per
 measured output over the whole recording, where it exceeds 1 (the quasi-likelihood's
 correction for a model or noise the data overrun: an encoder column of white noise
-0.3 rad against a declared 1.5 mrad moved its start by 75 nat without it). Where the
-declared start loses, the recording's start is the vague-prior EKF over the head
-smoothed back to the first sample (:mod:`skigen.smoother`).
+0.3 rad against a declared 1.5 mrad moved its start by 75 nat without it).
+
+The declared start is kept unless the vague one is more likely by MARGIN nat, the
+0.5·χ²₁(0.99) a diagnosis asks of a finding (a Bayes factor of 27): a start is the
+user's declaration, and in a recording's first samples a sensor offset or a model
+error can look like another start (a position sensor reading 20 mm high on a
+mass-spring at rest moved its start by 0.4 nat, and a force bias was named instead
+of the offset). Where the declared start loses, filters start from the vague prior,
+the declared mean with DIFFUSE² P₀: they learn the start from the data as they go,
+where a point estimate would be fixed by the nominal model for every later candidate
+(an ambient temperature with a 300 s time constant, smoothed over the head with a
+loss the model leaves out, was 17 of its std off). The vague filter over the head
+smoothed back to the first sample (:mod:`skigen.smoother`) says where the recording
+starts.
 """
 from __future__ import annotations
 
@@ -27,6 +38,7 @@ import copy
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import stats
 
 from .derive import derive
 from .model import Model
@@ -34,9 +46,10 @@ from .recording import Recording
 from .runtime import run
 from .smoother import smooth
 
-__all__ = ["DIFFUSE", "RecordedStart", "recorded_start"]
+__all__ = ["DIFFUSE", "MARGIN", "RecordedStart", "recorded_start", "vague_covariance"]
 
 DIFFUSE = 100.0     # the declared initial std widened this much: the start "not known"
+MARGIN = 0.5 * float(stats.chi2.isf(0.01, 1))    # nat the vague start must win by (3.3)
 _FAILED = (FloatingPointError, ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError)
 
 
@@ -56,7 +69,7 @@ class RecordedStart:
 
     @property
     def consistent(self) -> bool:
-        return self.gain <= 0
+        return self.gain <= MARGIN
 
     def note(self, path: str, what: str) -> str:
         """A sentence naming the states furthest off the declared start, ending in ``what``."""
@@ -66,7 +79,8 @@ class RecordedStart:
                          f"± {self.declared_std[i]:.2g}" for i in off)
         gain = "the declared start diverges" if np.isinf(self.gain) else f"{self.gain:.3g} nat"
         return (f"{path}: the recording does not start at the model's initial state ({said} declared): a start "
-                f"{DIFFUSE:g}× as uncertain predicts its first {self.head} samples better ({gain}); {what}")
+                f"{DIFFUSE:g}× as uncertain predicts its first {self.head} samples better ({gain}; {MARGIN:.1f} "
+                f"needed); {what}")
 
 
 def recorded_start(model: Model, rec: Recording) -> RecordedStart | None:
@@ -98,13 +112,18 @@ def recorded_start(model: Model, rec: Recording) -> RecordedStart | None:
                          len(head.t), float(dispersion))
 
 
+def vague_covariance(model: Model) -> np.ndarray:
+    """The vague start's covariance: DIFFUSE² times the declared P₀ (state units²)."""
+    return DIFFUSE ** 2 * model.initial_covariance()
+
+
 def _vague(model: Model) -> tuple:
     """(the EKF of ``model``, its start with DIFFUSE times the declared initial std)."""
     filt = derive(model, "ekf")
     nx = len(model.states)
     vague = filt.initial()
     vague["C"] = vague["C"].copy()
-    vague["C"][:nx, :nx] *= DIFFUSE ** 2
+    vague["C"][:nx, :nx] = vague_covariance(model)                     # the EKF carries P
     return filt, vague
 
 

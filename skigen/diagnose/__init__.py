@@ -31,7 +31,7 @@ from ..model import Model, ModelError, _complex
 from ..progress import shown
 from ..recording import RecordingError
 from ..simulate import free_run
-from ..start import recorded_start
+from ..start import DIFFUSE, recorded_start
 from . import catalog as C
 from . import transform as T
 from .calibrate import calibrate
@@ -138,8 +138,8 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         rec, caveats = usable(rec)
         nominal = T.copy_model(user, unknowns=False)
         check(nominal, rec, folds)
-        nominal, moved = started(nominal, rec, "every filter of the diagnosis starts from that state; the "
-                                 "corrected model file keeps the declared one")
+        nominal, moved = started(nominal, rec, "every filter of the diagnosis starts from the declared mean with "
+                                 f"{DIFFUSE:g}× the declared std; the corrected model file declares the user's start")
         caveats += moved
         others = []
         for r in validate or []:
@@ -199,7 +199,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     if not verdict.mismatch:
         data["candidates_not_named"] = [_candidate(c, "not tried: no significant mismatch to explain")
                                         for c in user_cands]
-        data["fit"]["recordings"] = [_compared(calibrated, None, r, user.x0, caveats) for r in others]
+        data["fit"]["recordings"] = [_compared(calibrated, None, r, user, caveats) for r in others]
         if figures:
             meta["figures"].append(plot_residuals(out / "residuals.png", rec.t, eps, nominal.output_names, [],
                                                   None, "normalised innovations of the calibrated nominal model"))
@@ -295,15 +295,13 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
                 _update_findings(data["findings"], names, refit_info.get("parameters", {}), alpha)
         path = out / "corrected_model.py"
         head = header_lines(user.name, spec or "a model given in Python", rec.path, data["findings"])
-        filed = T.copy_model(corrected, f"{nominal.name}_corrected")
-        filed.x0[:len(user.x0)] = user.x0
+        filed = _start_as(T.copy_model(corrected, f"{nominal.name}_corrected"), user)
         filed = report.corrected = write_model_file(path, filed, notes, header=head)
         data["corrected_model"] = str(path)
         if emit:
             stage("emitting the corrected filter's C")
             meta["generated"] = [str(p) for p in emit_filter(filed, out / "generated")]
-        corrected = T.copy_model(filed)
-        corrected.x0[:len(nominal.x0)] = nominal.x0            # this recording's start, as every model above
+        corrected = _start_as(filed, nominal)                 # this recording's start, as every model above
         stage("fit of the corrected model")
         after = evaluate_fit(corrected, rec, window=window)
         data["fit"]["after"] = after.metrics
@@ -328,7 +326,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         data["remaining"]["integration"] = hint
     if units:
         data["remaining"]["units"] = units
-    data["fit"]["recordings"] = [_compared(calibrated, corrected, r, user.x0, caveats) for r in others]
+    data["fit"]["recordings"] = [_compared(calibrated, corrected, r, user, caveats) for r in others]
     for r, v in zip(others, data["fit"]["recordings"]):
         if v["after"] and (worse := _worse(v["before"]["free_run_rmse"], v["after"]["free_run_rmse"])):
             caveats.append(f"on the validation recording {r.path} the corrected model free-runs worse than the "
@@ -371,27 +369,37 @@ def _worse(before: dict, after: dict) -> str:
 
 
 def started(model: Model, rec, what: str) -> tuple[Model, list[str]]:
-    """``model``, or a copy starting in the state ``rec`` starts in where that rejects the declared
-    initial state (:func:`skigen.start.recorded_start`), with a note ending in ``what``."""
+    """``model``, or where ``rec`` rejects its declared start (:func:`skigen.start.recorded_start`)
+    a copy starting from the vague prior (the declared mean, DIFFUSE times the declared std), with
+    a note ending in ``what``."""
     rs = recorded_start(model, rec)
     if rs is None or rs.consistent:
         return model, []
-    moved = T.copy_model(model)
-    moved.x0[:len(rs.mean)] = rs.mean.tolist()
-    return moved, [rs.note(rec.path, what)]
+    vague = T.copy_model(model)
+    vague.x_std = [DIFFUSE * s for s in model.x_std]
+    vague.P0 = None if model.P0 is None else DIFFUSE ** 2 * model.P0
+    return vague, [rs.note(rec.path, what)]
 
 
-def _compared(nominal: Model, corrected: Model | None, rec, x0: list, notes: list[str]) -> dict:
+def _start_as(model: Model, like: Model) -> Model:
+    """A copy of ``model`` whose first states (those of ``like``) start as ``like``'s: mean and spread."""
+    m, n = T.copy_model(model), len(like.x0)
+    m.x0[:n], m.x_std[:n] = like.x0, like.x_std
+    if m.P0 is not None or like.P0 is not None:
+        P = m.initial_covariance().copy()
+        P[:n, :n] = like.initial_covariance()
+        m.P0 = P
+    return m
+
+
+def _compared(nominal: Model, corrected: Model | None, rec, user: Model, notes: list[str]) -> dict:
     """A held-out recording's statistics, nominal and corrected, on the nominal's free-run window;
-    both started from the declared ``x0``, or the state the recording starts in where that rejects
-    it (:func:`started`, noted in ``notes``)."""
-    nominal = T.copy_model(nominal)
-    nominal.x0[:len(x0)] = x0
-    nominal, moved = started(nominal, rec, "both models start from that state on it")
+    both started from ``user``'s declared start, or from the vague prior where the recording
+    rejects it (:func:`started`, noted in ``notes``)."""
+    nominal, moved = started(_start_as(nominal, user), rec, "both models start from the vague prior on it")
     notes += moved
     if corrected is not None:
-        corrected = T.copy_model(corrected)
-        corrected.x0[:len(nominal.x0)] = nominal.x0
+        corrected = _start_as(corrected, nominal)
     before = evaluate_fit(nominal, rec)
     return {"before": before.metrics,
             "after": evaluate_fit(corrected, rec, window=before.window).metrics if corrected is not None else None}

@@ -23,7 +23,7 @@ from scipy.optimize import minimize, minimize_scalar
 from ..model import Model, ModelError
 from ..progress import note
 from ..recording import Recording, load_recording, resolution
-from ..start import recorded_start
+from ..start import DIFFUSE, recorded_start, vague_covariance
 from ..simulate import AMPLIFICATION, growth_rate, simulation_window
 from .problem import LOG_SCALE_BOUND, METHODS, Problem, build_problem, data_matrix
 from .uncertainty import covariance, unidentified
@@ -212,10 +212,11 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     per recording; give a few hundred samples when a free run diverges). tol: IPOPT's
     convergence tolerance. starts: filter error only, per recording the filter's state before its
     first sample, (mean (nx,), covariance (nx, nx)), or None for the model's initial state and
-    covariance — unless the recording rejects it (:mod:`skigen.start`, χ² at 1 %: a log that
-    begins in motion), then the state it starts in with the declared covariance, and a note (the
-    default for every recording); ``"declared"``: the model's initial state for every recording,
-    untested. A recording cut from a longer one starts where a filter run over that one stood. time, time_unit, columns, max_gap: how to read recordings
+    covariance — unless the recording rejects it (:mod:`skigen.start`: a log that begins in
+    motion), then the declared mean with 100² times that covariance, and a note (the default for
+    every recording; ``initial_states`` gives where such a recording starts, smoothed from that
+    vague start by the model as declared); ``"declared"``: the model's initial state for every
+    recording, untested. A recording cut from a longer one starts where a filter run over that one stood. time, time_unit, columns, max_gap: how to read recordings
     given as paths or DataFrames (see :func:`skigen.recording.load_recording`). noise_from:
     filter error only, another (Q, R) to start the noise from as well, the more likely optimum
     kept (a diagnosis gives the user's declared noise to a model that carries a calibrated one).
@@ -245,7 +246,8 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     blocks = [data_matrix(model, r) for r in recs]
     data = np.concatenate([np.ravel(b, order="F") for b in blocks])
     if method == "filter-error":                 # the NLP's parameter: [scale; data; starts]
-        data = np.r_[data, _starts(model, recs, starts, declared, notes)]
+        tested = [None] * len(recs)
+        data = np.r_[data, _starts(model, recs, starts, declared, notes, tested)]
     elif starts is not None or declared:
         raise ValueError("starts applies to filter error (output error estimates the initial states)")
     theta0 = np.array(prob.solver_inputs["x0"], float)
@@ -301,6 +303,10 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     Y = np.asarray(prob.predict(xi, p)).T
     result = _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_at,
                      nll, Y, stats, status, perf_counter() - t0, float(sol["f"]), info, robust)
+    if method == "filter-error":
+        result.initial_states = [{} if rs is None or rs.consistent else
+                                 {n: dict(value=float(v), std=float(s)) for n, v, s in zip(rs.names, rs.mean, rs.std)}
+                                 for rs in tested]
     result.notes = notes + _bound_notes(result.parameters) + _prior_notes(model, result.parameters)
     if method == "filter-error" and not np.any(np.diag(model.process_noise()) > 0):
         result.notes.append(f"'{model.name}' declares no process noise on any state, so filter error calibrates "
@@ -446,19 +452,24 @@ def _usable(recs: list[Recording], starts) -> tuple[list[Recording], list | None
     return parts, None if starts is None else part_starts, notes
 
 
-def _starts(model: Model, recs: list[Recording], starts, declared: bool, notes: list[str]) -> np.ndarray:
-    """Each recording's filter start [x; vec P] (see :func:`fit`'s ``starts``), checked; a note
-    for each recording that starts from its recorded state."""
+def _starts(model: Model, recs: list[Recording], starts, declared: bool, notes: list[str],
+            tested: list) -> np.ndarray:
+    """Each recording's filter start [x; vec P] (see :func:`fit`'s ``starts``), checked; a note for
+    each recording that starts from the vague prior, and in ``tested`` each recording's
+    :class:`~skigen.start.RecordedStart` (None where not tested)."""
     nx = len(model.states)
     starts = [None] * len(recs) if starts is None else list(starts)
     if len(starts) != len(recs):
         raise ValueError(f"starts: {len(starts)} given for {len(recs)} recordings")
     out = []
-    for rec, st in zip(recs, starts):
+    for r, (rec, st) in enumerate(zip(recs, starts)):
         x, P = (model.x0, model.initial_covariance()) if st is None else (np.asarray(v, float) for v in st)
-        if st is None and not declared and (rs := recorded_start(model, rec)) is not None and not rs.consistent:
-            x = rs.mean
-            notes.append(rs.note(rec.path, "its filter starts from that state, with the declared covariance"))
+        if st is None and not declared:
+            tested[r] = rs = recorded_start(model, rec)
+            if rs is not None and not rs.consistent:
+                P = vague_covariance(model)
+                notes.append(rs.note(rec.path, f"its filter starts from the declared mean with {DIFFUSE:g}× the "
+                                               "declared std"))
         if np.shape(x) != (nx,) or np.shape(P) != (nx, nx) or not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
             raise ValueError(f"starts for '{rec.path}': a finite mean of {nx} states ({', '.join(model.state_names)}) "
                              f"and a {nx}×{nx} covariance are needed")
