@@ -3,7 +3,10 @@
 Per sample, around the derived step (``<prefix>_step`` in ``filter.c.in``, and
 :class:`skigen.runtime.PythonStepper`, the same rules line by line):
 
-1. **Bad input.** A non-finite input: nothing is done (state unchanged); the gap grows.
+1. **Bad input.** A non-finite input: the state is predicted with its last finite value (0
+   before any), as a recording holds an input through a hole, and no reading is used (an
+   update under a wrong input would teach it to the weights); the gap grows. A step
+   skipped would leave the state a sample behind the vehicle from then on.
 2. **Stuck sensor.** A finite reading equal, bit for bit, to the previous one of that
    output for ``stuck_limit`` samples in a row is not used (0: never).
 3. **Recovery.** When a measurement is present and either ``gap_limit`` samples have
@@ -40,8 +43,8 @@ class Guard:
     """The recovery policy's settings (defaults of the generated C's settings struct).
 
     gate: innovation gate in standard deviations per output (0: off).
-    reject_limit: readings of one output rejected in a row before a restart at its next one.
-    gap_limit: samples without a used measurement before the next one restarts.
+    reject_limit: readings of one output rejected in a row before a restart at its next one (0: never).
+    gap_limit: samples without a used measurement before the next one restarts (0: never).
     stuck_limit: identical readings in a row from which an output counts as stuck (0: off).
     reinit_scale: variance multiple of the declared initial covariance at a restart.
     std_scale: bound on each prior std, as a multiple of its declared initial std (inf: none).
@@ -69,11 +72,10 @@ class Guard:
 
     @classmethod
     def off(cls) -> "Guard":
-        """No policy beyond skipping a bad input and rejecting a non-finite step: no gate, no
+        """No policy beyond holding a bad input and rejecting a non-finite step: no gate, no
         stuck-sensor test, no restart, no bound on the prior std (what the ``casadi`` backend of
         :func:`skigen.runtime.run` does where no step fails)."""
-        return cls(gate=0.0, reject_limit=2 ** 31 - 1, gap_limit=2 ** 31 - 1, stuck_limit=0,
-                   std_scale=float("inf"))
+        return cls(gate=0.0, reject_limit=0, gap_limit=0, stuck_limit=0, std_scale=float("inf"))
 
     def std_max(self, P0: np.ndarray) -> np.ndarray:
         """The bound on each augmented state's prior std (inf where the declared std is 0)."""

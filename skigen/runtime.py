@@ -52,7 +52,8 @@ _CODE_WORD = {Status.BAD_INPUT: 3, Status.NUMERICAL_FAILURE: 4, Status.OUTLIER_R
 
 def status_words(code: np.ndarray, measured: np.ndarray) -> np.ndarray:
     """The step's status per sample: measured (every output), partial (some), predicted (none
-    measured), bad_input (non-finite input: nothing done), rejected (non-finite result: prior kept),
+    measured), bad_input (a non-finite input: predicted with its last finite value), rejected
+    (non-finite result: prior kept),
     gated (an outlier not used), stuck (a stuck reading not used), recovered (states restarted)."""
     any_ = measured.any(axis=1) if measured.size else np.zeros(len(code), bool)
     i = np.where(code == Status.OK, 0, np.where(any_, 1, 2))
@@ -280,6 +281,7 @@ class PythonStepper:
         self.z = st["z"] if z0 is None else np.array(z0, float)
         self.C = st["C"] if C0 is None else np.array(C0, float)
         self.mem, self.s = st["mem"], st.get("s")
+        self.u_held = np.zeros(self.filt.aug.shapes["nu"])
         ny = self.filt.aug.shapes["ny"]
         self.y_last, self.repeats = np.zeros(ny), np.zeros(ny, int)
         self.rejected, self.stuck = np.zeros(ny, int), np.zeros(ny, int)
@@ -317,14 +319,13 @@ class PythonStepper:
     def step(self, u, y) -> int:
         """One sample; returns a :class:`Status` code."""
         g, aug = self.guard, self.filt.aug
-        u, y = np.asarray(u, float), np.asarray(y, float).ravel()
-        if not np.all(np.isfinite(u)):
-            self.since_update += 1
-            return Status.BAD_INPUT
-        valid, code = self._present(y)
+        u, y = np.asarray(u, float).ravel(), np.asarray(y, float).ravel()
+        held = not np.all(np.isfinite(u))                       # a non-finite input: its last finite value
+        self.u_held = u = np.where(np.isfinite(u), u, self.u_held)
+        valid, code = self._present(np.full_like(y, np.nan) if held else y)   # held: predicted only
         seen, present = valid.copy(), valid.any()
-        stale = seen & (self.reject_run >= g.reject_limit)      # outputs refused reject_limit times in a row
-        recover = present and (self.since_update >= g.gap_limit or stale.any())
+        stale = seen & (0 < g.reject_limit <= self.reject_run)  # outputs refused reject_limit times in a row
+        recover = present and (0 < g.gap_limit <= self.since_update or stale.any())
         if recover:
             st = self.filt.initial()
             self.z, self.C = reinit(self.z, self.C, aug.shapes["nx"], st["z"], st["C"], g.reinit_scale,
@@ -353,7 +354,7 @@ class PythonStepper:
         self.used = valid.astype(float)
         if self.filt.has_ard:
             self.s = out["s_next"].ravel()
-        return Status.REINITIALISED if recover else code
+        return Status.REINITIALISED if recover else Status.BAD_INPUT if held else code
 
     def std(self) -> np.ndarray:
         """Posterior standard deviations."""
@@ -837,18 +838,17 @@ def _start(stepper, init: dict) -> None:
 
 
 def _part(filt, t, outputs, raw, holes=(), notes=()) -> RunResult:
-    """A RunResult from the raw records of a part: NaN where nothing was done or used."""
+    """A RunResult from the raw records of a part: NaN where nothing was used."""
     code = np.asarray(raw["code"], int)
     valid = np.isfinite(outputs)
-    stepped = code != Status.BAD_INPUT
-    used = (np.asarray(raw["used"]) != 0) & stepped[:, None]
+    used = np.asarray(raw["used"]) != 0
     update = used.any(axis=1)
     f = lambda a, mask: np.where(mask, np.asarray(a, float), np.nan)
-    mean, std = f(raw["z_post"], stepped[:, None]), f(raw["std"], stepped[:, None])
+    mean, std = np.asarray(raw["z_post"], float), np.asarray(raw["std"], float)
     e, ev = f(raw["e"], used), f(raw["pyy"], used)
     nis = f(raw["nis"], update)
-    ll = np.where(update, raw["loglik"], np.where(stepped, 0.0, np.nan))
-    s = f(raw["s"], stepped[:, None]) if filt.has_ard else np.zeros((len(t), 0))
+    ll = np.where(update, raw["loglik"], 0.0)
+    s = np.asarray(raw["s"], float) if filt.has_ard else np.zeros((len(t), 0))
     trace = Trace(*(np.asarray(raw[k], float) for k in ("C_post", "z_next", "C_next", "mem"))) \
         if "C_next" in raw else None
     return RunResult(filt, t, mean, std, e, ev, nis, ll, s, code, np.full((filt.aug.n,) * 2, np.nan),
@@ -858,13 +858,13 @@ def _part(filt, t, outputs, raw, holes=(), notes=()) -> RunResult:
 def _steps(filt, stepper, backend, pieces, again, holes=(), notes=(), strict=False, trace=False):
     """Step over ``pieces`` (grid index of the first sample, t, step inputs, outputs), restarting the
     states before a piece whose first index is in ``again`` (that sample's code: REINITIALISED, as
-    the policy's restart, unless the step was not done or failed); a RunResult per piece."""
+    the policy's restart, unless the step failed); a RunResult per piece."""
     for a, t, u, y in pieces:
         restart = a in again and a > 0
         if restart:
             forget_states(stepper, filt)
         raw = _step_python(stepper, u, y, trace) if backend == "python" else stepper.run_many(u, y)
-        if restart and raw["code"][0] not in (Status.BAD_INPUT, Status.NUMERICAL_FAILURE):
+        if restart and raw["code"][0] != Status.NUMERICAL_FAILURE:
             raw["code"][0] = Status.REINITIALISED
         if strict and np.any(np.asarray(raw["code"]) == Status.NUMERICAL_FAILURE):
             raise FloatingPointError(f"the {filt.kind} filter of '{filt.aug.model.name}' produced non-finite "

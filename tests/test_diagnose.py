@@ -80,6 +80,8 @@ def test_right_effect_on_right_equation(diagnosed, name):
         assert abs(top["coefficient"] - sc.truth) < 4 * top["std"], top
     assert top["std"] > 0 and top["evidence"] > 0
     assert len(d["findings"]) == 1, d["findings"]            # nothing spurious beside it
+    said = lambda f: tuple(f.get(k) for k in ("effect", "equation", "input", "output", "expression"))
+    assert said(top) not in map(said, top.get("as_good", [])), top   # not told apart from itself
 
 
 def test_a_force_bias_on_a_spring_is_not_told_from_an_encoder_offset(diagnosed):

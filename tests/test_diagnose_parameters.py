@@ -250,3 +250,33 @@ def test_a_correction_under_which_the_noises_trade_off_is_still_adopted(tmp_path
     (f,) = rep.findings
     assert f["effect"] == "coulomb_friction" and abs(f["coefficient"] - 1.0) < 3 * f["std"] < 0.15, f
     assert not rep.data["remaining"]["mismatch"]
+
+
+def test_a_delay_found_twice_is_not_told_apart_from_itself(tmp_path):
+    """A spring driven 3 samples late: two finalists of the round adopt the same delay of u, and the
+    finding listed itself as explaining the recording as well (behind by 4e-5 nat)."""
+    import numpy as np
+    from skigen import Model
+    from skigen.diagnose import diagnose
+    from skigen.recording import Recording
+    from skigen.simulate import free_run
+
+    def spring(delay=0):
+        m = Model("spring", dt=0.01, discretization="rk4")
+        p = m.state("p", unit="m", std=0.005)
+        v = m.state("v", unit="m/s", std=0.01, process_std=2e-3)
+        u = m.input("u", unit="N")
+        m.dynamics({p: v, v: -25 * p - 0.4 * v + 2 * (m.input_history(u, delay)[-1] if delay else u)})
+        m.output("pos", p, unit="m", noise_std=1e-3)
+        return m
+
+    rng = np.random.default_rng(11)
+    t = np.arange(3000) * 0.01
+    u = np.sin(2 * np.pi * np.geomspace(0.2, 3.0, 10)[:, None] * t + rng.uniform(0, 2 * np.pi, (10, 1))).sum(0)
+    u /= np.abs(u).max()
+    y = free_run(spring(3), u[:, None], x0=[0.0, 0.0])[1] + 1e-3 * rng.standard_normal((len(t), 1))
+    rep = diagnose(spring(), Recording("spring", t, u[:, None], np.asarray(y), ("u",), ("pos",)), tmp_path,
+                   show_progress=False, figures=False, emit=False)
+    (delay,) = rep.findings
+    assert (delay["effect"], delay["coefficient"]) == ("input_delay", 3.0)
+    assert "as_good" not in delay, delay["as_good"]

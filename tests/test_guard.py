@@ -138,6 +138,24 @@ def test_python_stepper_equals_c_under_faults(sim):
                               Status.MEASUREMENT_SKIPPED, Status.REINITIALISED, Status.NUMERICAL_FAILURE}
 
 
+def test_a_limit_of_0_never_restarts(sim):
+    """reject_limit = 0 and gap_limit = 0 mean never, as gate = 0 and stuck_limit = 0 mean off (a
+    user's 0 used to restart the states at every sample: 2001 of 2001 'recovered', the weights never
+    moved); C and Python alike, through absurd readings and a long dropout."""
+    d = derive(build(), "ukf")
+    u, y = F.inject(sim.delta[:1500, None], sim.phi[:1500, None],
+                    [F.Fault("absurd", 1e6, 300, 330), F.Fault("dropout", 600, 700, 1300)], NOISE_STD)
+    never = Guard(reject_limit=0, gap_limit=0)
+    cf = load_c(d)
+    cf.configure(never)
+    py = PythonStepper(d)
+    py.configure(never)
+    c = cf.run_many(u, y)["code"]
+    np.testing.assert_array_equal(c, [py.step(u[k], y[k]) for k in range(len(u))])
+    assert Status.REINITIALISED not in c and Status.OUTLIER_REJECTED in c and cf.reinits == 0
+    assert np.count_nonzero(c[:700] == Status.OK) == 670            # all but the 30 absurd readings
+
+
 # ----------------------------------------------------------------------------- fault injection
 
 def _example(gen: Path, out: Path) -> Path:
@@ -170,7 +188,7 @@ def test_fault_injection_through_the_flight_computer(real, sim, tmp_path):
     during = {"absurd": {S.OUTLIER_REJECTED},                      # codes while the fault lasts
               "dropout": {S.MEASUREMENT_SKIPPED, S.NUMERICAL_FAILURE},   # long predictions blow up
               "stuck": {S.OK, S.OUTLIER_REJECTED, S.SENSOR_STUCK, S.NUMERICAL_FAILURE},
-              "nonfinite": {S.BAD_INPUT}}
+              "nonfinite": {S.BAD_INPUT, S.NUMERICAL_FAILURE}}   # predicted with the input held: as a dropout
     signature = {"absurd": S.OUTLIER_REJECTED, "dropout": S.MEASUREMENT_SKIPPED, "stuck": S.SENSOR_STUCK,
                  "nonfinite": S.BAD_INPUT}
     for kind in F.FAULTS:

@@ -24,8 +24,8 @@ enum skigen_status {
     SKIGEN_OK = 0,                  /* updated with every measurement and predicted */
     SKIGEN_MEASUREMENT_SKIPPED = 1, /* a non-finite y[i] (NaN = not measured): that output was
                                        skipped, the rest updated, the state predicted */
-    SKIGEN_BAD_INPUT = 2,           /* a non-finite u[i]: nothing done, the state is unchanged
-                                       (only since_update counts the sample) */
+    SKIGEN_BAD_INPUT = 2,           /* a non-finite u[i]: the state predicted with its last finite
+                                       value (u_held[i], 0 before any), no reading used */
     SKIGEN_NUMERICAL_FAILURE = 3,   /* the step gave a non-finite result (failed Cholesky,
                                        non-positive innovation variance, divergence): it was
                                        rejected; z, C keep their prior values, z_post/C_post
@@ -91,8 +91,8 @@ typedef struct {
     quadrotor_rk4_ukf_real gate; /* innovation gate per output, in standard deviations (0: off) */
     quadrotor_rk4_ukf_real reinit_scale; /* variance multiple of the declared initial covariance at a restart */
     quadrotor_rk4_ukf_real std_max[8]; /* bound on each prior standard deviation (INFINITY: none) */
-    long reject_limit; /* readings of an output rejected in a row before its next one restarts the states */
-    long gap_limit; /* samples without a used measurement before the next one restarts */
+    long reject_limit; /* readings of an output rejected in a row before its next one restarts the states (0: never) */
+    long gap_limit; /* samples without a used measurement before the next one restarts (0: never) */
     long stuck_limit; /* identical readings in a row from which an output is stuck (0: off) */
 } quadrotor_rk4_ukf_settings;
 
@@ -108,6 +108,7 @@ typedef struct {
     quadrotor_rk4_ukf_real loglik; /* log-likelihood of the measurement */
     quadrotor_rk4_ukf_real used[6]; /* 1 where y[i] updated the state at the last sample, else 0 */
     quadrotor_rk4_ukf_real y_last[6]; /* last finite reading of each output (stuck-sensor check) */
+    quadrotor_rk4_ukf_real u_held[3]; /* last finite value of each input, used where one is not */
     quadrotor_rk4_ukf_real z_next[8]; /* scratch: kernel results awaiting acceptance */
     quadrotor_rk4_ukf_real C_next[64]; /* scratch */
     quadrotor_rk4_ukf_real mem_next[1]; /* scratch */

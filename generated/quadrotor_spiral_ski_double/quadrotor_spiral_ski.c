@@ -209,10 +209,30 @@ int quadrotor_spiral_ski_settings_check(const quadrotor_spiral_ski_settings* set
     return 0;
 }
 
+/* 1 if the symmetric A (m x m, column-major, lower triangle read) is positive semi-definite to
+ * 100 machine epsilons of scale[j]: its Cholesky factor, taken in place, has no pivot below
+ * -TOL scale[j]. */
+static int semidefinite(real* A, int m, const real* scale)
+{
+    int i, j, k;
+    for (j = 0; j < m; ++j) {
+        real d = A[j + j * m];
+        for (k = 0; k < j; ++k) d -= A[j + k * m] * A[j + k * m];
+        if (d < -2.220446049250313e-14 * scale[j]) return 0;
+        A[j + j * m] = d > 0 ? sqrt(d) : 0;
+        for (i = j + 1; i < m; ++i) {
+            real t = A[i + j * m];
+            for (k = 0; k < j; ++k) t -= A[i + k * m] * A[j + k * m];
+            A[i + j * m] = d > 0 ? t / A[j + j * m] : 0;
+        }
+    }
+    return 1;
+}
+
 /* 1 if the weight rows F of the factor C give P_ww = F F' <= diag(s0) (to 100 machine epsilons):
  * the EM update views the posterior under s from the filter's under the declared s0, which holds
- * only while that bound does (updates shrink P_ww, constant weights keep it). The Cholesky factor
- * of diag(s0) - P_ww is taken in the scratch C_next. */
+ * only while that bound does (updates shrink P_ww, constant weights keep it). diag(s0) - P_ww is
+ * factorised in the scratch C_next. */
 static int within_prior(quadrotor_spiral_ski_state* st, const real* C)
 {
     const int nx = QUADROTOR_SPIRAL_SKI_NX, m = QUADROTOR_SPIRAL_SKI_NW, n = QUADROTOR_SPIRAL_SKI_N;
@@ -224,18 +244,7 @@ static int within_prior(quadrotor_spiral_ski_state* st, const real* C)
             for (k = 0; k < n; ++k) p += C[nx + i + k * n] * C[nx + j + k * n];
             A[i + j * m] = (i == j ? s0[i] : 0) - p;
         }
-    for (j = 0; j < m; ++j) {
-        real d = A[j + j * m];
-        for (k = 0; k < j; ++k) d -= A[j + k * m] * A[j + k * m];
-        if (d < -2.220446049250313e-14 * s0[j]) return 0;
-        A[j + j * m] = d > 0 ? sqrt(d) : 0;
-        for (i = j + 1; i < m; ++i) {
-            real t = A[i + j * m];
-            for (k = 0; k < j; ++k) t -= A[i + k * m] * A[j + k * m];
-            A[i + j * m] = d > 0 ? t / A[j + j * m] : 0;
-        }
-    }
-    return 1;
+    return semidefinite(A, m, s0);
 }
 
 int quadrotor_spiral_ski_reset(quadrotor_spiral_ski_state* st, const real* z_start, const real* C_start)
@@ -261,6 +270,7 @@ int quadrotor_spiral_ski_reset(quadrotor_spiral_ski_state* st, const real* z_sta
     st->loglik = 0;
     zero_n(st->used, 3);
     zero_n(st->y_last, 3);
+    zero_n(st->u_held, 5);
     zero_l(st->rejected, 3);
     zero_l(st->stuck, 3);
     zero_l(st->repeats, 3);
@@ -324,15 +334,15 @@ int quadrotor_spiral_ski_step(quadrotor_spiral_ski_state* st, const real* u, con
 {
     real yv[3], valid[3];
     int seen[3];
-    int i, failed, present = 0, used = 0, gated = 0, recover, code = SKIGEN_OK;
+    int i, failed, present = 0, used = 0, gated = 0, held = 0, recover, code = SKIGEN_OK;
 
     if (quadrotor_spiral_ski_settings_check(&st->settings)) return SKIGEN_BAD_SETTINGS;
-    for (i = 0; i < QUADROTOR_SPIRAL_SKI_NU; ++i) if (!isfinite(u[i])) {
-        count(&st->since_update);
-        return SKIGEN_BAD_INPUT;
+    for (i = 0; i < QUADROTOR_SPIRAL_SKI_NU; ++i) {          /* a non-finite input: its last finite value */
+        if (isfinite(u[i])) st->u_held[i] = u[i];
+        else held = 1;
     }
-    for (i = 0; i < QUADROTOR_SPIRAL_SKI_NY; ++i) {
-        int ok = y != 0 && isfinite(y[i]);
+    for (i = 0; i < QUADROTOR_SPIRAL_SKI_NY; ++i) {       /* with an input held, the readings are not used */
+        int ok = !held && y != 0 && isfinite(y[i]);
         if (ok) {
             st->repeats[i] = y[i] == st->y_last[i] ? st->repeats[i] + 1 : 0;
             st->y_last[i] = y[i];
@@ -349,11 +359,11 @@ int quadrotor_spiral_ski_step(quadrotor_spiral_ski_state* st, const real* u, con
         seen[i] = ok;
         present += ok;
     }
-    recover = present && st->since_update >= st->settings.gap_limit;
+    recover = present && st->settings.gap_limit > 0 && st->since_update >= st->settings.gap_limit;
     for (i = 0; i < QUADROTOR_SPIRAL_SKI_NY; ++i)          /* an output refused reject_limit times in a row */
-        if (seen[i] && st->reject_run[i] >= st->settings.reject_limit) recover = 1;
+        if (seen[i] && st->settings.reject_limit > 0 && st->reject_run[i] >= st->settings.reject_limit) recover = 1;
     if (recover) reinit(st);
-    failed = run_kernel(st, u, yv, valid);
+    failed = run_kernel(st, st->u_held, yv, valid);
     if (!recover && st->settings.gate > 0) {
         for (i = 0; i < QUADROTOR_SPIRAL_SKI_NY; ++i) {
             real sd = st->Pyy[i + i * QUADROTOR_SPIRAL_SKI_NY];
@@ -366,7 +376,7 @@ int quadrotor_spiral_ski_step(quadrotor_spiral_ski_state* st, const real* u, con
             }
         }
         if (gated) {
-            failed = run_kernel(st, u, yv, valid);
+            failed = run_kernel(st, st->u_held, yv, valid);
             code = SKIGEN_OUTLIER_REJECTED;
         }
     }
@@ -399,7 +409,7 @@ int quadrotor_spiral_ski_step(quadrotor_spiral_ski_state* st, const real* u, con
     copy_n(st->C, st->C_next, 196);
     copy_n(st->s, st->s_next, 8);
     copy_n(st->mem, st->mem_next, 0);
-    return recover ? SKIGEN_REINITIALISED : code;
+    return recover ? SKIGEN_REINITIALISED : held ? SKIGEN_BAD_INPUT : code;
 }
 
 void quadrotor_spiral_ski_std(const quadrotor_spiral_ski_state* st, real* out)

@@ -203,6 +203,7 @@ int wingrock_delay_ukf_reset(wingrock_delay_ukf_state* st, const real* z_start, 
     st->loglik = 0;
     zero_n(st->used, 1);
     zero_n(st->y_last, 1);
+    zero_n(st->u_held, 1);
     zero_l(st->rejected, 1);
     zero_l(st->stuck, 1);
     zero_l(st->repeats, 1);
@@ -263,15 +264,15 @@ int wingrock_delay_ukf_step(wingrock_delay_ukf_state* st, const real* u, const r
 {
     real yv[1], valid[1];
     int seen[1];
-    int i, failed, present = 0, used = 0, gated = 0, recover, code = SKIGEN_OK;
+    int i, failed, present = 0, used = 0, gated = 0, held = 0, recover, code = SKIGEN_OK;
 
     if (wingrock_delay_ukf_settings_check(&st->settings)) return SKIGEN_BAD_SETTINGS;
-    for (i = 0; i < WINGROCK_DELAY_UKF_NU; ++i) if (!isfinite(u[i])) {
-        count(&st->since_update);
-        return SKIGEN_BAD_INPUT;
+    for (i = 0; i < WINGROCK_DELAY_UKF_NU; ++i) {          /* a non-finite input: its last finite value */
+        if (isfinite(u[i])) st->u_held[i] = u[i];
+        else held = 1;
     }
-    for (i = 0; i < WINGROCK_DELAY_UKF_NY; ++i) {
-        int ok = y != 0 && isfinite(y[i]);
+    for (i = 0; i < WINGROCK_DELAY_UKF_NY; ++i) {       /* with an input held, the readings are not used */
+        int ok = !held && y != 0 && isfinite(y[i]);
         if (ok) {
             st->repeats[i] = y[i] == st->y_last[i] ? st->repeats[i] + 1 : 0;
             st->y_last[i] = y[i];
@@ -288,11 +289,11 @@ int wingrock_delay_ukf_step(wingrock_delay_ukf_state* st, const real* u, const r
         seen[i] = ok;
         present += ok;
     }
-    recover = present && st->since_update >= st->settings.gap_limit;
+    recover = present && st->settings.gap_limit > 0 && st->since_update >= st->settings.gap_limit;
     for (i = 0; i < WINGROCK_DELAY_UKF_NY; ++i)          /* an output refused reject_limit times in a row */
-        if (seen[i] && st->reject_run[i] >= st->settings.reject_limit) recover = 1;
+        if (seen[i] && st->settings.reject_limit > 0 && st->reject_run[i] >= st->settings.reject_limit) recover = 1;
     if (recover) reinit(st);
-    failed = run_kernel(st, u, yv, valid);
+    failed = run_kernel(st, st->u_held, yv, valid);
     if (!recover && st->settings.gate > 0) {
         for (i = 0; i < WINGROCK_DELAY_UKF_NY; ++i) {
             real sd = st->Pyy[i + i * WINGROCK_DELAY_UKF_NY];
@@ -305,7 +306,7 @@ int wingrock_delay_ukf_step(wingrock_delay_ukf_state* st, const real* u, const r
             }
         }
         if (gated) {
-            failed = run_kernel(st, u, yv, valid);
+            failed = run_kernel(st, st->u_held, yv, valid);
             code = SKIGEN_OUTLIER_REJECTED;
         }
     }
@@ -337,7 +338,7 @@ int wingrock_delay_ukf_step(wingrock_delay_ukf_state* st, const real* u, const r
     copy_n(st->z, st->z_next, 10);
     copy_n(st->C, st->C_next, 100);
     copy_n(st->mem, st->mem_next, 7);
-    return recover ? SKIGEN_REINITIALISED : code;
+    return recover ? SKIGEN_REINITIALISED : held ? SKIGEN_BAD_INPUT : code;
 }
 
 void wingrock_delay_ukf_std(const wingrock_delay_ukf_state* st, real* out)

@@ -170,6 +170,42 @@ int wingrock_ekf_settings_check(const wingrock_ekf_settings* set)
     return 0;
 }
 
+/* 1 if the symmetric A (m x m, column-major, lower triangle read) is positive semi-definite to
+ * 100 machine epsilons of scale[j]: its Cholesky factor, taken in place, has no pivot below
+ * -TOL scale[j]. */
+static int semidefinite(real* A, int m, const real* scale)
+{
+    int i, j, k;
+    for (j = 0; j < m; ++j) {
+        real d = A[j + j * m];
+        for (k = 0; k < j; ++k) d -= A[j + k * m] * A[j + k * m];
+        if (d < -1.1920928955078125e-05f * scale[j]) return 0;
+        A[j + j * m] = d > 0 ? sqrtf(d) : 0;
+        for (i = j + 1; i < m; ++i) {
+            real t = A[i + j * m];
+            for (k = 0; k < j; ++k) t -= A[i + k * m] * A[j + k * m];
+            A[i + j * m] = d > 0 ? t / A[j + j * m] : 0;
+        }
+    }
+    return 1;
+}
+
+/* 1 if P is a covariance: symmetric and positive semi-definite, each to 100 machine epsilons of
+ * its diagonal; factorised in the scratch C_next. */
+static int covariance(wingrock_ekf_state* st, const real* P)
+{
+    const int n = WINGROCK_EKF_N;
+    real d[WINGROCK_EKF_N];
+    int i, j;
+    for (j = 0; j < n; ++j) d[j] = P[j + j * n];
+    for (j = 0; j < n; ++j)
+        for (i = j; i < n; ++i) {
+            if (fabsf(P[i + j * n] - P[j + i * n]) > 1.1920928955078125e-05f * sqrtf(d[i] * d[j])) return 0;
+            st->C_next[i + j * n] = P[i + j * n];
+        }
+    return semidefinite(st->C_next, n, d);
+}
+
 int wingrock_ekf_reset(wingrock_ekf_state* st, const real* z_start, const real* C_start)
 {
     const int n = WINGROCK_EKF_N;
@@ -181,6 +217,7 @@ int wingrock_ekf_reset(wingrock_ekf_state* st, const real* z_start, const real* 
             if (C_start[j + j * n] < 0) return 2;
             for (i = 0; i < j; ++i) if (WINGROCK_EKF_SQUARE_ROOT && C_start[i + j * n] != 0) return 2;
         }
+        if (!covariance(st, C_start)) return 2;
     }
     copy_n(st->z, z0, 8);
     copy_n(st->C, C0, 64);
@@ -191,6 +228,7 @@ int wingrock_ekf_reset(wingrock_ekf_state* st, const real* z_start, const real* 
     st->loglik = 0;
     zero_n(st->used, 1);
     zero_n(st->y_last, 1);
+    zero_n(st->u_held, 1);
     zero_l(st->rejected, 1);
     zero_l(st->stuck, 1);
     zero_l(st->repeats, 1);
@@ -251,15 +289,15 @@ int wingrock_ekf_step(wingrock_ekf_state* st, const real* u, const real* y)
 {
     real yv[1], valid[1];
     int seen[1];
-    int i, failed, present = 0, used = 0, gated = 0, recover, code = SKIGEN_OK;
+    int i, failed, present = 0, used = 0, gated = 0, held = 0, recover, code = SKIGEN_OK;
 
     if (wingrock_ekf_settings_check(&st->settings)) return SKIGEN_BAD_SETTINGS;
-    for (i = 0; i < WINGROCK_EKF_NU; ++i) if (!isfinite(u[i])) {
-        count(&st->since_update);
-        return SKIGEN_BAD_INPUT;
+    for (i = 0; i < WINGROCK_EKF_NU; ++i) {          /* a non-finite input: its last finite value */
+        if (isfinite(u[i])) st->u_held[i] = u[i];
+        else held = 1;
     }
-    for (i = 0; i < WINGROCK_EKF_NY; ++i) {
-        int ok = y != 0 && isfinite(y[i]);
+    for (i = 0; i < WINGROCK_EKF_NY; ++i) {       /* with an input held, the readings are not used */
+        int ok = !held && y != 0 && isfinite(y[i]);
         if (ok) {
             st->repeats[i] = y[i] == st->y_last[i] ? st->repeats[i] + 1 : 0;
             st->y_last[i] = y[i];
@@ -276,11 +314,11 @@ int wingrock_ekf_step(wingrock_ekf_state* st, const real* u, const real* y)
         seen[i] = ok;
         present += ok;
     }
-    recover = present && st->since_update >= st->settings.gap_limit;
+    recover = present && st->settings.gap_limit > 0 && st->since_update >= st->settings.gap_limit;
     for (i = 0; i < WINGROCK_EKF_NY; ++i)          /* an output refused reject_limit times in a row */
-        if (seen[i] && st->reject_run[i] >= st->settings.reject_limit) recover = 1;
+        if (seen[i] && st->settings.reject_limit > 0 && st->reject_run[i] >= st->settings.reject_limit) recover = 1;
     if (recover) reinit(st);
-    failed = run_kernel(st, u, yv, valid);
+    failed = run_kernel(st, st->u_held, yv, valid);
     if (!recover && st->settings.gate > 0) {
         for (i = 0; i < WINGROCK_EKF_NY; ++i) {
             real sd = st->Pyy[i + i * WINGROCK_EKF_NY];
@@ -293,7 +331,7 @@ int wingrock_ekf_step(wingrock_ekf_state* st, const real* u, const real* y)
             }
         }
         if (gated) {
-            failed = run_kernel(st, u, yv, valid);
+            failed = run_kernel(st, st->u_held, yv, valid);
             code = SKIGEN_OUTLIER_REJECTED;
         }
     }
@@ -325,7 +363,7 @@ int wingrock_ekf_step(wingrock_ekf_state* st, const real* u, const real* y)
     copy_n(st->z, st->z_next, 8);
     copy_n(st->C, st->C_next, 64);
     copy_n(st->mem, st->mem_next, 0);
-    return recover ? SKIGEN_REINITIALISED : code;
+    return recover ? SKIGEN_REINITIALISED : held ? SKIGEN_BAD_INPUT : code;
 }
 
 void wingrock_ekf_std(const wingrock_ekf_state* st, real* out)

@@ -24,8 +24,8 @@ enum skigen_status {
     SKIGEN_OK = 0,                  /* updated with every measurement and predicted */
     SKIGEN_MEASUREMENT_SKIPPED = 1, /* a non-finite y[i] (NaN = not measured): that output was
                                        skipped, the rest updated, the state predicted */
-    SKIGEN_BAD_INPUT = 2,           /* a non-finite u[i]: nothing done, the state is unchanged
-                                       (only since_update counts the sample) */
+    SKIGEN_BAD_INPUT = 2,           /* a non-finite u[i]: the state predicted with its last finite
+                                       value (u_held[i], 0 before any), no reading used */
     SKIGEN_NUMERICAL_FAILURE = 3,   /* the step gave a non-finite result (failed Cholesky,
                                        non-positive innovation variance, divergence): it was
                                        rejected; z, C keep their prior values, z_post/C_post
@@ -84,8 +84,8 @@ typedef struct {
     wingrock_ekf_real gate; /* innovation gate per output, in standard deviations (0: off) */
     wingrock_ekf_real reinit_scale; /* variance multiple of the declared initial covariance at a restart */
     wingrock_ekf_real std_max[8]; /* bound on each prior standard deviation (INFINITY: none) */
-    long reject_limit; /* readings of an output rejected in a row before its next one restarts the states */
-    long gap_limit; /* samples without a used measurement before the next one restarts */
+    long reject_limit; /* readings of an output rejected in a row before its next one restarts the states (0: never) */
+    long gap_limit; /* samples without a used measurement before the next one restarts (0: never) */
     long stuck_limit; /* identical readings in a row from which an output is stuck (0: off) */
 } wingrock_ekf_settings;
 
@@ -101,6 +101,7 @@ typedef struct {
     wingrock_ekf_real loglik; /* log-likelihood of the measurement */
     wingrock_ekf_real used[1]; /* 1 where y[i] updated the state at the last sample, else 0 */
     wingrock_ekf_real y_last[1]; /* last finite reading of each output (stuck-sensor check) */
+    wingrock_ekf_real u_held[1]; /* last finite value of each input, used where one is not */
     wingrock_ekf_real z_next[8]; /* scratch: kernel results awaiting acceptance */
     wingrock_ekf_real C_next[64]; /* scratch */
     wingrock_ekf_real mem_next[1]; /* scratch */
@@ -139,7 +140,7 @@ int wingrock_ekf_settings_check(const wingrock_ekf_settings* set);
  * (EKF) or its lower Cholesky factor S, as C); NULL takes the declared value. The input history
  * and counters restart at 0; st->settings is kept. Returns 0, or refuses and leaves the
  * state unchanged: 1 when z0 has a non-finite entry, 2 when C0 has one or a negative diagonal
- * entry. */
+ * entry, or when it is not symmetric and positive semi-definite (to 100 machine epsilons). */
 int wingrock_ekf_reset(wingrock_ekf_state* st, const float* z0, const float* C0);
 
 /* One sample: u[WINGROCK_EKF_NU] inputs, y[WINGROCK_EKF_NY] measurements (NaN = missing; y may be

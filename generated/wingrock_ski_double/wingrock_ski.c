@@ -172,10 +172,30 @@ int wingrock_ski_settings_check(const wingrock_ski_settings* set)
     return 0;
 }
 
+/* 1 if the symmetric A (m x m, column-major, lower triangle read) is positive semi-definite to
+ * 100 machine epsilons of scale[j]: its Cholesky factor, taken in place, has no pivot below
+ * -TOL scale[j]. */
+static int semidefinite(real* A, int m, const real* scale)
+{
+    int i, j, k;
+    for (j = 0; j < m; ++j) {
+        real d = A[j + j * m];
+        for (k = 0; k < j; ++k) d -= A[j + k * m] * A[j + k * m];
+        if (d < -2.220446049250313e-14 * scale[j]) return 0;
+        A[j + j * m] = d > 0 ? sqrt(d) : 0;
+        for (i = j + 1; i < m; ++i) {
+            real t = A[i + j * m];
+            for (k = 0; k < j; ++k) t -= A[i + k * m] * A[j + k * m];
+            A[i + j * m] = d > 0 ? t / A[j + j * m] : 0;
+        }
+    }
+    return 1;
+}
+
 /* 1 if the weight rows F of the factor C give P_ww = F F' <= diag(s0) (to 100 machine epsilons):
  * the EM update views the posterior under s from the filter's under the declared s0, which holds
- * only while that bound does (updates shrink P_ww, constant weights keep it). The Cholesky factor
- * of diag(s0) - P_ww is taken in the scratch C_next. */
+ * only while that bound does (updates shrink P_ww, constant weights keep it). diag(s0) - P_ww is
+ * factorised in the scratch C_next. */
 static int within_prior(wingrock_ski_state* st, const real* C)
 {
     const int nx = WINGROCK_SKI_NX, m = WINGROCK_SKI_NW, n = WINGROCK_SKI_N;
@@ -187,18 +207,7 @@ static int within_prior(wingrock_ski_state* st, const real* C)
             for (k = 0; k < n; ++k) p += C[nx + i + k * n] * C[nx + j + k * n];
             A[i + j * m] = (i == j ? s0[i] : 0) - p;
         }
-    for (j = 0; j < m; ++j) {
-        real d = A[j + j * m];
-        for (k = 0; k < j; ++k) d -= A[j + k * m] * A[j + k * m];
-        if (d < -2.220446049250313e-14 * s0[j]) return 0;
-        A[j + j * m] = d > 0 ? sqrt(d) : 0;
-        for (i = j + 1; i < m; ++i) {
-            real t = A[i + j * m];
-            for (k = 0; k < j; ++k) t -= A[i + k * m] * A[j + k * m];
-            A[i + j * m] = d > 0 ? t / A[j + j * m] : 0;
-        }
-    }
-    return 1;
+    return semidefinite(A, m, s0);
 }
 
 int wingrock_ski_reset(wingrock_ski_state* st, const real* z_start, const real* C_start)
@@ -224,6 +233,7 @@ int wingrock_ski_reset(wingrock_ski_state* st, const real* z_start, const real* 
     st->loglik = 0;
     zero_n(st->used, 1);
     zero_n(st->y_last, 1);
+    zero_n(st->u_held, 1);
     zero_l(st->rejected, 1);
     zero_l(st->stuck, 1);
     zero_l(st->repeats, 1);
@@ -287,15 +297,15 @@ int wingrock_ski_step(wingrock_ski_state* st, const real* u, const real* y)
 {
     real yv[1], valid[1];
     int seen[1];
-    int i, failed, present = 0, used = 0, gated = 0, recover, code = SKIGEN_OK;
+    int i, failed, present = 0, used = 0, gated = 0, held = 0, recover, code = SKIGEN_OK;
 
     if (wingrock_ski_settings_check(&st->settings)) return SKIGEN_BAD_SETTINGS;
-    for (i = 0; i < WINGROCK_SKI_NU; ++i) if (!isfinite(u[i])) {
-        count(&st->since_update);
-        return SKIGEN_BAD_INPUT;
+    for (i = 0; i < WINGROCK_SKI_NU; ++i) {          /* a non-finite input: its last finite value */
+        if (isfinite(u[i])) st->u_held[i] = u[i];
+        else held = 1;
     }
-    for (i = 0; i < WINGROCK_SKI_NY; ++i) {
-        int ok = y != 0 && isfinite(y[i]);
+    for (i = 0; i < WINGROCK_SKI_NY; ++i) {       /* with an input held, the readings are not used */
+        int ok = !held && y != 0 && isfinite(y[i]);
         if (ok) {
             st->repeats[i] = y[i] == st->y_last[i] ? st->repeats[i] + 1 : 0;
             st->y_last[i] = y[i];
@@ -312,11 +322,11 @@ int wingrock_ski_step(wingrock_ski_state* st, const real* u, const real* y)
         seen[i] = ok;
         present += ok;
     }
-    recover = present && st->since_update >= st->settings.gap_limit;
+    recover = present && st->settings.gap_limit > 0 && st->since_update >= st->settings.gap_limit;
     for (i = 0; i < WINGROCK_SKI_NY; ++i)          /* an output refused reject_limit times in a row */
-        if (seen[i] && st->reject_run[i] >= st->settings.reject_limit) recover = 1;
+        if (seen[i] && st->settings.reject_limit > 0 && st->reject_run[i] >= st->settings.reject_limit) recover = 1;
     if (recover) reinit(st);
-    failed = run_kernel(st, u, yv, valid);
+    failed = run_kernel(st, st->u_held, yv, valid);
     if (!recover && st->settings.gate > 0) {
         for (i = 0; i < WINGROCK_SKI_NY; ++i) {
             real sd = st->Pyy[i + i * WINGROCK_SKI_NY];
@@ -329,7 +339,7 @@ int wingrock_ski_step(wingrock_ski_state* st, const real* u, const real* y)
             }
         }
         if (gated) {
-            failed = run_kernel(st, u, yv, valid);
+            failed = run_kernel(st, st->u_held, yv, valid);
             code = SKIGEN_OUTLIER_REJECTED;
         }
     }
@@ -362,7 +372,7 @@ int wingrock_ski_step(wingrock_ski_state* st, const real* u, const real* y)
     copy_n(st->C, st->C_next, 64);
     copy_n(st->s, st->s_next, 6);
     copy_n(st->mem, st->mem_next, 0);
-    return recover ? SKIGEN_REINITIALISED : code;
+    return recover ? SKIGEN_REINITIALISED : held ? SKIGEN_BAD_INPUT : code;
 }
 
 void wingrock_ski_std(const wingrock_ski_state* st, real* out)

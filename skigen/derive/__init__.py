@@ -117,10 +117,15 @@ class DerivedFilter:
         if C is None:
             return None
         C = np.asarray(C, float)
-        if not np.all(np.isfinite(C)) or np.any(np.diag(C) < 0) or (self.square_root and np.any(np.triu(C, 1))):
-            return ("C0 is not a lower Cholesky factor S: an entry non-finite, negative on the diagonal or "
-                    "non-zero above it" if self.square_root else
-                    "C0 is not a covariance P: an entry non-finite or negative on the diagonal")
+        tol = 100 * np.finfo(float).eps
+        if self.square_root:
+            if not np.all(np.isfinite(C)) or np.any(np.diag(C) < 0) or np.any(np.triu(C, 1)):
+                return "C0 is not a lower Cholesky factor S: an entry non-finite, negative on the diagonal or non-zero above it"
+        elif not (np.all(np.isfinite(C)) and np.all(np.diag(C) >= 0)
+                  and np.all(np.abs(C - C.T) <= tol * np.sqrt(np.outer(np.diag(C), np.diag(C))))
+                  and np.linalg.eigvalsh(C / np.sqrt(np.outer(*[np.diag(C).clip(1e-300)] * 2))).min() >= -tol * len(C)):
+            return ("C0 is not a covariance P: an entry non-finite or negative on the diagonal, or it is not "
+                    "symmetric positive semi-definite")
         from .ski import bounded_by_prior
         if self.has_ard and bounded_by_prior(self.aug, self.options):
             w = self.aug.w_index

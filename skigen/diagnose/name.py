@@ -319,6 +319,11 @@ def _additive(nominal, current: Correction, cands, rec, folds: Folds, rms, size,
     return Proposal("additive", 0.0, len(new.additive) - len(current.additive), new, label, score)
 
 
+def _said(item: dict) -> tuple:
+    """A report item as the report states it: its effect, where, and expression."""
+    return tuple(item.get(k) for k in ("effect", "equation", "input", "output", "through", "expression"))
+
+
 def _where(c: Additive) -> str:
     return f"{c.effect} on {c.equation}" + (f" through {c.through}" if c.through else "")
 
@@ -569,10 +574,12 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
         new, recal, score, chosen = max(adopted, key=lambda a: np.sum(a[2]))
         history[-1] = chosen
         chosen.adopted = added(corr, new)
+        same = {_said(a) for a in chosen.adopted}
         for other, _, other_score, p in adopted:      # a finalist within what a finding must add: a tie
             behind = float(np.sum(score) - np.sum(other_score))
-            if p is not chosen and behind < evidence_threshold(alpha):
-                chosen.as_good += [item | {"cv_loglik_behind": behind} for item in added(corr, other)]
+            if p is not chosen and behind < evidence_threshold(alpha):   # not the same change found twice
+                chosen.as_good += [item | {"cv_loglik_behind": behind} for item in added(corr, other)
+                                   if _said(item) not in same]
         if len(history) > 1:               # a further change: weighed as evidence.weigh would weigh it
             ev, total = _share(recal, corr, new, score, rec, folds, rms, size)
             if ev < max(evidence_threshold(alpha), MIN_SHARE * total):

@@ -116,6 +116,7 @@ def _fields(filt: DerivedFilter) -> list[tuple[str, tuple, str]]:
             ("loglik", (), "log-likelihood of the measurement"),
             ("used", (ny,), "1 where y[i] updated the state at the last sample, else 0"),
             ("y_last", (ny,), "last finite reading of each output (stuck-sensor check)"),
+            ("u_held", (d["nu"],), "last finite value of each input, used where one is not"),
             ("z_next", (n,), "scratch: kernel results awaiting acceptance"),
             ("C_next", (n, n), "scratch"),
             ("s_next", (nw,), "scratch"),
@@ -132,8 +133,8 @@ def _settings(filt: DerivedFilter) -> list[tuple[str, str, tuple, str]]:
             ("gate", "real", (), "innovation gate per output, in standard deviations (0: off)"),
             ("reinit_scale", "real", (), "variance multiple of the declared initial covariance at a restart"),
             ("std_max", "real", (n,), "bound on each prior standard deviation (INFINITY: none)"),
-            ("reject_limit", "long", (), "readings of an output rejected in a row before its next one restarts the states"),
-            ("gap_limit", "long", (), "samples without a used measurement before the next one restarts"),
+            ("reject_limit", "long", (), "readings of an output rejected in a row before its next one restarts the states (0: never)"),
+            ("gap_limit", "long", (), "samples without a used measurement before the next one restarts (0: never)"),
             ("stuck_limit", "long", (), "identical readings in a row from which an output is stuck (0: off)")]
 
 
@@ -399,9 +400,11 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
                    "ski": "SKI (square-root UKF with ARD)", "mukf": "marginalised square-root UKF (MUKF)",
                    "ski_mukf": "SKI on the marginalised UKF (MUKF with ARD)"}[filt.kind],
         s_note=", s" if "s" in fields else "", s_reset=", s at its declared value" if "s" in fields else "",
-        c0_rule=", or (S is lower-triangular) a non-zero entry above the diagonal" if filt.square_root else "",
+        c0_rule=(", or (S is lower-triangular) a non-zero entry above the diagonal" if filt.square_root else
+                 ", or when it is not symmetric and positive semi-definite (to 100 machine epsilons)"),
         c0_bound=_C0_BOUND if em_bound else "", q_bound=_Q_BOUND if em_bound else "",
-        c0_bound_check="        if (!within_prior(st, C_start)) return 3;\n" if em_bound else "",
+        c0_bound_check=("        if (!covariance(st, C_start)) return 2;\n" if not filt.square_root else "")
+        + ("        if (!within_prior(st, C_start)) return 3;\n" if em_bound else ""),
         q_bound_check=f" || (i >= {prefix.upper()}_NX && set->Q_sqrt[i + j * n] != 0)" if em_bound else "",
         NPAR=filt.aug.fixed.shape[0],
         DT=_literal(float(model.dt), real), index=_index_macros(filt, prefix.upper()),
@@ -416,9 +419,11 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
         hold_note=_FOH_NOTE if model.input_hold == "foh" else "",
         nu_note=" per step: u_k, then u_{k+1} (first-order hold)" if model.input_hold == "foh" else "",
         output_names=_c_strings(v.name for v in model.outputs))
-    values["prior_bound"] = string.Template((_HERE / "prior_bound.c.in").read_text()).substitute(
-        values, TOL=_literal(100 * np.finfo(np.float32 if real == "float" else float).eps, real)) + "\n" \
-        if em_bound else ""
+    checks = (["semidefinite"] if em_bound or not filt.square_root else []) \
+        + (["covariance"] if not filt.square_root else []) + (["within_prior"] if em_bound else [])
+    tol = _literal(100 * np.finfo(np.float32 if real == "float" else float).eps, real)
+    values["start_checks"] = "".join(string.Template((_HERE / f"{name}.c.in").read_text()).substitute(values, TOL=tol)
+                                     for name in checks)
     texts = {f"{prefix}.h": string.Template((_HERE / "filter.h.in").read_text()).substitute(values),
              f"{prefix}.c": string.Template((_HERE / "filter.c.in").read_text()).substitute(values),
              **kernel_files}
