@@ -5,6 +5,10 @@
 #include "quadrotor_euler_mukf.h"
 #include "quadrotor_euler_mukf_kernel.h"
 
+#if defined(__FINITE_MATH_ONLY__) && __FINITE_MATH_ONLY__
+#error "skigen: a NaN reading means not measured, which isfinite() cannot see under -ffast-math: add -fno-finite-math-only"
+#endif
+
 typedef quadrotor_euler_mukf_real real;
 
 const char* const quadrotor_euler_mukf_state_names[QUADROTOR_EULER_MUKF_N] = {"v_x", "v_y", "v_z", "x", "y", "z", "theta", "phi"};

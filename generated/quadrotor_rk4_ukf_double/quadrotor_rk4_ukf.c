@@ -5,6 +5,10 @@
 #include "quadrotor_rk4_ukf.h"
 #include "quadrotor_rk4_ukf_kernel.h"
 
+#if defined(__FINITE_MATH_ONLY__) && __FINITE_MATH_ONLY__
+#error "skigen: a NaN reading means not measured, which isfinite() cannot see under -ffast-math: add -fno-finite-math-only"
+#endif
+
 typedef quadrotor_rk4_ukf_real real;
 
 const char* const quadrotor_rk4_ukf_state_names[QUADROTOR_RK4_UKF_N] = {"v_x", "v_y", "v_z", "x", "y", "z", "theta", "phi"};

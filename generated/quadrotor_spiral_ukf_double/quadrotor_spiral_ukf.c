@@ -5,6 +5,10 @@
 #include "quadrotor_spiral_ukf.h"
 #include "quadrotor_spiral_ukf_kernel.h"
 
+#if defined(__FINITE_MATH_ONLY__) && __FINITE_MATH_ONLY__
+#error "skigen: a NaN reading means not measured, which isfinite() cannot see under -ffast-math: add -fno-finite-math-only"
+#endif
+
 typedef quadrotor_spiral_ukf_real real;
 
 const char* const quadrotor_spiral_ukf_state_names[QUADROTOR_SPIRAL_UKF_N] = {"px", "py", "pz", "vx", "vy", "vz", "w_one", "w_pwm", "w_pwm2", "w_pwm3", "w_pwm4", "w_pwm5", "w_drag_lin", "w_drag_quad"};

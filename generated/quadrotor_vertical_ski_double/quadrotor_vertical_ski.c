@@ -5,6 +5,10 @@
 #include "quadrotor_vertical_ski.h"
 #include "quadrotor_vertical_ski_kernel.h"
 
+#if defined(__FINITE_MATH_ONLY__) && __FINITE_MATH_ONLY__
+#error "skigen: a NaN reading means not measured, which isfinite() cannot see under -ffast-math: add -fno-finite-math-only"
+#endif
+
 typedef quadrotor_vertical_ski_real real;
 
 const char* const quadrotor_vertical_ski_state_names[QUADROTOR_VERTICAL_SKI_N] = {"pz", "vz", "w_one", "w_pwm", "w_pwm2", "w_pwm3", "w_pwm4", "w_pwm5"};

@@ -5,6 +5,10 @@
 #include "wingrock_delay48_ski.h"
 #include "wingrock_delay48_ski_kernel.h"
 
+#if defined(__FINITE_MATH_ONLY__) && __FINITE_MATH_ONLY__
+#error "skigen: a NaN reading means not measured, which isfinite() cannot see under -ffast-math: add -fno-finite-math-only"
+#endif
+
 typedef wingrock_delay48_ski_real real;
 
 const char* const wingrock_delay48_ski_state_names[WINGROCK_DELAY48_SKI_N] = {"theta", "p", "w_delta_d0", "w_delta_d1", "w_delta_d2", "w_delta_d3", "w_delta_d4", "w_delta_d5", "w_delta_d6", "w_delta_d7", "w_delta_d8", "w_delta_d9", "w_delta_d10", "w_delta_d11", "w_delta_d12", "w_delta_d13", "w_delta_d14", "w_delta_d15", "w_delta_d16", "w_delta_d17", "w_delta_d18", "w_delta_d19", "w_delta_d20", "w_delta_d21", "w_delta_d22", "w_delta_d23", "w_delta_d24", "w_delta_d25", "w_delta_d26", "w_delta_d27", "w_delta_d28", "w_delta_d29", "w_delta_d30", "w_delta_d31", "w_delta_d32", "w_delta_d33", "w_delta_d34", "w_delta_d35", "w_delta_d36", "w_delta_d37", "w_delta_d38", "w_delta_d39", "w_delta_d40", "w_delta_d41", "w_delta_d42", "w_delta_d43", "w_delta_d44", "w_delta_d45", "w_delta_d46", "w_delta_d47"};

@@ -5,6 +5,10 @@
 #include "wingrock_delay_ukf.h"
 #include "wingrock_delay_ukf_kernel.h"
 
+#if defined(__FINITE_MATH_ONLY__) && __FINITE_MATH_ONLY__
+#error "skigen: a NaN reading means not measured, which isfinite() cannot see under -ffast-math: add -fno-finite-math-only"
+#endif
+
 typedef wingrock_delay_ukf_real real;
 
 const char* const wingrock_delay_ukf_state_names[WINGROCK_DELAY_UKF_N] = {"theta", "p", "w_delta_d0", "w_delta_d1", "w_delta_d2", "w_delta_d3", "w_delta_d4", "w_delta_d5", "w_delta_d6", "w_delta_d7"};

@@ -5,6 +5,10 @@
 #include "wingrock_ukf.h"
 #include "wingrock_ukf_kernel.h"
 
+#if defined(__FINITE_MATH_ONLY__) && __FINITE_MATH_ONLY__
+#error "skigen: a NaN reading means not measured, which isfinite() cannot see under -ffast-math: add -fno-finite-math-only"
+#endif
+
 typedef wingrock_ukf_real real;
 
 const char* const wingrock_ukf_state_names[WINGROCK_UKF_N] = {"theta", "p", "w_one", "w_theta", "w_p", "w_abs_theta_p", "w_abs_p_p", "w_theta3"};
