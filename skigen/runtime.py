@@ -226,6 +226,9 @@ class RunSummary:
             for j, i in enumerate(aug.w_index):
                 mark = "" if kept is None else ("   kept" if kept[j] else "   pruned")
                 out.append(f"  {aug.names[i]:16s} {self.last[0][i]:+.4g} ± {2 * self.last[1][i]:.2g}{mark}")
+        if self.last is not None and len(aug.p_index):
+            out.append("parameter" + " " * 11 + "final ± 2σ   (estimated online)")
+            out += [f"  {aug.names[i]:16s} {self.last[0][i]:+.6g} ± {2 * self.last[1][i]:.2g}" for i in aug.p_index]
         if any(self.events.values()):
             out.append("events: " + "; ".join(f"{n} {EVENT_WORDS[c]}, first at t = {clock(self.first[c])} s"
                                               for c, n in self.events.items() if n))

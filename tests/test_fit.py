@@ -508,6 +508,7 @@ def test_online_estimate_matches_the_offline_fit():
         assert abs(online - p["value"]) <= 0.25 * p["std"]           # measured 0.01 (k), 0.02 (b)
         assert abs(p["value"] - truth[n]) <= 3 * p["std"]
         assert 0.5 < online_std / p["std"] < 2
+        assert f"  {n:16s} {online:+.6g} ± {2 * online_std:.2g}" in on.summary().lines()   # the run says it
 
 
 # ------------------------------------------------------------- 5. C step with FOH

@@ -554,7 +554,7 @@ def _fit_note(folds: int) -> str:
     return (f"blocked cross-validation over {folds} contiguous folds: each fold is scored with coefficients "
             f"fitted on the other folds (fit.folds); fit.before and fit.after are the whole recording, "
             f"the corrected model fitted on all of it; fit.recordings are the --validate recordings, "
-            f"never fitted on")
+            f"never fitted on, both models there with the noise calibrated on this recording")
 
 
 def _findings(nominal: Model, corr: Correction, ev: dict, shapes: dict, worth: dict) -> list[dict]:
