@@ -154,6 +154,24 @@ def test_a_weight_at_the_gradient_updates_bound_is_pruned():
         assert list(summary.kept()) == kept
 
 
+def test_a_kept_weight_within_two_std_of_zero_says_so():
+    """SKI keeps a term by its relevance (prior std × rms of the term, above 1 % of the largest),
+    not by its value: a kept weight of 5.6e-05 ± 0.062 (a user's cart) is marked as within 2σ of 0."""
+    from skigen import Model
+    from skigen.derive import derive
+    from skigen.library import term
+    from skigen.runtime import RunSummary
+    m = Model("cart", dt=0.1)
+    v, f = m.state("v", std=0.1, process_std=0.01), m.input("f")
+    m.dynamics({v: -v + f})
+    m.unknown(v, [term("v", v), term("v2", v * abs(v))], prior_variance=1.0)
+    m.output("v_m", v, noise_std=0.01)
+    summary = RunSummary(derive(m, "ski"))
+    summary.last = (np.array([0.0, -0.8, 5.6e-5]), np.array([0.1, 0.01, 0.031]), np.array([1.0, 0.1]))
+    rows = [line for line in summary.lines() if line.startswith("  w_")]
+    assert rows[0].endswith("   kept") and rows[1].endswith("   kept, within 2σ of 0"), rows
+
+
 @pytest.mark.parametrize("stream", [False, True])
 def test_a_jittered_first_stamp_does_not_set_the_grid(tmp_path, flight, clean, stream):
     """Stamps jittered by ±0.4 dt, the first of them 0.4 dt late: the grid's phase is that of the
