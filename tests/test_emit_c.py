@@ -461,6 +461,16 @@ def test_generated_compiles_for_the_host(opt, tmp_path):
     assert len(_cross_objects("gcc", (opt,), tmp_path)) == len(GENERATED_SOURCES) >= 40
 
 
+def test_a_fast_math_build_stops(emitted):
+    """-ffast-math makes isfinite() always true, so a NaN reading (not measured) would be used: a
+    user's build with it made every state NaN at the first missing reading, with status OK."""
+    source = next(p for p in emitted["ski", "double"] if p.name == "wingrock_ski.c")
+    r = subprocess.run(["gcc", "-std=c99", "-ffast-math", "-c", str(source), "-o", os.devnull],
+                       capture_output=True, text=True)
+    assert r.returncode != 0 and "-fno-finite-math-only" in r.stderr, r.stderr
+    _run(["gcc", "-std=c99", "-ffast-math", "-fno-finite-math-only", "-c", source, "-o", os.devnull])
+
+
 @pytest.mark.slow
 def test_cross_compiles_for_aarch64(tmp_path):
     _need("aarch64-linux-gnu-gcc")
