@@ -210,7 +210,8 @@ def _fit(args) -> int:
     model = load_model(args.model)
     options = _read_options(args)
     recs, held_out = ([load_recording(p, model, **options) for p in paths] for paths in (args.data, args.validate))
-    for line in (n for rec in recs + held_out for n in rec.notes):
+    read = [n for rec in recs + held_out for n in rec.notes]
+    for line in read:
         print(line)
     try:
         result = fit(model, recs, method=args.method, estimate=args.estimate or None,
@@ -231,7 +232,8 @@ def _fit(args) -> int:
         span = f" (free runs restarted every {r['window']:.3g} s)" if r.get("window") else ""
         print(f"  {kind} {Path(r['file']).name}: {what}{span} " + per_output(r["rmse"]))
     for line in result.notes + [n for c in checks for n in c["notes"]]:
-        print(f"note: {line}")
+        if line not in read:                          # said as the recordings were read
+            print(f"note: {line}")
     print(f"results: {Path(args.out) / 'fit.json'}, {Path(args.out) / 'report.md'}")
     return 0
 

@@ -94,16 +94,21 @@ def _columns_for(names, mapping) -> dict[str, str]:
     return {n: mapping.get(n, n) for n in names}
 
 
-def _time_column(header, time, source) -> str:
-    """The time column: ``time`` if given, else the first of TIME_NAMES present (any case)."""
+def _time_like(header, used=()) -> list[str]:
+    """The columns named like time (TIME_NAMES, any case) that the model does not use, in the order
+    of TIME_NAMES, each name's exact spelling first: an input named 'T' (a thrust) is no clock."""
+    found = [h for h in header if h.lower() in TIME_NAMES and h not in set(used)]
+    return sorted(found, key=lambda h: (TIME_NAMES.index(h.lower()), h != h.lower(), header.index(h)))
+
+
+def _time_column(header, time, source, used=()) -> str:
+    """The time column: ``time`` if given, else the first of :func:`_time_like`."""
     if time is not None:
         if time not in header:
             raise RecordingError(f"{source}: no time column '{time}' (columns found: {_found(header)})")
         return time
-    lower = {h.lower(): h for h in reversed(header)}
-    for name in TIME_NAMES:
-        if name in lower:
-            return lower[name]
+    if like := _time_like(header, used):
+        return like[0]
     raise RecordingError(f"{source}: no time column: expected one named {', '.join(TIME_NAMES)} or given with "
                          f"--time COLUMN (time=COLUMN in Python; columns found: {_found(header)})")
 
@@ -307,7 +312,7 @@ def _csv_exact(path, header, wanted, columns, time_col, real, iso) -> Group:
 def _read_csv(path, names, mapping, time, real) -> Samples:
     header = _csv_header(path)
     columns = _columns_for(names, mapping)
-    time_col = _time_column(header, time, path)
+    time_col = _time_column(header, time, path, columns.values())
     _require(columns, header, path, time_col)
     wanted = list(dict.fromkeys([time_col, *columns.values()]))
     iso = _iso_time(path, header, time_col)
@@ -384,7 +389,7 @@ def stream_csv(path, names, *, columns=None, time=None, real: str = "double", bl
     """
     header = _csv_header(path)
     cols = _columns_for(list(names), columns)
-    time_col = _time_column(header, time, path)
+    time_col = _time_column(header, time, path, cols.values())
     _require(cols, header, path, time_col)
     return CsvStream(str(path), cols, time_col, real, header, block_size, rows,
                      iso=_iso_time(path, header, time_col))
@@ -464,7 +469,7 @@ def _read_frame(frame, names, mapping, time, real, source="DataFrame", header=No
     columns = _columns_for(names, mapping)
     idx = frame.index
     index = str("index" if idx.name is None else idx.name)
-    if (time is None and not any(h.lower() in TIME_NAMES for h in header)) or (time == index and time not in header):
+    if (time is None and not _time_like(header, columns.values())) or (time == index and time not in header):
         if isinstance(idx, pd.RangeIndex) or not (pd.api.types.is_numeric_dtype(idx)
                                                   or pd.api.types.is_datetime64_any_dtype(idx)
                                                   or pd.api.types.is_timedelta64_dtype(idx)):
@@ -475,7 +480,7 @@ def _read_frame(frame, names, mapping, time, real, source="DataFrame", header=No
             pd.RangeIndex(len(frame))).assign(**{time_col: idx.to_numpy()})
         header = [*header, time_col]
     else:
-        time_col = _time_column(header, time, source)
+        time_col = _time_column(header, time, source, columns.values())
     _require(columns, header, source, time_col)
     labels = frame.index if where is None else None
     frame = frame.rename(columns=str)

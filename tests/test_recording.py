@@ -280,3 +280,26 @@ def test_input_holes_cut_a_recording_into_parts():
     assert (first.t[0], first.t[-1], second.t[0], second.t[-1]) == (0.0, 2.0, 4.5, 9.9)
     assert first.path == "r.csv [0–2 s]" and first.holes == () and second.holes == holes[1:]
     assert Recording("r.csv", t, np.zeros((100, 1)), np.zeros((100, 1)), ("u",), ("y",)).input_parts()[0].t is t
+
+
+def test_an_input_named_like_time_is_not_the_clock(tmp_path):
+    """A thrust input 'T' beside a time column 't', 'time' or 'timestamp' (in any order), or beside a
+    Parquet file's pandas index 't': the time is the clock column and 'T' the input (a user's fleet
+    failed with "column 'T' is the time column" on four of these layouts)."""
+    import pandas as pd
+    from skigen import Model
+    from skigen.recording import load_recording
+    m = Model("hexa", dt=0.1)
+    h = m.state("h", std=1.0)
+    T = m.input("T")
+    m.dynamics({h: T})
+    m.output("baro", h, noise_std=0.1)
+    t, thrust = np.arange(20) * 0.1, np.linspace(1.0, 2.0, 20)
+    for clock in ("t", "time", "timestamp"):
+        for frame in (pd.DataFrame({"T": thrust, clock: t, "baro": t}), pd.DataFrame({clock: t, "T": thrust, "baro": t})):
+            frame.to_csv(tmp_path / "a.csv", index=False)
+            rec = load_recording(tmp_path / "a.csv", m)
+            np.testing.assert_allclose(rec.t, t, atol=1e-12)
+            np.testing.assert_allclose(rec.inputs[:, 0], thrust)
+    pd.DataFrame({"T": thrust, "baro": t}, index=pd.Index(t, name="t")).to_parquet(tmp_path / "a.parquet")
+    np.testing.assert_allclose(load_recording(tmp_path / "a.parquet", m).inputs[:, 0], thrust)

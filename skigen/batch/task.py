@@ -107,7 +107,7 @@ def _run(spec, digest, path, tmp: Path, opt: dict, row: dict) -> None:
             summary.add(part)
     lines = list(rec.notes) + summary.lines()
     (tmp / "summary.txt").write_text("\n".join(lines) + "\n")
-    row["notes"] = summary.attention()
+    row["notes"] = list(rec.notes) + summary.attention()
     names = filt.aug.names
     if summary.last is not None:
         mean, std = summary.last[0], summary.last[1]

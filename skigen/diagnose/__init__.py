@@ -136,6 +136,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     try:
         user, spec, rec = load(model, recording, **read)
         rec, caveats = usable(rec)
+        caveats = list(rec.notes) + caveats               # what reading it decided (a truncated log)
         nominal = T.copy_model(user, unknowns=False)
         check(nominal, rec, folds)
         nominal, moved = started(nominal, rec, "every filter of the diagnosis starts from the declared mean with "
@@ -145,7 +146,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         for r in validate or []:
             other, more = usable(load(nominal, r, **read)[2])
             others.append(other)
-            caveats += more
+            caveats += list(other.notes) + more
         user_cands = C.user_candidates(nominal, candidates) + C.declared_candidates(user)
         unknown = [e for e in equations or [] if e not in nominal.state_names]
         if unknown:

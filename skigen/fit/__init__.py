@@ -313,6 +313,12 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
                             f"none: it is output error through a filter, and process noise in the plant goes to "
                             f"the sensor noise and narrows the error bars. Declare a process_std on the states "
                             f"it drives to have it calibrated")
+    driven = [n for n, q in zip(model.state_names, np.diag(model.process_noise())) if q > 0]
+    if method == "output-error" and driven and (params := list(result.parameters) + list(result.weights)):
+        result.notes.append(f"'{model.name}' declares process noise (on {', '.join(driven)}), which output error "
+                            f"leaves out: it scores the free run, and the error bars of {', '.join(params)} are "
+                            f"then optimistic (2–4× too narrow in the README's coverage checks); filter error "
+                            f"(--method filter-error) accounts for it")
     result.fitted_recordings = recs
     return result
 
@@ -443,7 +449,7 @@ def _usable(recs: list[Recording], starts) -> tuple[list[Recording], list | None
     parts, part_starts, notes = [], [], []
     for rec, start in zip(recs, [None] * len(recs) if starts is None else starts):
         cut, stuck = rec.usable()
-        notes += stuck
+        notes += list(rec.notes) + stuck
         if rec.input_holes:
             notes.append(rec.hole_note(f"fitted as {len(cut)} recordings, "
                                        + ", ".join(f"{p.t[0]:g}–{p.t[-1]:g} s" for p in cut)))
