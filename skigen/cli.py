@@ -229,7 +229,9 @@ def _fit(args) -> int:
     for r in result.recordings + checks:
         kind = "validation" if r in checks else "fit"
         what = "one-step prediction RMSE" if kind == "fit" and args.method == "filter-error" else "free-run RMSE"
-        span = f" (free runs restarted every {r['window']:.3g} s)" if r.get("window") else ""
+        span = (f" (free runs restarted every {r['window']:.3g} s)" if r.get("window") else
+                f" (from sample {r['rmse_from']}: before it the filter learns where the recording starts)"
+                if r.get("rmse_from") else "")
         print(f"  {kind} {Path(r['file']).name}: {what}{span} " + per_output(r["rmse"]))
     for line in result.notes + [n for c in checks for n in c["notes"]]:
         if line not in read:                          # said as the recordings were read

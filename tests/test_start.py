@@ -73,6 +73,8 @@ def test_a_filter_error_fit_starts_where_the_recording_does(model):
     assert q(declared) > 5 * 0.01
     assert any("does not start at the model's initial state" in n for n in fitted.notes)
     start = fitted.initial_states[0]                                  # where it starts, by the model
+    report = fitted.recordings[0]          # one-step RMSE without the head: 0.0017 rad, 0.011 with its 8 samples
+    assert report["rmse_from"] == 8 and report["rmse"]["theta_meas"] < 1.5 * 0.0015
     assert start["omega"]["value"] == pytest.approx(-4.30, abs=3 * start["omega"]["std"])
     assert not any("initial state" in n for n in declared.notes)
     with pytest.raises(ValueError, match="starts must be a list or 'declared'"):

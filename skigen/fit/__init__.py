@@ -307,6 +307,10 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
         result.initial_states = [{} if rs is None or rs.consistent else
                                  {n: dict(value=float(v), std=float(s)) for n, v, s in zip(rs.names, rs.mean, rs.std)}
                                  for rs in tested]
+        for report, rec, Yr, rs in zip(result.recordings, recs, result.predictions, tested):
+            if rs is not None and not rs.consistent:    # the head, where the filter learns the start, left out
+                e = rec.outputs[rs.head:] - Yr[rs.head:]
+                report.update(rmse={o: rms(e[:, j]) for j, o in enumerate(model.output_names)}, rmse_from=rs.head)
     result.notes = notes + _bound_notes(result.parameters) + _prior_notes(model, result.parameters)
     if method == "filter-error" and not np.any(np.diag(model.process_noise()) > 0):
         result.notes.append(f"'{model.name}' declares no process noise on any state, so filter error calibrates "

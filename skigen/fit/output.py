@@ -190,7 +190,10 @@ def _write_report(path: Path, result: FitResult, validation, figures) -> Path:
         lines.append(f"| {Path(rec['file']).name} | {rec['samples']} | "
                      + per_output(rec["rmse"]) + f" | {rec['loglik']:.6g} |")
     kind = "free-run simulation" if r.method == "output-error" else "one-step prediction (innovation)"
-    lines += ["", f"RMSE of the {kind} on the fitted recordings.", ""]
+    lines += ["", f"RMSE of the {kind} on the fitted recordings"
+              + ("; where a recording does not start at the model's initial state, from the sample where the "
+                 "filter knows its start (`rmse_from`)" if any(rec.get("rmse_from") for rec in r.recordings) else "")
+              + ".", ""]
     if validation:
         lines += ["## Validation (free-run simulation from the first samples' initial state, or restarted from "
                   "the EKF's state where the model amplifies errors, see the last column)", "",
