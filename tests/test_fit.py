@@ -886,3 +886,22 @@ def test_an_estimate_stopped_a_rounding_error_past_its_bound_is_held_on_it():
     assert [res.parameters[n]["value"] for n in ("a", "g")] == [10.0, 10.0]
     assert sum("sits on its upper bound 10: the fit stopped there" in n for n in res.notes) == 2, res.notes
     assert fit(_predator_prey(9.0, 5.0), [rec], show_progress=False).parameters["a"]["value"] == pytest.approx(1, abs=0.02)
+
+
+def test_an_output_never_measured_has_its_noise_held():
+    """Filter error on a pendulum whose rate gyro recorded nothing: its noise scale cannot be
+    calibrated, and the fit used to refuse ("'R_scale_rate' has no effect on the likelihood ... --estimate
+    NAME", which cannot name it); it is held at the declared value, said in a note, and the
+    parameters come from the angle."""
+    truth = dict(a=9.0, c=0.3, fc=0.5, b=2.0)
+    plant = pendulum(truth, q=(0.0, 0.02), rate_std=0.02)
+    rng = np.random.default_rng(5)
+    U = smooth_noise(rng, 1500, 5, 1.0)[:, None]
+    _, Y = simulate(plant, U, [0.3, 0.0], rng, q_std=(0.0, 0.02))
+    Y[:, 1] = np.nan
+    res = fit(pendulum(dict(a=8.0, c=0.4, fc=0.4, b=1.8), q=(0.0, 0.02), rate_std=0.02), [recording(plant, U, Y)],
+              method="filter-error", show_progress=False)
+    assert any("'rate' never measured in these recordings: their noise is held" in n for n in res.notes)
+    assert res.noise["calibrated"]["measurement_std"]["rate"] == pytest.approx(0.02)
+    for n, v in truth.items():
+        assert abs(res.parameters[n]["value"] - v) < 3 * res.parameters[n]["std"], (n, res.parameters[n])

@@ -270,7 +270,14 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
         V = prob.variables
     scale, J0, prior = _scales(prob, theta0, data)
     p = np.r_[scale, data]
-    lost = unidentified(J0, prior.ravel(), V.names, _dense(jac_g(theta0 / scale, p)))
+    unseen = [o for j, o in enumerate(model.output_names) if not any(np.isfinite(r.outputs[:, j]).any() for r in recs)]
+    held = [V.names.index(f"R_scale_{o}") for o in unseen if f"R_scale_{o}" in V.names]
+    if held:                                    # a never-measured output's noise: nothing to calibrate it on
+        notes.append(f"output(s) {', '.join(map(repr, unseen))} never measured in these recordings: their noise "
+                     f"is held at its declared value")
+    free = [i for i in range(len(V)) if i not in held]
+    G = _dense(jac_g(theta0 / scale, p))
+    lost = unidentified(J0[:, free], prior.ravel()[free], [V.names[i] for i in free], G[:, free] if G.size else G)
     if lost:
         raise FitError(f"the recordings cannot identify every quantity of '{model.name}': " + "; ".join(lost)
                        + ". Hold some at their declared values (estimate only the others: estimate=[...] in Python, "
@@ -279,6 +286,8 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     lower = _resolution_floor(model, V, recs, prob.solver_inputs["lbx"])
     inputs = dict(prob.solver_inputs, x0=np.maximum(theta0, lower) / scale, lbx=lower / scale,
                   ubx=prob.solver_inputs["ubx"] / scale, p=p)
+    for i in held:
+        inputs["lbx"][i] = inputs["ubx"][i] = inputs["x0"][i]
     declared_noise = inputs["x0"]
     if method == "filter-error":
         inputs["x0"] = _noise_start(prob, inputs)
