@@ -209,6 +209,21 @@ def test_diagnose_each_log_lists_its_findings(client, tmp_path):
     assert Path(report["corrected_model"]).exists() and res.counts["ok"] == 2
 
 
+def test_diagnose_puts_the_calibrated_constants_in_the_summary(client, tmp_path):
+    """A model declaring Mα, Mq, Mδ 30 % off: the diagnosis calibrates them, and summary.csv has them
+    (a fleet user's heavier vehicle showed only in its report.md, its row 'mismatch False')."""
+    from benchmarks.scenarios import make
+    from models import short_period as pitch
+    (tmp_path / "logs").mkdir()
+    make("pitch_clean", 30.0, 1).write_csv(tmp_path / "logs" / "pitch.csv")
+    batch("benchmarks.scenarios:PITCH_GREY", str(tmp_path / "logs" / "*.csv"), tmp_path / "out", mode="diagnose",
+          client=client, show_progress=False, figures=False)
+    row = _summary(tmp_path / "out")["pitch"]
+    for name, truth in (("Ma", pitch.MA), ("Mq", pitch.MQ), ("Mde", pitch.MDE)):
+        assert abs(float(row[name]) - truth) < 3 * float(row[f"std_{name}"]), (name, row[name], truth)
+        assert abs(float(row[name]) - truth) < 0.1 * abs(truth)           # declared 30 % off
+
+
 def test_logs_of_one_name_keep_apart_and_the_output_folder_is_not_read(tmp_path):
     """c.csv beside c.parquet get their own folders (they shared one: a log was lost); a glob that
     reaches into the batch's own output folder does not take its results for logs."""

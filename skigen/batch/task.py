@@ -161,6 +161,8 @@ def _diagnose(spec, digest, path, tmp: Path, final: Path, opt: dict, row: dict) 
     row["quantities"] = {f"{f['effect']}@{f['equation']}" + (f"@{f['through']}" if f.get("through") else ""): [_num(f["coefficient"]),
                                                             _num(f["std"]) if f.get("std") is not None else None]
                          for f in d["findings"]}
+    row["quantities"].update({name: [_num(p["calibrated"]), _num(p["std"])]    # the declared constants, calibrated
+                              for name, p in d["noise"].get("parameters", {}).items()})
 
 
 def _one_line(exc: BaseException) -> str:
