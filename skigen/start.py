@@ -8,7 +8,7 @@ weighed against not knowing the start, over the recording's head: the EKF's
 log-likelihood from the declared mean and covariance P₀ against that from the same
 mean with DIFFUSE² P₀ (the Bayes factor of the two priors: a declared start that
 holds wins by about nx·ln DIFFUSE nats, the vague prior's Occam penalty, and loses
-with probability about P(χ²_nx > 2 nx ln DIFFUSE), 10⁻⁴ for nx = 2). The head ends
+by MARGIN with probability below P(χ²_nx > 2 nx ln DIFFUSE), 10⁻⁴ for nx = 2). The head ends
 where the vague-prior filter knows every state as well as the declared prior did
 (its std at most the declared one, or twice its own final std): later samples say
 nothing more about the start, and a model error there would weigh on both filters
