@@ -99,6 +99,8 @@ def test_a_force_bias_on_a_spring_is_not_told_from_an_encoder_offset(diagnosed):
     assert pair["sensor_offset"]["coefficient"] == pytest.approx(sc.truth * cart.M / cart.K, rel=CONCEALED["cart_bias"])
     assert 0 <= top["as_good"][0]["cv_loglik_behind"] < 0.5 * stats.chi2.isf(0.01, 1)
     assert "**Not told apart** from" in (r["out"] / "report.md").read_text()
+    from skigen.diagnose.report import where                  # a sensor is named by its output
+    assert where(pair["sensor_offset"]).startswith("sensor_offset of p_meas") and where(pair["bias"]) == "bias on v"
 
 
 def test_a_user_candidate_in_any_units_is_named_the_same(diagnosed, tmp_path):
