@@ -296,3 +296,21 @@ def test_a_term_added_to_an_input_reaches_the_outputs_that_read_it():
     _, y = free_run(T.input_saturation(m, "I", None, 2.0), current)
     _, y_clipped = free_run(m, np.minimum(current, 2.0))
     assert np.allclose(y, y_clipped, atol=1e-12) and not np.allclose(y, free_run(m, current)[1])
+
+
+def test_a_runaway_trajectory_names_no_numpy_warning():
+    """Candidates' values along a trajectory that ran away (states 1e200): their RMS is inf and
+    no RuntimeWarning reaches the user (seven did, from a fleet's diagnosis, without the log's name)."""
+    import warnings
+    from skigen.diagnose import catalog as C
+    from skigen.diagnose import transform as T
+    from skigen.diagnose.name import basis_rms, restated
+    model = T.constants(arm.build())
+    rec = make("arm_clean", 2.0, 1).recording()
+    states = np.full((len(rec.t), 2), 1e200)
+    cands = C.additive_candidates(model, ["omega"], {"theta": 1.0, "omega": 1.0}, states)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        rms = basis_rms(model, rec, states, cands)
+        restated(model, rec, states, cands)
+    assert np.isinf(rms).any()

@@ -143,14 +143,16 @@ def basis_values(model: Model, rec: Recording, states: np.ndarray, cands: list[A
 
 
 def basis_rms(model: Model, rec: Recording, states: np.ndarray, cands: list[Additive]) -> np.ndarray:
-    return np.sqrt(np.mean(basis_values(model, rec, states, cands) ** 2, axis=1)) + 1e-12
+    with np.errstate(over="ignore"):          # a trajectory that runs away: inf, said by the steps that use it
+        return np.sqrt(np.mean(basis_values(model, rec, states, cands) ** 2, axis=1)) + 1e-12
 
 
 def restated(model: Model, rec: Recording, states: np.ndarray, cands: list[Additive]) -> dict[int, int]:
     """{i: j}: candidate i equals (up to scale, on this trajectory, in every equation it enters)
     the earlier candidate j, itself restating none — a user term that restates a catalog term."""
     vals = basis_values(model, rec, states, cands, model.state_names)
-    unit = vals / (np.linalg.norm(vals, axis=1, keepdims=True) + 1e-300)
+    with np.errstate(over="ignore", invalid="ignore"):
+        unit = vals / (np.linalg.norm(vals, axis=1, keepdims=True) + 1e-300)
     keep, same = [], {}
     for i, c in enumerate(cands):
         j = next((j for j in keep if abs(unit[i] @ unit[j]) >= 0.9999), None)
@@ -225,7 +227,8 @@ def beyond_parameters(model: Model, rec: Recording, states: np.ndarray, cands: l
     for c, es, phi in zip(cands, entered, vals):
         on = np.repeat([e in es for e in eqs], N)          # the equations it enters
         d, phi = slopes[:, on], phi[on]
-        cos = np.abs(d @ phi) / (np.linalg.norm(d, axis=1) * np.linalg.norm(phi) + 1e-300)
+        with np.errstate(over="ignore", invalid="ignore"):
+            cos = np.abs(d @ phi) / (np.linalg.norm(d, axis=1) * np.linalg.norm(phi) + 1e-300)
         if not np.any(cos > 0.999):
             keep.append(c)
     return keep
