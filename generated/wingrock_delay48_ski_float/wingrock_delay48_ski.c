@@ -703,13 +703,16 @@ static void count(long* n)
 }
 
 /* In place: the lower Cholesky factor of the positive semi-definite A (m x m, lower
- * triangle read); a non-positive pivot gives a zero column. */
-static void chol_psd(real* A, int m)
+ * triangle read); a non-positive pivot gives a zero column. Returns 0, the factor unfinished,
+ * where a pivot falls below -100 machine epsilons times scale[j] (A is not semi-definite to that
+ * precision), else 1 (always with scale 0). */
+static int chol_psd(real* A, int m, const real* scale)
 {
     int i, j, k;
     for (j = 0; j < m; ++j) {
         real d = A[j + j * m];
         for (k = 0; k < j; ++k) d -= A[j + k * m] * A[j + k * m];
+        if (scale && d < -1.1920928955078125e-05f * scale[j]) return 0;
         A[j + j * m] = d > 0 ? sqrtf(d) : 0;
         for (i = j + 1; i < m; ++i) {
             real t = A[i + j * m];
@@ -718,6 +721,7 @@ static void chol_psd(real* A, int m)
         }
         for (i = 0; i < j; ++i) A[i + j * m] = 0;
     }
+    return 1;
 }
 
 /* Recovery: the physical states restart at their declared mean and settings.reinit_scale
@@ -738,7 +742,7 @@ static void reinit(wingrock_delay48_ski_state* st)
                 t = st->C[nx + i + (nx + j) * n];
             rest[i + j * m] = t;
         }
-    if (WINGROCK_DELAY48_SKI_SQUARE_ROOT) chol_psd(rest, m);
+    if (WINGROCK_DELAY48_SKI_SQUARE_ROOT) (void)chol_psd(rest, m, 0);
     for (j = 0; j < n; ++j)
         for (i = 0; i < n; ++i) {
             real v = 0;
@@ -803,26 +807,6 @@ int wingrock_delay48_ski_settings_check(const wingrock_delay48_ski_settings* set
     return 0;
 }
 
-/* 1 if the symmetric A (m x m, column-major, lower triangle read) is positive semi-definite to
- * 100 machine epsilons of scale[j]: its Cholesky factor, taken in place, has no pivot below
- * -TOL scale[j]. */
-static int semidefinite(real* A, int m, const real* scale)
-{
-    int i, j, k;
-    for (j = 0; j < m; ++j) {
-        real d = A[j + j * m];
-        for (k = 0; k < j; ++k) d -= A[j + k * m] * A[j + k * m];
-        if (d < -1.1920928955078125e-05f * scale[j]) return 0;
-        A[j + j * m] = d > 0 ? sqrtf(d) : 0;
-        for (i = j + 1; i < m; ++i) {
-            real t = A[i + j * m];
-            for (k = 0; k < j; ++k) t -= A[i + k * m] * A[j + k * m];
-            A[i + j * m] = d > 0 ? t / A[j + j * m] : 0;
-        }
-    }
-    return 1;
-}
-
 /* 1 if the weight rows F of the factor C give P_ww = F F' <= diag(s0) (to 100 machine epsilons):
  * the EM update views the posterior under s from the filter's under the declared s0, which holds
  * only while that bound does (updates shrink P_ww, constant weights keep it). diag(s0) - P_ww is
@@ -838,7 +822,7 @@ static int within_prior(wingrock_delay48_ski_state* st, const real* C)
             for (k = 0; k < n; ++k) p += C[nx + i + k * n] * C[nx + j + k * n];
             A[i + j * m] = (i == j ? s0[i] : 0) - p;
         }
-    return semidefinite(A, m, s0);
+    return chol_psd(A, m, s0);
 }
 
 int wingrock_delay48_ski_reset(wingrock_delay48_ski_state* st, const real* z_start, const real* C_start)

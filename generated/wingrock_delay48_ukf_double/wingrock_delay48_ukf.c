@@ -696,13 +696,16 @@ static void count(long* n)
 }
 
 /* In place: the lower Cholesky factor of the positive semi-definite A (m x m, lower
- * triangle read); a non-positive pivot gives a zero column. */
-static void chol_psd(real* A, int m)
+ * triangle read); a non-positive pivot gives a zero column. Returns 0, the factor unfinished,
+ * where a pivot falls below -100 machine epsilons times scale[j] (A is not semi-definite to that
+ * precision), else 1 (always with scale 0). */
+static int chol_psd(real* A, int m, const real* scale)
 {
     int i, j, k;
     for (j = 0; j < m; ++j) {
         real d = A[j + j * m];
         for (k = 0; k < j; ++k) d -= A[j + k * m] * A[j + k * m];
+        if (scale && d < -2.220446049250313e-14 * scale[j]) return 0;
         A[j + j * m] = d > 0 ? sqrt(d) : 0;
         for (i = j + 1; i < m; ++i) {
             real t = A[i + j * m];
@@ -711,6 +714,7 @@ static void chol_psd(real* A, int m)
         }
         for (i = 0; i < j; ++i) A[i + j * m] = 0;
     }
+    return 1;
 }
 
 /* Recovery: the physical states restart at their declared mean and settings.reinit_scale
@@ -731,7 +735,7 @@ static void reinit(wingrock_delay48_ukf_state* st)
                 t = st->C[nx + i + (nx + j) * n];
             rest[i + j * m] = t;
         }
-    if (WINGROCK_DELAY48_UKF_SQUARE_ROOT) chol_psd(rest, m);
+    if (WINGROCK_DELAY48_UKF_SQUARE_ROOT) (void)chol_psd(rest, m, 0);
     for (j = 0; j < n; ++j)
         for (i = 0; i < n; ++i) {
             real v = 0;

@@ -74,13 +74,16 @@ static void count(long* n)
 }
 
 /* In place: the lower Cholesky factor of the positive semi-definite A (m x m, lower
- * triangle read); a non-positive pivot gives a zero column. */
-static void chol_psd(real* A, int m)
+ * triangle read); a non-positive pivot gives a zero column. Returns 0, the factor unfinished,
+ * where a pivot falls below -100 machine epsilons times scale[j] (A is not semi-definite to that
+ * precision), else 1 (always with scale 0). */
+static int chol_psd(real* A, int m, const real* scale)
 {
     int i, j, k;
     for (j = 0; j < m; ++j) {
         real d = A[j + j * m];
         for (k = 0; k < j; ++k) d -= A[j + k * m] * A[j + k * m];
+        if (scale && d < -1.1920928955078125e-05f * scale[j]) return 0;
         A[j + j * m] = d > 0 ? sqrtf(d) : 0;
         for (i = j + 1; i < m; ++i) {
             real t = A[i + j * m];
@@ -89,6 +92,7 @@ static void chol_psd(real* A, int m)
         }
         for (i = 0; i < j; ++i) A[i + j * m] = 0;
     }
+    return 1;
 }
 
 /* Recovery: the physical states restart at their declared mean and settings.reinit_scale
@@ -109,7 +113,7 @@ static void reinit(wingrock_ekf_state* st)
                 t = st->C[nx + i + (nx + j) * n];
             rest[i + j * m] = t;
         }
-    if (WINGROCK_EKF_SQUARE_ROOT) chol_psd(rest, m);
+    if (WINGROCK_EKF_SQUARE_ROOT) (void)chol_psd(rest, m, 0);
     for (j = 0; j < n; ++j)
         for (i = 0; i < n; ++i) {
             real v = 0;
@@ -174,26 +178,6 @@ int wingrock_ekf_settings_check(const wingrock_ekf_settings* set)
     return 0;
 }
 
-/* 1 if the symmetric A (m x m, column-major, lower triangle read) is positive semi-definite to
- * 100 machine epsilons of scale[j]: its Cholesky factor, taken in place, has no pivot below
- * -TOL scale[j]. */
-static int semidefinite(real* A, int m, const real* scale)
-{
-    int i, j, k;
-    for (j = 0; j < m; ++j) {
-        real d = A[j + j * m];
-        for (k = 0; k < j; ++k) d -= A[j + k * m] * A[j + k * m];
-        if (d < -1.1920928955078125e-05f * scale[j]) return 0;
-        A[j + j * m] = d > 0 ? sqrtf(d) : 0;
-        for (i = j + 1; i < m; ++i) {
-            real t = A[i + j * m];
-            for (k = 0; k < j; ++k) t -= A[i + k * m] * A[j + k * m];
-            A[i + j * m] = d > 0 ? t / A[j + j * m] : 0;
-        }
-    }
-    return 1;
-}
-
 /* 1 if P is a covariance: symmetric and positive semi-definite, each to 100 machine epsilons of
  * its diagonal; factorised in the scratch C_next. */
 static int covariance(wingrock_ekf_state* st, const real* P)
@@ -207,7 +191,7 @@ static int covariance(wingrock_ekf_state* st, const real* P)
             if (fabsf(P[i + j * n] - P[j + i * n]) > 1.1920928955078125e-05f * sqrtf(d[i] * d[j])) return 0;
             st->C_next[i + j * n] = P[i + j * n];
         }
-    return semidefinite(st->C_next, n, d);
+    return chol_psd(st->C_next, n, d);
 }
 
 int wingrock_ekf_reset(wingrock_ekf_state* st, const real* z_start, const real* C_start)

@@ -394,6 +394,7 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
             settings_init.append(f"    set->{name} = {_literal(getattr(guard, name), real) if isinstance(getattr(guard, name), float) else getattr(guard, name)};")
     model = filt.aug.model
     em_bound = filt.has_ard and bounded_by_prior(filt.aug, filt.options)
+    checks = ([("covariance", 2)] if not filt.square_root else []) + ([("within_prior", 3)] if em_bound else [])
     values = dict(
         prefix=prefix, PREFIX=prefix.upper(), real=real, model=model.name,
         kind_long={"ekf": "augmented EKF", "ukf": "augmented square-root UKF",
@@ -403,11 +404,11 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
         c0_rule=(", or (S is lower-triangular) a non-zero entry above the diagonal" if filt.square_root else
                  ", or when it is not symmetric and positive semi-definite (to 100 machine epsilons)"),
         c0_bound=_C0_BOUND if em_bound else "", q_bound=_Q_BOUND if em_bound else "",
-        c0_bound_check=("        if (!covariance(st, C_start)) return 2;\n" if not filt.square_root else "")
-        + ("        if (!within_prior(st, C_start)) return 3;\n" if em_bound else ""),
+        c0_bound_check="".join(f"        if (!{check}(st, C_start)) return {code};\n" for check, code in checks),
         q_bound_check=f" || (i >= {prefix.upper()}_NX && set->Q_sqrt[i + j * n] != 0)" if em_bound else "",
         NPAR=filt.aug.fixed.shape[0],
         DT=_literal(float(model.dt), real), index=_index_macros(filt, prefix.upper()),
+        TOL=_literal(100 * np.finfo(np.float32 if real == "float" else float).eps, real),
         N=d["n"], NX=d["nx"], NW=d["nw"], NU=d["nu"], NY=d["ny"], NMEM=d["nmem"],
         NU1=max(d["nu"], 1), NY1=max(d["ny"], 1), SQUARE_ROOT=int(filt.square_root),
         SZ_ARG=max(sz["arg"], 1), SZ_RES=max(sz["res"], 1), SZ_IW=sz["iw"], SZ_W=sz["w"],
@@ -419,11 +420,8 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
         hold_note=_FOH_NOTE if model.input_hold == "foh" else "",
         nu_note=" per step: u_k, then u_{k+1} (first-order hold)" if model.input_hold == "foh" else "",
         output_names=_c_strings(v.name for v in model.outputs))
-    checks = (["semidefinite"] if em_bound or not filt.square_root else []) \
-        + (["covariance"] if not filt.square_root else []) + (["within_prior"] if em_bound else [])
-    tol = _literal(100 * np.finfo(np.float32 if real == "float" else float).eps, real)
-    values["start_checks"] = "".join(string.Template((_HERE / f"{name}.c.in").read_text()).substitute(values, TOL=tol)
-                                     for name in checks)
+    values["start_checks"] = "".join(string.Template((_HERE / f"{check}.c.in").read_text()).substitute(values)
+                                     for check, _ in checks)
     texts = {f"{prefix}.h": string.Template((_HERE / "filter.h.in").read_text()).substitute(values),
              f"{prefix}.c": string.Template((_HERE / "filter.c.in").read_text()).substitute(values),
              **kernel_files}

@@ -277,7 +277,7 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
                      f"is held at its declared value")
     free = [i for i in range(len(V)) if i not in held]
     G = _dense(jac_g(theta0 / scale, p))
-    lost = unidentified(J0[:, free], prior.ravel()[free], [V.names[i] for i in free], G[:, free] if G.size else G)
+    lost = unidentified(J0[:, free], prior.ravel()[free], [V.names[i] for i in free], G[:, free])
     if lost:
         raise FitError(f"the recordings cannot identify every quantity of '{model.name}': " + "; ".join(lost)
                        + ". Hold some at their declared values (estimate only the others: estimate=[...] in Python, "
@@ -321,12 +321,12 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
                 e = rec.outputs[rs.head:] - Yr[rs.head:]
                 report.update(rmse={o: rms(e[:, j]) for j, o in enumerate(model.output_names)}, rmse_from=rs.head)
     result.notes = notes + _bound_notes(result.parameters) + _prior_notes(model, result.parameters)
-    if method == "filter-error" and not np.any(np.diag(model.process_noise()) > 0):
+    driven = [n for n, q in zip(model.state_names, np.diag(model.process_noise())) if q > 0]
+    if method == "filter-error" and not driven:
         result.notes.append(f"'{model.name}' declares no process noise on any state, so filter error calibrates "
                             f"none: it is output error through a filter, and process noise in the plant goes to "
                             f"the sensor noise and narrows the error bars. Declare a process_std on the states "
                             f"it drives to have it calibrated")
-    driven = [n for n, q in zip(model.state_names, np.diag(model.process_noise())) if q > 0]
     if method == "output-error" and driven and (params := list(result.parameters) + list(result.weights)):
         result.notes.append(f"'{model.name}' declares process noise (on {', '.join(driven)}), which output error "
                             f"leaves out: it scores the free run, and the error bars of {', '.join(params)} are "
