@@ -25,6 +25,8 @@ cart_delay          cart        input_delay v       20 ms, hidden by the loop
 cart_cogging        cart        (user) cogging v    outside the catalog: a user candidate names it
 arm_drag_early      arm         quadratic_drag      ∝ ω²: large swings only in the first 40 % of
                                 omega               the run; the second half's drag is 25× smaller
+arm_drag_late       arm         quadratic_drag      large swings only in the last 15 % of the run
+                                omega
 tanks_overflow      tanks       physical_limit h1   the upper tank spills at its 0.30 m rim during
                                 (upper, 0.30 m)     two pump bursts only (~8 % of the samples)
 tanks_sensor_sat    tanks       sensor_saturation   the upper level sensor's range ends at 0.32 m
@@ -266,6 +268,10 @@ UNSEEN = {
         "arm_drag_early", "quadratic_drag", _arm_multisine(4.0, 0.15),
         "drag grows with ω²: large swings (4 V multisine) only in the first 40 %, then 0.15 V: "
         "in the second half the rate is 6× and the drag 25× smaller", s, seed, truth=arm.EFFECTS["quadratic_drag"][0]),
+    "arm_drag_late": lambda s, seed: _arm(
+        "arm_drag_late", "quadratic_drag", _arm_multisine(0.15, 4.0, switch=0.85),
+        "drag grows with ω²: 0.15 V swings, then large ones (4 V) only in the last 15 %: one fold of "
+        "contiguous five would hold all of them", s, seed, truth=arm.EFFECTS["quadratic_drag"][0]),
     "arm_detent": lambda s, seed: _arm(
         "arm_detent", "detent", lambda sec, sd: arm.chirp(sec, 1.0),
         f"a torque periodic in the angle ({arm.DETENT_N} per turn), outside the catalog and with no "

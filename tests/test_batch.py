@@ -198,10 +198,16 @@ def test_diagnose_each_log_lists_its_findings(client, tmp_path):
     for name, seconds in (("cart_clean", 10.0), ("cart_coulomb", 20.0)):
         sc = make(name, seconds, 1)
         sc.write_csv(tmp_path / "logs" / f"{name}.csv")
+    clean = pd.read_csv(tmp_path / "logs" / "cart_clean.csv")      # the force unlogged for 1.5 s
+    clean.loc[(clean.t >= 3.0) & (clean.t < 4.5), list(sc.inputs)] = np.nan
+    clean.to_csv(tmp_path / "logs" / "cart_clean.csv", index=False)
     res = batch(sc.model_file, str(tmp_path / "logs" / "*.csv"), tmp_path / "out", mode="diagnose", client=client,
                 show_progress=False, figures=False)
     rows = _summary(tmp_path / "out")
     assert rows["cart_clean"]["mismatch"] == "False" and rows["cart_clean"]["findings"] == ""
+    stretch = clean[clean.t >= 4.5]                  # the stretch diagnosed, not the file
+    assert int(rows["cart_clean"]["samples"]) == len(stretch), rows["cart_clean"]["samples"]
+    assert float(rows["cart_clean"]["start"]) == pytest.approx(stretch.t.iloc[0])
     assert rows["cart_coulomb"]["mismatch"] == "True" and rows["cart_coulomb"]["findings"].startswith("coulomb_friction on v (")
     assert float(rows["cart_coulomb"]["coulomb_friction@v"]) > 5 * float(rows["cart_coulomb"]["std_coulomb_friction@v"])
     report = json.loads((tmp_path / "out" / "cart_coulomb" / "report.json").read_text())

@@ -355,8 +355,23 @@ def test_the_equation_that_absorbs_the_error_is_the_right_one(tmp_path):
     assert top["coefficient"] == pytest.approx(0.4, rel=0.05)
 
 
+def test_folds_deal_blocks_in_turn():
+    """Five folds of three blocks: fold f holds blocks f, f + 5, f + 10; every sample is in one
+    fold; the fit without a fold runs over the merged rest; a short recording gets fewer blocks."""
+    from skigen.diagnose.cv import MIN_BLOCK, Folds
+    folds = Folds.of(1500, 5, blocks=3)
+    assert folds.blocks(1) == [(100, 200), (600, 700), (1100, 1200)]
+    x = np.arange(1500.0)
+    assert folds.sums(x).sum() == x.sum() and folds.sums(x)[1] == x[100:200].sum() + x[600:700].sum() + x[1100:1200].sum()
+    assert folds.outside(1) == [(0, 100), (200, 600), (700, 1100), (1200, 1500)]
+    assert folds.outside(4) == [(0, 400), (500, 900), (1000, 1400)]
+    assert folds.spans(0, x / 10) == [(0.0, 9.9), (50.0, 59.9), (100.0, 109.9)]
+    assert len(Folds.of(5 * MIN_BLOCK * 2, 5, blocks=3).blocks(0)) == 2
+    assert Folds.of(300, 5, blocks=3).edges == Folds.of(300, 5).edges
+
+
 def test_a_fold_never_sees_its_own_data():
-    """fit_without(f): the weights estimated without fold f do not change when fold f's
+    """fit_without(f): the weights estimated without fold f (two blocks) do not change when fold f's
     measurements do, and do change when another fold's do. (The physical states restart after
     the gap from the given priors, here the original recording's: the one thing a fold lends.)"""
     from skigen.diagnose.catalog import additive_candidates
@@ -366,13 +381,14 @@ def test_a_fold_never_sees_its_own_data():
     nominal = T.copy_model(cart.model, unknowns=False)
     cands = [c for c in additive_candidates(nominal, ["v"], {"v": 0.1}) if c.effect in ("coulomb_friction", "bias")]
     model = Correction().build(nominal, unknown=cands, prior_variance=np.ones(len(cands)))
-    folds = Folds.of(len(rec.t), 4)
+    folds = Folds.of(len(rec.t), 4, blocks=2)
+    assert len(folds.blocks(1)) == 2
     start = start_priors(nominal, rec, folds)
     w, sd = fit_without(model, "ukf", rec, folds, 1, start)
-    a, b = folds.edges[1], folds.edges[2]
-    for k, same in ((slice(a, b), True), (slice(folds.edges[3], None), False)):
+    for blocks, same in ((folds.blocks(1), True), (folds.blocks(3)[-1:], False)):
         y = rec.outputs.copy()
-        y[k] += 0.05 * np.sin(np.arange(y[k].shape[0]))[:, None]
+        for a, b in blocks:
+            y[a:b] += 0.05 * np.sin(np.arange(b - a))[:, None]
         other = Recording("w", rec.t, rec.inputs, y, rec.input_names, rec.output_names)
         w2, _ = fit_without(model, "ukf", other, folds, 1, start)
         if same:

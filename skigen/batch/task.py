@@ -150,6 +150,8 @@ def _diagnose(spec, digest, path, tmp: Path, final: Path, opt: dict, row: dict) 
         if p.exists():
             p.write_text(p.read_text().replace(str(tmp), str(final)))
     d = report.data
+    span = d["diagnosed"]                      # the longest stretch between input holes
+    row.update(samples=span["samples"], duration_s=_num(span["end"] - span["start"]), start=_num(span["start"]))
     row["notes"] = d["notes"]
     row["mean_nis"] = d["consistency"]["nis_mean"]
     row["nis_expected"] = d["consistency"]["nis_expected"]

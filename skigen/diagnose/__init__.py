@@ -36,7 +36,7 @@ from . import catalog as C
 from . import transform as T
 from .calibrate import calibrate
 from .correct import emit_filter, header_lines, refit_jointly, write_model_file
-from .cv import DEFAULT_FOLDS, Folds, ekf_run, fold_loglik
+from .cv import DEFAULT_BLOCKS, DEFAULT_FOLDS, Folds, ekf_run, fold_loglik
 from .detect import Consistency, consistency, judge, normalised_innovations, remaining
 from .errors import DiagnosisError
 from .evidence import weigh
@@ -123,7 +123,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
 
     candidates: extra additive terms, ``(name, equation, formula)`` — the formula in the model's
     state and input names (``"-tanh(v/0.001)"``). alpha: false-alarm rate of the whole decision.
-    folds: contiguous folds of the blocked cross-validation. validate: further recordings, never
+    folds: folds of the blocked cross-validation (each DEFAULT_BLOCKS contiguous blocks dealt in turn). validate: further recordings, never
     fitted on, on which the nominal and corrected models are compared. equations: equations to
     test for a disturbance (default: the rate equations; kinematic identities ṗ = v are exact by
     definition). refit: refit the corrected model jointly with `skigen fit` (filter error).
@@ -164,7 +164,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     N = len(rec.t)
-    cv = Folds.of(N, folds)
+    cv = Folds.of(N, folds, DEFAULT_BLOCKS)
 
     stage("calibrating the noise")
     declared_run = ekf_run(T.constants(nominal), rec)
@@ -184,6 +184,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         stage.note(caveats[-1])
     eps = normalised_innovations(nominal_run)
     data = {"mismatch_detected": verdict.mismatch, "notes": caveats, "noise": noise.asdict(),
+            "diagnosed": {"samples": N, "start": float(rec.t[0]), "end": float(rec.t[-1])},   # s
             "consistency": dict(cons.asdict(), declared_noise=consistency(declared_run, nominal.output_names,
                                                                           alpha).asdict(),
                                 disturbance_gain=verdict.gains, disturbance_threshold=verdict.threshold),
@@ -262,7 +263,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     data["not_identifiable"] = rejected["not_identifiable"]
     data["candidates_not_named"] = _unnamed(user_cands, additive, data, calibrated, rec, loc.states)
     cv_before = fold_loglik(calibrated, rec, cv)
-    data["fit"]["folds"] = [{"span": list(cv.span(f, rec.t)), "loglik_before": float(cv_before[f]),
+    data["fit"]["folds"] = [{"spans": [list(s) for s in cv.spans(f, rec.t)], "loglik_before": float(cv_before[f]),
                              "loglik_after": float(cv_after[f])} for f in range(len(cv))]
 
     corrected = None
@@ -552,7 +553,8 @@ def detect(model, recording, *, alpha: float = 0.01, equations=None, **read) -> 
 
 
 def _fit_note(folds: int) -> str:
-    return (f"blocked cross-validation over {folds} contiguous folds: each fold is scored with coefficients "
+    return (f"blocked cross-validation over {folds} folds, each {DEFAULT_BLOCKS} contiguous blocks dealt in turn "
+            f"(fewer in a short recording): each fold is scored with coefficients "
             f"fitted on the other folds (fit.folds); fit.before and fit.after are the whole recording, "
             f"the corrected model fitted on all of it; fit.recordings are the --validate recordings, "
             f"never fitted on, both models there with the noise calibrated on this recording")

@@ -1,14 +1,19 @@
 """Blocked cross-validation: every coefficient is scored on data it was not fitted on.
 
-The recording is cut into k contiguous folds. For fold f, a candidate's
-coefficients are estimated from the other folds only — the augmented filter
-runs over the data before the fold, then restarts after it from the current
-model's prior state there, carrying the weights' posterior (mean, covariance,
-ARD variances) across the gap — and the candidate model's EKF is then scored
+The recording is cut into k·b contiguous blocks, dealt to k folds in turn
+(fold f holds blocks f, f + k, …): an effect excited in only a fifth of the
+recording is still in the data every fold's fit sees (with one block per fold,
+a drag whose swings filled one fold was scored there with a coefficient
+extrapolated from swings 25× smaller, and a viscous damping won). For fold f,
+a candidate's coefficients are estimated from the other folds only — the
+augmented filter runs over the data before each of the fold's blocks, then
+restarts after it from the current model's prior state there, carrying the
+weights' posterior (mean, covariance, ARD variances) across the gap — and the
+candidate model's EKF is then scored
 by its summed one-step predictive log-likelihood over fold f (the filter runs
 over the whole recording: a prediction at sample k uses only data before k).
 The restart state after a gap is the current model's prior there, which has
-seen the fold's last samples: the fold lends the states' starting point, never
+seen the block's last samples: the fold lends the states' starting point, never
 the coefficients' information.
 The sum over folds is the cross-validated log-likelihood; every part of the
 recording is scored, so an effect that acts only early is weighed where it acts.
@@ -28,6 +33,8 @@ from ..runtime import RunResult, iter_run, parallel, run
 __all__ = ["Folds", "ekf_run", "ekf_priors", "fold_loglik", "loglik", "fit_without", "fits_without"]
 
 DEFAULT_FOLDS = 5
+DEFAULT_BLOCKS = 3        # per fold: an effect excited in a fifth of the recording is in every fit's data
+MIN_BLOCK = 100           # samples
 MIN_SEGMENT = 20          # samples: a shorter piece of a split is skipped when fitting
 
 
@@ -40,31 +47,47 @@ def ekf_run(model: Model | DerivedFilter, rec: Recording, **options) -> RunResul
 
 @dataclass(frozen=True)
 class Folds:
-    """k contiguous folds of N samples: fold f is [edges[f], edges[f + 1])."""
+    """k folds of N samples, each the union of contiguous blocks dealt in turn: block b,
+    [edges[b], edges[b + 1]), belongs to fold b mod k."""
 
     edges: tuple
+    k: int
 
     @classmethod
-    def of(cls, n: int, k: int = DEFAULT_FOLDS) -> "Folds":
-        return cls(tuple(int(e) for e in np.linspace(0, n, k + 1).round()))
+    def of(cls, n: int, k: int = DEFAULT_FOLDS, blocks: int = 1) -> "Folds":
+        """``blocks`` per fold where each keeps MIN_BLOCK samples (fewer where it cannot)."""
+        per = max(1, min(int(blocks), n // (k * MIN_BLOCK))) if k > 1 else 1
+        return cls(tuple(int(e) for e in np.linspace(0, n, k * per + 1).round()), k)
 
     def __len__(self) -> int:
-        return len(self.edges) - 1
+        return self.k
+
+    def blocks(self, f: int) -> list[tuple[int, int]]:
+        """Fold f's blocks, [a, b) each."""
+        return [(self.edges[b], self.edges[b + 1]) for b in range(f, len(self.edges) - 1, self.k)]
 
     def sums(self, per_sample: np.ndarray) -> np.ndarray:
         """Per-fold sums of a per-sample array."""
         c = np.concatenate([[0.0], np.cumsum(per_sample)])
-        return np.array([c[b] - c[a] for a, b in zip(self.edges[:-1], self.edges[1:])])
+        return np.array([sum(c[b] - c[a] for a, b in self.blocks(f)) for f in range(self.k)])
 
     def outside(self, f: int | None) -> list[tuple[int, int]]:
         """The pieces of the recording not in fold f (all of it for None)."""
         if f is None:
             return [(0, self.edges[-1])]
-        a, b = self.edges[f], self.edges[f + 1]
-        return [(s, e) for s, e in ((0, a), (b, self.edges[-1])) if e - s >= MIN_SEGMENT]
+        pieces: list[tuple[int, int]] = []
+        for b, (a, e) in enumerate(zip(self.edges[:-1], self.edges[1:])):
+            if b % self.k == f:
+                continue
+            if pieces and pieces[-1][1] == a:
+                pieces[-1] = (pieces[-1][0], e)
+            else:
+                pieces.append((a, e))
+        return [(s, e) for s, e in pieces if e - s >= MIN_SEGMENT]
 
-    def span(self, f: int, t: np.ndarray) -> tuple[float, float]:
-        return float(t[self.edges[f]]), float(t[self.edges[f + 1] - 1])
+    def spans(self, f: int, t: np.ndarray) -> list[tuple[float, float]]:
+        """Fold f's blocks as (first, last) sample times."""
+        return [(float(t[a]), float(t[b - 1])) for a, b in self.blocks(f)]
 
 
 def ekf_priors(model: Model, rec: Recording, samples) -> dict[int, tuple]:

@@ -218,7 +218,8 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
             L += ["Cross-validated log-likelihood per fold (coefficients fitted without the fold):", "",
                   "| fold | nominal | corrected |", "|---|---|---|"]
             for f in fit["folds"]:
-                L.append(f"| {f['span'][0]:.2f}–{f['span'][1]:.2f} s | {f['loglik_before']:.1f} | "
+                spans = ", ".join(f"{a:.2f}–{b:.2f}" for a, b in f["spans"])
+                L.append(f"| {spans} s | {f['loglik_before']:.1f} | "
                          f"{f['loglik_after']:.1f} |")
             L.append("")
         L += ["## 7. What remains", ""]
