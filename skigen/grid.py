@@ -28,6 +28,7 @@ UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9}
 RATE_MISMATCH = 300.0        # stamps this many times further apart (or closer) than dt: a wrong unit
 GRID_PER_STAMP = 100         # a grid this many times longer than the stamps: a wrong time stamp
 PHASE_STAMPS = 256           # the inputs' first stamps that set the grid's phase
+TIE = 1e-6                   # samples: a stamp this close to half-way between two grid samples is a tie
 PHASE_ALPHA = 0.01           # Rayleigh test: stamps whose phase is uniform this likely set none
 
 
@@ -164,11 +165,18 @@ def grid_phase(r: np.ndarray, dt: float) -> float:
     return float(phase) if abs(phase) > 1e-6 * dt else 0.0
 
 
+def grid_index(ts, start: float, dt: float) -> np.ndarray:
+    """The grid sample nearest each stamp; at a tie (half-way within TIE) the later one, for every
+    stamp alike (np.rint's half-to-even, under the stamps' rounding, sent readings logged half a
+    sample off the inputs to either side, two to one sample: 155 of 400 lost)."""
+    return np.floor((np.asarray(ts, float) - start) / dt + (0.5 + TIE)).astype(np.int64)
+
+
 def _nearest(ts, start, dt, n):
     """(grid index of each sample used, the samples' positions): the nearest within dt/2, nearest wins."""
-    k = np.rint((ts - start) / dt).astype(np.int64)
+    k = grid_index(ts, start, dt)
     dist = np.abs(ts - (start + k * dt))
-    ok = np.flatnonzero((k >= 0) & (k < n) & (dist <= 0.5 * dt * (1 + 1e-9)))
+    ok = np.flatnonzero((k >= 0) & (k < n) & (dist <= (0.5 + TIE) * dt))
     order = ok[np.lexsort((dist[ok], k[ok]))]
     first = np.ones(len(order), bool)
     first[1:] = k[order][1:] != k[order][:-1]
@@ -437,7 +445,7 @@ class GridStream:
         for name in self.output_names:
             c = self.cols[name]
             T = max(c.last if c.last is not None else -np.inf, row)
-            k = min(k, int(np.rint((T - self.start) / dt)))
+            k = min(k, int(grid_index(T, self.start, dt)))
         return max(k, self.next_k)
 
     def _emit(self, stop):
@@ -465,7 +473,7 @@ class GridStream:
         outputs = np.full((b - a, len(self.output_names)), np.nan)
         for j, name in enumerate(self.output_names):
             c = self.cols[name]
-            k = np.rint((c.t - self.start) / dt).astype(np.int64)
+            k = grid_index(c.t, self.start, dt)
             m = len(c.t) if self.n is not None else int(np.searchsorted(k, b, side="left"))
             ts, v = c.t[:m], c.v[:m]
             kk, used = _nearest(ts, self.start, dt, n)

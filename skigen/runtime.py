@@ -324,6 +324,8 @@ class PythonStepper:
         """One sample; returns a :class:`Status` code."""
         g, aug = self.guard, self.filt.aug
         u, y = np.asarray(u, float).ravel(), np.asarray(y, float).ravel()
+        if len(u) != aug.shapes["nu"] or len(y) != aug.shapes["ny"]:
+            raise ValueError(self.filt.size_refusal(u, y))
         held = not np.all(np.isfinite(u))                       # a non-finite input: its last finite value
         self.u_held = u = np.where(np.isfinite(u), u, self.u_held)
         valid, code = self._present(np.full_like(y, np.nan) if held else y)   # held: predicted only

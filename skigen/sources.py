@@ -397,8 +397,13 @@ def stream_csv(path, names, *, columns=None, time=None, real: str = "double", bl
 
 # --------------------------------------------------------------------------- Parquet and DataFrame
 
-def _column_values(source, name, values, where) -> tuple[np.ndarray, bool]:
-    """(float array, is_datetime) of one column: numbers, datetimes (as seconds) or strictly parsed text."""
+def _fail_at(source, where, name, message):
+    raise RecordingError(f"{_where(source, where, name)}: {message}")
+
+
+def _column_values(source, name, values, where, time: bool = False) -> tuple[np.ndarray, bool]:
+    """(float array, is_datetime) of one column: numbers, datetimes (as seconds) or strictly parsed
+    text; ``time``: ISO-8601 text read as seconds, as in a CSV's time column."""
     import pandas as pd
 
     s = pd.Series(values)
@@ -408,8 +413,13 @@ def _column_values(source, name, values, where) -> tuple[np.ndarray, bool]:
         return np.where(s.isna().to_numpy(), np.nan, ns * 1e-9), True
     if pd.api.types.is_timedelta64_dtype(s):
         return s.dt.total_seconds().to_numpy(dtype=float), True
+    if pd.api.types.is_complex_dtype(s):
+        raise RecordingError(f"{_where(source, None, name)}: complex values; give the real part (or the magnitude)")
     if pd.api.types.is_bool_dtype(s) or pd.api.types.is_numeric_dtype(s):
         return s.to_numpy(dtype=float, na_value=np.nan), False
+    first = s.dropna()
+    if time and len(first) and isinstance(first.iloc[0], str) and _ISO_STAMP.match(first.iloc[0].strip()):
+        return _iso_seconds(s.to_numpy(), lambda i, m: _fail_at(source, where(i), name, m)), True
     out = np.empty(len(s))
     for i, v in enumerate(s.tolist()):
         try:
@@ -422,7 +432,7 @@ def _column_values(source, name, values, where) -> tuple[np.ndarray, bool]:
 def _frame_group(source, frame, columns, time_col, where, real) -> Group:
     vals, seconds = {}, False
     for c in dict.fromkeys([time_col, *columns.values()]):
-        vals[c], dt = _column_values(source, c, frame[c], where)
+        vals[c], dt = _column_values(source, c, frame[c], where, time=c == time_col)
         seconds = seconds or (dt and c == time_col)
     g = Group(vals[time_col], {n: vals[c] for n, c in columns.items()}, where, seconds)
 
@@ -466,6 +476,10 @@ def _read_frame(frame, names, mapping, time, real, source="DataFrame", header=No
     import pandas as pd
 
     header = header or [str(c) for c in frame.columns]
+    for j, h in enumerate(header):
+        if h in header[:j]:
+            raise RecordingError(f"{_where(source, None, printable(h))}: duplicate column name (columns "
+                                 f"{header.index(h) + 1} and {j + 1})")
     columns = _columns_for(names, mapping)
     idx = frame.index
     index = str("index" if idx.name is None else idx.name)
@@ -473,8 +487,10 @@ def _read_frame(frame, names, mapping, time, real, source="DataFrame", header=No
         if isinstance(idx, pd.RangeIndex) or not (pd.api.types.is_numeric_dtype(idx)
                                                   or pd.api.types.is_datetime64_any_dtype(idx)
                                                   or pd.api.types.is_timedelta64_dtype(idx)):
+            mapped = [f"'{c}' is mapped to '{n}'" for n, c in columns.items() if c.lower() in TIME_NAMES]
             raise RecordingError(f"{source}: no time: give a column named {', '.join(TIME_NAMES)}, name one "
-                                 f"with time=..., or use a numeric or datetime index (columns: {_found(header)})")
+                                 f"with time=..., or use a numeric or datetime index (columns: {_found(header)})"
+                                 + (f"; {', '.join(mapped)}, so it is not the time" if mapped else ""))
         time_col = index
         frame = frame.reset_index(names=[time_col]) if time_col not in frame.columns else frame.set_index(
             pd.RangeIndex(len(frame))).assign(**{time_col: idx.to_numpy()})
@@ -484,8 +500,9 @@ def _read_frame(frame, names, mapping, time, real, source="DataFrame", header=No
     _require(columns, header, source, time_col)
     labels = frame.index if where is None else None
     frame = frame.rename(columns=str)
-    g = _frame_group(source, frame, columns, time_col, where or (lambda i: f"row {i + 1} (index {labels[i]!r})"),
-                     real)
+    label = lambda v: v.item() if isinstance(v, np.generic) else v
+    g = _frame_group(source, frame, columns, time_col,
+                     where or (lambda i: f"row {i + 1} (index {label(labels[i])!r})"), real)
     _check_advances(g, source, time_col, header)
     return Samples(source, [g], columns, time_col)
 

@@ -313,6 +313,27 @@ def test_reset_starts_from_the_given_state(sim):
     _close(cf.C, d.initial()["C"])
 
 
+def test_python_stepper_refuses_values_of_the_wrong_length(sim):
+    """A u, y, z0 or C0 of the wrong length is refused by name; a one-element u on a two-input model
+    was broadcast to both inputs and z0 of 3 entries on 4 states failed later inside CasADi."""
+    m = Model("two_in", dt=0.01)
+    x, v = m.state("x", std=1.0, process_std=0.01), m.state("v", std=1.0, process_std=0.01)
+    a, b = m.input("a"), m.input("b")
+    m.dynamics({x: v, v: a - b})
+    m.output("x_meas", x, noise_std=0.1)
+    d = derive(m, "ukf")
+    for st in (PythonStepper(d), load_c(d)):
+        with pytest.raises(ValueError, match=r"u has 1 value\(s\), the model 'two_in' 2 \(a, b\)"):
+            st.step([0.5], [0.0])
+        with pytest.raises(ValueError, match=r"y has 2 value\(s\), the model 'two_in' 1 \(x_meas\)"):
+            st.step([0.5, 0.0], [0.0, 1.0])
+        with pytest.raises(ValueError, match=r"z0 has shape \(3,\); the filter's state has 2 entries \(x, v\)"):
+            st.reset(np.zeros(3))
+        with pytest.raises(ValueError, match=r"C0 has shape \(1, 1\)"):
+            st.reset(None, np.eye(1))
+        assert st.step([0.5, 0.0], [0.0]) == Status.OK
+
+
 MAIN = r"""#include <math.h>
 #include <stdio.h>
 #include "roll_d.h"

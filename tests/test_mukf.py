@@ -112,6 +112,8 @@ def test_user_override():
     assert d.partition.linear_names == ["theta", "phi"] and d.partition.sigma_points == 13
     with pytest.raises(ModelError, match="'v_x' cannot be in the linear substate: .*depends on v_x"):
         derive(model, "mukf", linear=["x", "v_x"])
+    with pytest.raises(ModelError, match=r"linear=\[\] leaves the MUKF nothing to marginalise"):
+        derive(model, "mukf", linear=[])
     with pytest.raises(ModelError, match="not states or weights"):
         derive(model, "mukf", linear=["mass"])
     with pytest.raises(ValueError, match="has none"):

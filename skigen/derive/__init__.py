@@ -109,14 +109,26 @@ class DerivedFilter:
         """True when the step carries the ARD prior variances s (SKI kinds)."""
         return self.kind in SKI_KINDS
 
+    def size_refusal(self, u, y) -> str | None:
+        """Why a step cannot take input u and readings y (1-D): a length not the model's; None when it can."""
+        m = self.aug.model
+        return "; ".join(f"step: {what} has {len(v)} value(s), the model '{m.name}' {len(names)} ({', '.join(names)})"
+                         for what, v, names in (("u", u, m.input_names), ("y", y, m.output_names))
+                         if len(v) != len(names)) or None
+
     def start_refusal(self, z, C) -> str | None:
         """Why the step cannot start from mean z and C (P, or its lower factor S), as
         ``<prefix>_reset`` refuses it; None when it can. Either may be None (the declared one)."""
+        n = self.aug.n
+        if z is not None and np.shape(z) not in ((n,), (n, 1)):
+            return f"z0 has shape {np.shape(z)}; the filter's state has {n} entries ({', '.join(self.aug.names)})"
         if z is not None and not np.all(np.isfinite(z)):
             return "z0 has a non-finite entry"
         if C is None:
             return None
         C = np.asarray(C, float)
+        if C.shape != (n, n):
+            return f"C0 has shape {C.shape}; the filter's state needs ({n}, {n})"
         tol, d = 100 * np.finfo(float).eps, np.diag(C)
         if self.square_root:
             if not np.all(np.isfinite(C)) or np.any(d < 0) or np.any(np.triu(C, 1)):

@@ -162,6 +162,9 @@ def partition(aug, linear=None) -> Partition:
         lin = _largest_independent(cand, adj)
     else:
         linear = [linear] if isinstance(linear, str) else list(linear)
+        if not linear:
+            raise ModelError(f"model '{aug.model.name}': linear=[] leaves the MUKF nothing to marginalise: "
+                             f"name at least one state (None: the largest conditionally linear substate)")
         unknown = [nm for nm in linear if nm not in names]
         if unknown:
             raise ModelError(f"model '{aug.model.name}': linear substate names {unknown} are not states "

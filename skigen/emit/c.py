@@ -517,7 +517,8 @@ class CFilter:
         ValueError, the state unchanged, when the C refuses them."""
         arr = lambda a: None if a is None else (self._ct * (self.n * self.n if np.ndim(a) == 2 else self.n))(
             *np.ravel(a, order="F").tolist())
-        code = self._reset(ctypes.byref(self._st), arr(z0), arr(C0))
+        sized = (z0 is None or np.size(z0) == self.n) and (C0 is None or np.size(C0) == self.n * self.n)
+        code = self._reset(ctypes.byref(self._st), arr(z0), arr(C0)) if sized else -1
         if code:
             why = self.filt.start_refusal(z0, C0) or f"{self.prefix}_reset returned {code} (in {self.dtype.__name__})"
             raise ValueError(f"reset refused: {why}; the state is unchanged")
@@ -550,8 +551,11 @@ class CFilter:
 
     def step(self, u, y) -> int:
         """One sample; returns the :class:`Status` code as an int."""
-        self._u[:] = [float(v) for v in np.ravel(u)]
-        self._y[:] = [float(v) for v in np.ravel(y)]
+        u, y = np.ravel(u), np.ravel(y)
+        if len(u) != len(self._u) or len(y) != len(self._y):
+            raise ValueError(self.filt.size_refusal(u, y))
+        self._u[:] = [float(v) for v in u]
+        self._y[:] = [float(v) for v in y]
         return self._step(ctypes.byref(self._st), self._u, self._y)
 
     def std(self) -> np.ndarray:
