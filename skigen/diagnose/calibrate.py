@@ -18,12 +18,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..fit import FitError, fit
+from ..fit import FitError, NotIdentifiable, fit
 from ..model import Model
 from ..recording import Recording
 from .errors import DiagnosisError
 
-__all__ = ["Noise", "calibrate"]
+__all__ = ["Noise", "NoiseNotIdentifiable", "calibrate"]
+
+
+class NoiseNotIdentifiable(DiagnosisError):
+    """The recording cannot tell some of the noises (or declared parameters) apart."""
 
 
 @dataclass
@@ -98,7 +102,8 @@ def calibrate(model: Model, recs: list[Recording], show_progress: bool = False,
         res = res or fit(model, recs, method="filter-error", estimate=[], starts=starts,
                          show_progress=show_progress, noise_from=noise_from)
     except FitError as exc:
-        raise DiagnosisError(f"could not calibrate the noise of '{model.name}' on this recording: {exc}") from None
+        kind = NoiseNotIdentifiable if isinstance(exc, NotIdentifiable) else DiagnosisError
+        raise kind(f"could not calibrate the noise of '{model.name}' on this recording: {exc}") from None
     noise = res.noise
     params = {n: {"declared": p["initial"], "calibrated": p["value"], "std": p["std"]} for n, p in res.parameters.items()}
     return res.model, Noise(noise["declared"], noise["calibrated"], noise["scales"], res.seconds, params, note)

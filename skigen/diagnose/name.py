@@ -686,12 +686,10 @@ def recalibrated(nominal: Model, corr: Correction, rec: Recording, noise_from=No
     ``noise_from`` as well: the nominal's calibration may sit where that was all process noise).
     Where the recording cannot tell the noises apart under the correction (it explains so much that
     process and sensor noise trade off along a flat valley), the noise it was scored under is kept."""
-    from .calibrate import calibrate
+    from .calibrate import NoiseNotIdentifiable, calibrate
     try:
         cal, _ = calibrate(corr.build(nominal), [rec], noise_from=noise_from)
-    except DiagnosisError as exc:
-        if "cannot be told apart" not in str(exc):
-            raise
+    except NoiseNotIdentifiable:
         return nominal
     nx = len(nominal.states)
     m = T.copy_model(nominal)

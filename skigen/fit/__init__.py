@@ -28,7 +28,7 @@ from ..simulate import AMPLIFICATION, growth_rate, simulation_window
 from .problem import LOG_SCALE_BOUND, METHODS, Problem, build_problem, data_matrix
 from .uncertainty import covariance, unidentified
 
-__all__ = ["FitError", "FitResult", "fit", "METHODS"]
+__all__ = ["FitError", "NotIdentifiable", "FitResult", "fit", "METHODS"]
 
 _IPOPT_WORDS = {
     "Solve_Succeeded": "converged",
@@ -51,6 +51,10 @@ _IPOPT_WORDS = {
 
 class FitError(ValueError):
     """A fit that cannot be done or did not succeed; the message says why and names the culprit."""
+
+
+class NotIdentifiable(FitError):
+    """The recordings cannot identify every quantity to estimate; the message names them."""
 
 
 @dataclass
@@ -279,7 +283,7 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     G = _dense(jac_g(theta0 / scale, p))
     lost = unidentified(J0[:, free], prior.ravel()[free], [V.names[i] for i in free], G[:, free])
     if lost:
-        raise FitError(f"the recordings cannot identify every quantity of '{model.name}': " + "; ".join(lost)
+        raise NotIdentifiable(f"the recordings cannot identify every quantity of '{model.name}': " + "; ".join(lost)
                        + ". Hold some at their declared values (estimate only the others: estimate=[...] in Python, "
                        "--estimate NAME for each on the command line), give them a prior std, or record richer "
                        "excitation")
