@@ -141,14 +141,8 @@ def _diagnose(args) -> int:
     from .diagnose import DiagnosisError, diagnose
     from .diagnose.report import finding_line, where
 
-    candidates = []
-    for c in args.candidate:
-        parts = c.split(":", 2)
-        if len(parts) != 3 or not all(p.strip() for p in parts):
-            raise CliError(f"--candidate '{c}': expected NAME:EQUATION:FORMULA, e.g. 'stiction:v:-tanh(v/0.001)'")
-        candidates.append(tuple(p.strip() for p in parts))
     try:
-        report = diagnose(args.model, args.data, args.out, candidates=candidates, alpha=args.alpha,
+        report = diagnose(args.model, args.data, args.out, candidates=args.candidate, alpha=args.alpha,
                           folds=args.folds, validate=args.validate, figures=not args.no_figures,
                           **_read_options(args))
     except DiagnosisError as exc:

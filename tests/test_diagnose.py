@@ -241,6 +241,18 @@ def _cart_csv(path, seconds=10.0, dt=cart.DT, measured=True):
     return path
 
 
+def test_python_candidates_take_the_command_line_s_form():
+    """diagnose(candidates=["wave:r:sin(psi)"]) as --candidate takes it (it failed with 'too many
+    values to unpack'); a malformed one says which forms are taken."""
+    from skigen.diagnose.catalog import user_candidates
+    nominal = T.copy_model(cart.model, unknowns=False)
+    a, b, c = user_candidates(nominal, ["stiction:v:-tanh(v/0.001)", ("stiction", "v", "-tanh(v/0.001)"),
+                                        {"name": "stiction", "equation": "v", "formula": "-tanh(v/0.001)"}])
+    assert (a.effect, a.equation, a.formula) == (b.effect, b.equation, b.formula) == (c.effect, c.equation, c.formula)
+    with pytest.raises(ValueError, match=r"candidate 'stiction-tanh\(v\)': expected NAME:EQUATION:FORMULA.*tuple"):
+        user_candidates(nominal, ["stiction-tanh(v)"])
+
+
 @pytest.mark.parametrize("case, expected", [
     ("missing_model", ["nope.py", "not found"]),
     ("broken_model", ["failed to load", "NameError"]),

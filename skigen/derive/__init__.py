@@ -130,11 +130,12 @@ class DerivedFilter:
         if C.shape != (n, n):
             return f"C0 has shape {C.shape}; the filter's state needs ({n}, {n})"
         tol, d = 100 * np.finfo(float).eps, np.diag(C)
+        r = np.sqrt(np.where(d > 0, d, 1.0))          # P scaled to unit diagonal (a 0 row stays 0)
         if self.square_root:
             if not np.all(np.isfinite(C)) or np.any(d < 0) or np.any(np.triu(C, 1)):
                 return "C0 is not a lower Cholesky factor S: an entry non-finite, negative on the diagonal or non-zero above it"
         elif not (np.all(np.isfinite(C)) and np.all(d >= 0) and np.all(np.abs(C - C.T) <= tol * np.sqrt(np.outer(d, d)))
-                  and np.linalg.eigvalsh(C / np.sqrt(np.outer(d.clip(1e-300), d.clip(1e-300)))).min() >= -tol * len(C)):
+                  and np.linalg.eigvalsh(C / np.outer(r, r)).min() >= -tol * len(C)):
             return ("C0 is not a covariance P: an entry non-finite or negative on the diagonal, or it is not "
                     "symmetric positive semi-definite")
         from .ski import bounded_by_prior

@@ -44,7 +44,7 @@ from .figures import diagnosis_figures, plot_residuals
 from .fit import DIVERGED, evaluate_fit, free_run_window, simulation_worth
 from .inputs import MIN_SAMPLES, check, load, usable
 from .locate import Location, locate
-from .name import Correction, basis_rms, beyond_parameters, focus_window, name_terms, shape_search
+from .name import Correction, basis_rms, beyond_parameters, focus_window, name_terms, recalibrated, shape_search
 from .plausible import screen, significant, term_item
 from .name import refit as refit_terms
 from .report import where, write_json, write_markdown
@@ -121,7 +121,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     ``recording`` (a :class:`Recording`, a CSV, Parquet or ULog path, or a DataFrame); write report.json,
     report.md, figures and the corrected model into ``out_dir``.
 
-    candidates: extra additive terms, ``(name, equation, formula)`` — the formula in the model's
+    candidates: extra additive terms, ``(name, equation, formula)`` or ``"name:equation:formula"`` — the formula in the model's
     state and input names (``"-tanh(v/0.001)"``). alpha: false-alarm rate of the whole decision.
     folds: folds of the blocked cross-validation (each DEFAULT_BLOCKS contiguous blocks dealt in turn). validate: further recordings, never
     fitted on, on which the nominal and corrected models are compared. equations: equations to
@@ -227,6 +227,8 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     size = {e: max(float(np.sqrt(np.mean(loc.disturbance[e][0] ** 2))) if e in loc.disturbance else 0.0,
                    float(q[nominal.state_names.index(e)])) or loc.scales.get(e, 1.0)
             for e in {c.equation for c in additive}}
+    before_naming = calibrated
+    cv_before = fold_loglik(calibrated, rec, cv)      # the nominal as calibrated, as in the in-sample table
     corr, history, rms, size, calibrated = name_terms(calibrated, rec, cv, loc.equations, loc.states, size, additive,
                                           structural, alpha, progress=lambda s: stage(f"naming: {s}"),
                                                       focus=focus_window(sum((d / np.maximum(sd, 1e-300)) ** 2
@@ -243,7 +245,10 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     corr, rejected = screen(calibrated, corr, loc.states, rec, alpha, shapes)
     if rejected["compensating"] or rejected["not_identifiable"]:
         corr = refit_terms(calibrated, corr, rec, rms, size)
-    corr, ev, cv_after = weigh(calibrated, corr, rec, cv, alpha, rms, size)
+
+    def noise_for(c):           # each drop-one model under the noise it calibrates to
+        return before_naming if c.empty else recalibrated(before_naming, c, rec, user_noise)
+    corr, ev, cv_after = weigh(calibrated, corr, rec, cv, alpha, rms, size, noise_for)
     report.correction = corr
     meta["proposals"] = [f"round {i + 1}: best proposal {p.label} ({p.kind}), cross-validated log-likelihood "
                          f"gain {p.gain:+.1f}" + "".join(f"; {where(a)} set aside as compensating"
@@ -262,7 +267,6 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     data["compensating"] = set_aside + rejected["compensating"]
     data["not_identifiable"] = rejected["not_identifiable"]
     data["candidates_not_named"] = _unnamed(user_cands, additive, data, calibrated, rec, loc.states)
-    cv_before = fold_loglik(calibrated, rec, cv)
     data["fit"]["folds"] = [{"spans": [list(s) for s in cv.spans(f, rec.t)], "loglik_before": float(cv_before[f]),
                              "loglik_after": float(cv_after[f])} for f in range(len(cv))]
 

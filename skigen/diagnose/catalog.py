@@ -148,6 +148,9 @@ class Structural:
     params: int = 1
     coarser: "Structural | None" = None
     refit: bool = True        # its value a parameter of the joint refit (not a whole delay, a fraction, a play)
+    beyond: float = 0.0       # > 0: the grid goes on past an end that is best, its value times this
+                              # (an offset, a lag, a width, a delay; not a limit or sensor range, whose
+                              # grid ends at the recorded extremes)
 
     @property
     def target(self) -> str:
@@ -310,13 +313,20 @@ def channel_candidates(model: Model, equations, scale: dict[str, float], states:
 
 
 def user_candidates(model: Model, candidates) -> list[Additive]:
-    """User candidates: (name, equation, formula) tuples or dicts with those keys."""
+    """User candidates: (name, equation, formula) tuples, dicts with those keys, or
+    'NAME:EQUATION:FORMULA' strings (as ``--candidate`` takes them)."""
     out = []
     for c in candidates or []:
-        if isinstance(c, dict):
-            name, eq, formula = c["name"], c["equation"], c["formula"]
+        if isinstance(c, str):
+            parts = [p.strip() for p in c.split(":", 2)]
+        elif isinstance(c, dict):
+            parts = [c.get(k) for k in ("name", "equation", "formula")]
         else:
-            name, eq, formula = c
+            parts = list(c) if isinstance(c, (tuple, list)) else []
+        if len(parts) != 3 or not all(isinstance(p, str) and p for p in parts):
+            raise ValueError(f"candidate {c!r}: expected NAME:EQUATION:FORMULA, e.g. 'stiction:v:-tanh(v/0.001)' "
+                             f"(in Python also a (name, equation, formula) tuple or a dict with those keys)")
+        name, eq, formula = parts
         if eq not in model.state_names:
             raise ValueError(f"candidate '{name}': no equation '{eq}' (states: {', '.join(model.state_names)})")
         evaluate(model, formula)
@@ -399,25 +409,25 @@ def structural_candidates(model: Model, equations, inputs: np.ndarray) -> list[S
             "input_delay", u, "delay", "samples", tuple(range(1, 16)), True, False,
             lambda m, d, u=u: T.input_delay(m, u, int(round(d))),
             lambda d, u=u: f"{u}[k-{int(round(d))}] ({int(round(d)) * dt:g} s)", READINGS["input_delay"],
-            refit=False)
+            refit=False, beyond=2.0)
         out.append(whole)
         out.append(Structural(
             "actuator_lag", u, "tau", "s", tuple(dt * 2.0 ** np.arange(0, 6)), False, True,
             lambda m, tau, u=u, first=first, s=float(np.std(x)) + 1e-9:
-                T.actuator_lag(m, u, tau, initial=first, std=0.1 * s),
-            lambda tau, u=u: f"{u} through 1/({_num(tau)} s·s + 1)", READINGS["actuator_lag"]))
+                T.actuator_lag(m, u, tau, initial=first, std=s),
+            lambda tau, u=u: f"{u} through 1/({_num(tau)} s·s + 1)", READINGS["actuator_lag"], beyond=2.0))
         out += _saturations(u, unit, x, both)
         widths = tuple(float(q) for q in np.unique(np.quantile(dev, [0.05, 0.1, 0.2, 0.3, 0.45])) if q > 0)
         if both and widths:
             out.append(Structural(
                 "dead_zone", u, "width", unit, widths, False, True,
                 lambda m, a, u=u: T.dead_zone(m, u, a),
-                lambda a, u=u: f"deadzone({u}, ±{_num(a)})", READINGS["dead_zone"]))
+                lambda a, u=u: f"deadzone({u}, ±{_num(a)})", READINGS["dead_zone"], beyond=1.5))
         if widths:
             out.append(Structural(
                 "backlash", u, "width", unit, widths, False, True,
                 lambda m, a, u=u, first=first: T.backlash(m, u, a, initial=first),
-                lambda a, u=u: f"play({u}, ±{_num(a)})", READINGS["backlash"], refit=False))
+                lambda a, u=u: f"play({u}, ±{_num(a)})", READINGS["backlash"], refit=False, beyond=1.5))
         out.append(Structural(
             "fractional_delay", u, "delay", "samples", FRACTIONAL_DELAYS, False, False,
             lambda m, d, u=u: T.fractional_delay(m, u, d),
@@ -436,7 +446,8 @@ def _describe_fraction(u: str, samples: float, dt: float) -> str:
 
 def output_candidates(model: Model, outputs, recorded: np.ndarray) -> list[Structural]:
     """Per listed output, what its sensor may do: read an offset (searched over ± SENSOR_OFFSETS ×
-    the recorded output's RMS), a gain (SENSOR_GAINS, on a log scale), or saturate, upper and lower
+    the recorded output's RMS, and on by threes past the largest while that is best: a speed
+    hovering about 0 has an RMS below its sensor's offset), a gain (SENSOR_GAINS, on a log scale), or saturate, upper and lower
     (the bound over the recorded output's quantiles SENSOR_QUANTILES, its extremes included).
     ``recorded``: (N, ny)."""
     out = []
@@ -452,7 +463,7 @@ def output_candidates(model: Model, outputs, recorded: np.ndarray) -> list[Struc
             out.append(Structural(
                 "sensor_offset", "", "offset", unit, offsets, False, False,
                 lambda m, b, y=y: T.output_offset(m, y, b), lambda b, y=y: f"{y} {'-' if b < 0 else '+'} {_num(abs(b))}",
-                READINGS["sensor_offset"], output=y))
+                READINGS["sensor_offset"], output=y, beyond=3.0))
         out.append(Structural(
             "sensor_gain", "", "gain", "", SENSOR_GAINS, False, True,
             lambda m, g, y=y: T.output_gain(m, y, g), lambda g, y=y: f"{_num(g)}·{y}",

@@ -375,6 +375,9 @@ def _filters_of(base: Model, s: Structural):
     return lambda v: filt.at(**{name: float(v)})
 
 
+EXTENSIONS = 2      # steps of Structural.beyond past the grid's end (an offset: to 9 × the output's RMS)
+
+
 def _structural(base: Model, s: Structural, rec: Recording, folds: Folds):
     """(value refined on the whole recording, its std, per-fold cross-validated log-likelihood):
     per fold, the grid point best on the other folds."""
@@ -397,6 +400,7 @@ def _structural(base: Model, s: Structural, rec: Recording, folds: Folds):
         i = int(np.argmax(totals))
         grid = list(range(int(coarse[max(i - 1, 0)]), int(coarse[min(i + 1, len(coarse) - 1)]) + 1))
     parallel(per_fold, grid)
+    _past_ends(lambda v: per_fold(v).sum(), s, {x: L.sum() for x, L in table.items()})
     xs = np.array(sorted(table))
     L = np.array([table[x] for x in xs])                     # (grid, folds)
     others = np.where(~np.eye(len(folds), dtype=bool), L[:, None, :], 0.0).sum(axis=2)   # no −inf − (−inf)
@@ -405,10 +409,26 @@ def _structural(base: Model, s: Structural, rec: Recording, folds: Folds):
     return value, std, cv
 
 
+def _past_ends(total, s: Structural, seen: dict) -> None:
+    """While an end of the values ``seen`` (value → ``total``, updated) is the best, the value past it,
+    ``s.beyond`` times farther from 0 past the upper end and times nearer past the lower one (of a
+    positive grid; an offset's lower end is negative: farther) (EXTENSIONS at most; none when
+    ``s.beyond`` is 0)."""
+    for _ in range(EXTENSIONS if s.beyond else 0):
+        xs = sorted(seen)
+        j = int(np.argmax([seen[x] for x in xs]))
+        if 0 < j < len(xs) - 1:
+            return
+        x = xs[j] * s.beyond if (j > 0) == (xs[j] > 0) else xs[j] / s.beyond
+        seen[x] = total(x)
+
+
 def _profile(total, s: Structural, evaluated) -> tuple[float, float, float]:
-    """Best parameter by whole-recording log-likelihood ``total(v)``: Brent's search between the
-    best evaluated point's neighbours (log scale for scale parameters); std from the curvature."""
+    """Best parameter by whole-recording log-likelihood ``total(v)`` (past the evaluated ends while
+    one is best, :func:`_past_ends`): Brent's search between the best evaluated point's neighbours
+    (log scale for scale parameters); std from the curvature."""
     seen = {float(x): total(x) for x in evaluated}
+    _past_ends(total, s, seen)
     def bracket():
         xs = np.array(sorted(seen))
         ys = np.array([seen[x] for x in xs])

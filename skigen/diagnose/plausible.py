@@ -103,8 +103,12 @@ def screen(model: Model, corr, states: np.ndarray, rec: Recording, alpha: float,
         if s.integer or np.isfinite(std):      # a whole number of samples is a choice, not a measurement
             structural.append((s, value, std))
             continue
+        if min(s.grid) < value < max(s.grid):
+            note = (f"not identifiable from this recording (the likelihood of its {s.parameter} has no maximum "
+                    f"inside the range searched): excite {s.target} over a wider range")
+        else:
+            note = (f"not identifiable from this recording (its likelihood still rises at the end of the range "
+                    f"searched, {s.parameter} {value:.4g}: the recording may want more, or another effect)")
         lost.append({"effect": s.effect, "equation": s.target, "expression": s.describe(value),
-                     "coefficient": value, "std": std,
-                     "note": f"not identifiable from this recording (the likelihood of its {s.parameter} has "
-                             f"no maximum inside the range searched): excite {s.target} over a wider range"})
+                     "coefficient": value, "std": std, "note": note})
     return type(corr)(kept, structural), {"compensating": comp, "not_identifiable": lost}
