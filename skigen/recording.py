@@ -27,6 +27,13 @@ class RecordingError(ValueError):
 STUCK_RUN = 10      # identical readings in a row from which a sensor counts as stuck (the guard's stuck_limit)
 
 
+def _listed(items, most: int = 5) -> str:
+    """The first ``most`` items, '; '-separated, and how many more."""
+    items = list(items)
+    more = f"; … {len(items) - most} more" if len(items) > most else ""
+    return "; ".join(map(str, items[:most])) + more
+
+
 @dataclass(frozen=True, eq=False)
 class Recording:
     """Time, inputs and outputs of one run, as read-only arrays."""
@@ -110,14 +117,17 @@ class Recording:
         rec, notes = self.unstuck()
         parts = rec.input_parts()
         if not parts:
+            longest = max(h.t1 - h.t0 for h in rec.input_holes)
             raise RecordingError(f"{rec.path}: no two consecutive samples with every input known between the "
-                                 f"input holes ({'; '.join(map(str, rec.input_holes))})")
+                                 f"input holes ({_listed(rec.input_holes)}); an input logged this sparsely is held "
+                                 f"between its samples when max_gap exceeds its longest hole, {longest:.3g} s "
+                                 f"(--max-gap SECONDS; max_gap= in Python)")
         return parts, notes
 
     def hole_note(self, what: str) -> str:
         """A sentence on this recording's input holes, ending in what was done about them."""
         return (f"{self.path}: the held input is not the input in its hole(s) longer than max_gap = "
-                f"{self.max_gap:g} s ({'; '.join(map(str, self.input_holes))}): {what}")
+                f"{self.max_gap:g} s ({_listed(self.input_holes)}): {what}")
 
     def input_parts(self) -> list[Recording]:
         """The stretches between this recording's input holes (an input without a sample for

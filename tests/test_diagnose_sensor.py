@@ -61,3 +61,49 @@ def test_a_sensor_stuck_partway_and_an_input_hole_are_left_out_and_said(tmp_path
     assert "11.99–14.01 s (2.02 s) without F" in hole and "14.01–59.99 s (4599 of 6000 samples)" in hole
     assert "[14.01–59.99 s]: the recording does not start at the model's initial state" in moving   # the cart moves
     assert "Note: DataFrame: output 'p_meas' holds one reading" in (tmp_path / "report.md").read_text()
+
+
+def _vertical():
+    """A multirotor's vertical axis, its thrust gain and drags declared off (truth 20, 0.3, 0.05)."""
+    from skigen import Model
+    m = Model("vertical", dt=0.02, discretization="rk4")
+    h = m.state("h", unit="m", role="altitude", std=1.0, process_std=1e-4)
+    v = m.state("v", unit="m/s", role="velocity", std=0.5, process_std=5e-3)
+    T = m.input("T")
+    kT, c1 = m.parameter("kT", 18.0, bounds=(1.0, 100.0)), m.parameter("c1", 0.5, bounds=(0.0, 10.0))
+    cd = m.parameter("cd", 0.02, bounds=(0.0, 5.0))
+    m.dynamics({h: v, v: kT * T - 9.81 - c1 * v - cd * v * abs(v)})
+    m.output("baro", h, unit="m", noise_std=0.15)
+    m.output("vz", v, unit="m/s", noise_std=0.05)
+    return m
+
+
+def test_a_velocity_sensor_offset_is_not_absorbed_by_the_kinematic_identity(tmp_path):
+    """Altitude ḣ = v read by a barometer, v by a vertical-speed sensor 0.3 m/s high, the altitude's
+    process noise declared 1e-4 m: the calibration may not give the kinematic identity more
+    noise than declared, so the offset is named. Calibrated freely (a user's fleet log like
+    this one), h took 284× its declared noise, baro and vz were reconciled by a wandering
+    altitude, and nothing was named. The truth has no noise on h and the declared 5e-3 m/s on v."""
+    import numpy as np
+    import pandas as pd
+    from skigen.diagnose import diagnose
+    rng = np.random.default_rng(5)
+    N, dt = 3001, 0.02
+    t = np.arange(N) * dt
+    s = np.sum(np.sin(2 * np.pi * rng.uniform(0.05, 1.0, 6)[:, None] * t + rng.uniform(0, 2 * np.pi, 6)[:, None]), 0)
+    T = 9.81 / 20 + 0.06 * s / np.abs(s).max()
+    acc = lambda v, u: 20 * u - 9.81 - 0.3 * v - 0.05 * v * abs(v)
+    h, v = np.zeros(N), np.zeros(N)
+    for k in range(N - 1):                         # Euler at dt/20, the noise once per sample
+        hk, vk = h[k], v[k]
+        for _ in range(20):
+            hk, vk = hk + dt / 20 * vk, vk + dt / 20 * acc(vk, T[k])
+        h[k + 1], v[k + 1] = hk, vk + 5e-3 * rng.normal()
+    frame = pd.DataFrame({"t": t, "T": T, "baro": h + 0.15 * rng.normal(size=N),
+                          "vz": v + 0.3 + 0.05 * rng.normal(size=N)})
+    d = diagnose(_vertical(), frame, tmp_path, show_progress=False, figures=False, emit=False).data
+    assert d["noise"]["calibrated"]["process_std"]["h"] <= 1e-4 * (1 + 1e-9), d["noise"]
+    top = d["findings"][0] if d["findings"] else None
+    assert top is not None and (top["effect"], top.get("output")) == ("sensor_offset", "vz"), d["findings"]
+    assert abs(top["coefficient"] - 0.3) < 4 * top["std"] and abs(top["coefficient"] - 0.3) < 0.01, top
+    assert d["remaining"]["mismatch"] is False, d["remaining"]

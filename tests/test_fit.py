@@ -737,6 +737,18 @@ def test_an_estimate_on_its_bound_is_named():
     assert len(res.notes) == 1 and res.notes[0].startswith("b = 1.5 ± ") and "sits on its upper bound 1.5" in res.notes[0]
 
 
+def test_a_vague_estimate_is_not_said_to_sit_on_a_bound():
+    """Measured on a motor held at one steady state: J = 1.64 ± 6.6e4 above its bound 1e-5 was said
+    to 'sit on its lower bound' (within 1e-3 std of it); it is far from it, and vague. An estimate
+    at its bound, 1e-9 above 0, still sits on it."""
+    from skigen.fit import _bound_notes
+    J, = _bound_notes({"J": dict(value=1.63956, std=6.6e4, bounds=(1e-5, None))})
+    assert "sits on" not in J and "its std is 4e+04 times its value" in J
+    cd, = _bound_notes({"cd": dict(value=4.8e-10, std=0.04, bounds=(0.0, 5.0))})
+    assert "sits on its lower bound 0" in cd
+    assert _bound_notes({"R": dict(value=3.87, std=0.95, bounds=(0.01, None))}) == []
+
+
 def test_an_output_never_measured_has_no_rmse(tmp_path):
     """fit.json stays valid JSON: an output without a single reading has RMSE null."""
     from skigen.fit.output import write_outputs

@@ -282,6 +282,19 @@ def test_input_holes_cut_a_recording_into_parts():
     assert Recording("r.csv", t, np.zeros((100, 1)), np.zeros((100, 1)), ("u",), ("y",)).input_parts()[0].t is t
 
 
+def test_an_input_logged_ten_times_slower_than_the_grid_is_one_short_error():
+    """Every sample of the grid in a 10 s hole: one line naming five holes, how many more, and
+    max_gap (the 360 holes of a user's log made a 13.5 kB message without the remedy)."""
+    from skigen.grid import Hole
+    t = np.arange(3600.0)
+    holes = tuple(Hole(a, a + 10.0, ("P",), True) for a in np.arange(0.0, 3600.0, 10.0))
+    rec = Recording("slow.csv", t, np.zeros((3600, 1)), np.zeros((3600, 1)), ("P",), ("T",), holes=holes)
+    with pytest.raises(RecordingError) as err:
+        rec.usable()
+    text = str(err.value)
+    assert len(text) < 500 and "… 355 more" in text and "max_gap exceeds its longest hole, 10 s (--max-gap" in text
+
+
 def test_an_input_named_like_time_is_not_the_clock(tmp_path):
     """A thrust input 'T' beside a time column 't', 'time' or 'timestamp' (in any order), or beside a
     Parquet file's pandas index 't': the time is the clock column and 'T' the input (a user's fleet

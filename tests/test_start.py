@@ -145,3 +145,24 @@ def test_a_sensor_offset_at_rest_keeps_the_declared_start():
     output_error = fit(grey("offset"), [rec], show_progress=False)    # the default method says what it leaves out
     assert any("declares process noise (on v), which output error leaves out" in n for n in output_error.notes)
     assert not any("output error leaves out" in n for r in ll.values() for n in r.notes)
+
+
+def test_the_fit_figure_counts_the_rms_as_the_report_does(monkeypatch):
+    """A recording whose filter learns the start in its first 3 samples: the figure's RMS is the
+    report's, from the end of that head, the head shaded and its spike off the residual's scale
+    (the panel read 'RMS 1.576' beside a report's 0.05108); an output never measured says so
+    ('RMS nan' and a numpy warning before)."""
+    import warnings
+    from skigen.fit import figures
+    t = np.arange(200) * 0.01
+    y = np.c_[np.r_[50.0, 0.1 * np.sin(np.arange(199))], np.full(200, np.nan)]
+    rec = Recording("r.csv", t, np.zeros((200, 1)), y, ("u",), ("a", "b"))
+    shown = {}
+    monkeypatch.setattr(figures, "save_figure", lambda fig, path: shown.setdefault("fig", fig))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        figures.recording_figure("x.png", "fitted", rec, np.zeros((200, 2)), ["a", "b"], start=3)
+    axes = shown["fig"].axes
+    expected = np.sqrt(np.mean(y[3:, 0] ** 2))
+    assert axes[1].get_title(loc="right") == f"RMS {expected:.4g} from t = 0.03 s"
+    assert axes[1].get_ylim()[1] < 1.0 and axes[3].get_title(loc="right") == "never measured"

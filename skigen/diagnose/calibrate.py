@@ -11,6 +11,10 @@ written into the model stay as they are), and every later test runs on the
 calibrated model. Missing physics then shows as what
 white noise cannot explain: innovations that are not white, a disturbance
 that drifts slowly or depends on the state, the input or the regime.
+A kinematic identity ṗ = v (:func:`catalog.kinematic_equations`) is exact by
+definition: its process noise may fall below what the user declared on it,
+never rise above (calibrated freely, a vertical-speed sensor reading 0.3 m/s
+high was absorbed as 284× the altitude's declared noise, and nothing was named).
 """
 from __future__ import annotations
 
@@ -21,6 +25,7 @@ import numpy as np
 from ..fit import FitError, NotIdentifiable, fit
 from ..model import Model
 from ..recording import Recording
+from .catalog import kinematic_equations
 from .errors import DiagnosisError
 
 __all__ = ["Noise", "NoiseNotIdentifiable", "calibrate"]
@@ -92,15 +97,18 @@ def calibrate(model: Model, recs: list[Recording], show_progress: bool = False,
     starts = [s for r, b in zip(recs, pieces) for s in (block_starts(model, r, b) or [None] * len(b))]
     recs = [b for bs in pieces for b in bs]
     res, note = None, ""
+    Q = np.diag(noise_from[0] if noise_from is not None else model.process_noise())
+    caps = {k: float(Q[i]) for k in kinematic_equations(model)
+            if (i := model.state_names.index(k)) < len(Q) and Q[i] > 0}
     if model.parameters:               # the user's uncertain constants are the model's to fit, not findings
         try:
             res = fit(model, recs, method="filter-error", starts=starts, show_progress=show_progress,
-                      noise_from=noise_from)
+                      noise_from=noise_from, noise_caps=caps)
         except FitError as exc:
             note = f"declared parameters held at their values ({exc})"
     try:
         res = res or fit(model, recs, method="filter-error", estimate=[], starts=starts,
-                         show_progress=show_progress, noise_from=noise_from)
+                         show_progress=show_progress, noise_from=noise_from, noise_caps=caps)
     except FitError as exc:
         kind = NoiseNotIdentifiable if isinstance(exc, NotIdentifiable) else DiagnosisError
         raise kind(f"could not calibrate the noise of '{model.name}' on this recording: {exc}") from None

@@ -206,7 +206,7 @@ class _Progress(ca.Callback):
 def fit(model: Model, recordings, *, method: str = "output-error", estimate=None,
         shooting: int | None = None, max_iter: int = 200, tol: float = 1e-8,
         starts=None, show_progress: bool = True, time=None, time_unit: str = "s", columns=None,
-        max_gap: float = 1.0, noise_from=None) -> FitResult:
+        max_gap: float = 1.0, noise_from=None, noise_caps=None) -> FitResult:
     """Fit ``model`` to ``recordings`` (Recording objects, or paths and DataFrames read onto the
     model's grid with :func:`skigen.recording.load_recording`) by ``method``.
 
@@ -224,6 +224,8 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     given as paths or DataFrames (see :func:`skigen.recording.load_recording`). noise_from:
     filter error only, another (Q, R) to start the noise from as well, the more likely optimum
     kept (a diagnosis gives the user's declared noise to a model that carries a calibrated one).
+    noise_caps: filter error only, {state: variance} its process noise may not exceed (a diagnosis
+    holds a kinematic identity ṗ = v to the noise the user declared on it).
     """
     t0 = perf_counter()
     if method not in METHODS:
@@ -292,6 +294,9 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
                   ubx=prob.solver_inputs["ubx"] / scale, p=p)
     for i in held:
         inputs["lbx"][i] = inputs["ubx"][i] = inputs["x0"][i]
+    for i, top in _capped(V, model, noise_caps or {}):
+        inputs["ubx"][i] = min(inputs["ubx"][i], top)
+        inputs["x0"][i] = min(inputs["x0"][i], top)
     declared_noise = inputs["x0"]
     if method == "filter-error":
         inputs["x0"] = _noise_start(prob, inputs)
@@ -340,7 +345,9 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     return result
 
 
-AT_BOUND = 1e-3     # standard errors: an estimate this close to a bound sits on it
+AT_BOUND = 1e-3     # standard errors: an estimate this close to a bound sits on it, if also within
+ON_BOUND = 1e-6     # × its size (at least 1): a std of 6.6e4 put 1.64 'on' a bound at 1e-5
+VAGUE = 10.0        # a std this many times the value: the data hardly determine it
 PRIOR_CONFLICT = 3.0   # prior std: an estimate this far from its declared prior says they disagree
 
 
@@ -350,7 +357,8 @@ def _bound_notes(parameters: dict) -> list[str]:
     for name, p in parameters.items():
         value, std, (lo, hi) = p["value"], p["std"], p["bounds"]
         lo, hi = -np.inf if lo is None else lo, np.inf if hi is None else hi
-        side = "lower" if value - lo <= AT_BOUND * std else "upper" if hi - value <= AT_BOUND * std else None
+        on = lambda b: abs(value - b) <= min(AT_BOUND * std, ON_BOUND * max(abs(value), abs(b), 1.0))
+        side = "lower" if on(lo) else "upper" if on(hi) else None
         if side:
             notes.append(f"{name} = {value:.6g} ± {std:.2g} sits on its {side} bound {lo if side == 'lower' else hi:g}: "
                          f"the fit stopped there, where the best fit lies beyond the bound or the search met a "
@@ -359,6 +367,9 @@ def _bound_notes(parameters: dict) -> list[str]:
         elif 4 * std > hi - lo:
             notes.append(f"{name} = {value:.6g} ± {std:.2g}: its 2σ interval is wider than its bounds "
                          f"[{lo:g}, {hi:g}]; the data hardly determine it")
+        elif std > VAGUE * abs(value):
+            notes.append(f"{name} = {value:.6g} ± {std:.2g}: its std is {std / max(abs(value), 1e-300):.2g} times "
+                         f"its value; the data hardly determine it")
     return notes
 
 
@@ -444,6 +455,14 @@ def _noise_restarts(prob: Problem, model: Model, inputs: dict, declared: np.ndar
         x = _noise_start(prob, dict(inputs, x0=x))
         if float(prob.objective(x, inputs["p"])) < float(sol["f"]):
             yield dict(inputs, x0=x)
+
+
+def _capped(V, model: Model, caps: dict) -> list[tuple[int, float]]:
+    """(index in V, upper bound of its log scale) of each Q scale ``caps`` bounds: the log of the
+    cap over the model's declared variance."""
+    q = dict(zip(model.state_names, np.diag(model.process_noise())))
+    return [(V.names.index(f"Q_scale_{n}"), float(np.log(max(cap, 1e-300) / q[n])))
+            for n, cap in caps.items() if f"Q_scale_{n}" in V.names and q[n] > 0]
 
 
 def _noise_shift(V, model: Model, noise: list[int], Q, R) -> np.ndarray:

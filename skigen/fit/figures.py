@@ -10,8 +10,10 @@ from ..plots import plt, save_figure
 __all__ = ["recording_figure", "correlation_figure"]
 
 
-def recording_figure(path, title: str, rec, predicted: np.ndarray, names: list[str]) -> Path:
-    """Per output: measured and model output over time (top), their difference (bottom)."""
+def recording_figure(path, title: str, rec, predicted: np.ndarray, names: list[str], start: int = 0) -> Path:
+    """Per output: measured and model output over time (top), their difference (bottom), its RMS
+    from sample ``start`` on (the head before it, where a filter learns the recording's start,
+    shaded), as the report counts it."""
     ny = len(names)
     fig, axes = plt.subplots(2 * ny, 1, figsize=(9, 2.6 * ny + 1.2), sharex=True, squeeze=False)
     for j, name in enumerate(names):
@@ -23,8 +25,13 @@ def recording_figure(path, title: str, rec, predicted: np.ndarray, names: list[s
         bottom.plot(rec.t, e, lw=0.6, color="tab:red")
         bottom.set_ylabel(f"{name} residual")
         bottom.axhline(0, color="k", lw=0.5)
-        rms = np.sqrt(np.nanmean(e ** 2))
-        bottom.set_title(f"RMS {rms:.4g}", fontsize=8, loc="right")
+        if start:
+            bottom.axvspan(rec.t[0], rec.t[start], color="0.9", lw=0)
+        seen = e[start:][np.isfinite(e[start:])]
+        if start and len(seen) and np.max(np.abs(seen)) > 0:      # the head's spike off the scale
+            bottom.set_ylim(-1.2 * np.max(np.abs(seen)), 1.2 * np.max(np.abs(seen)))
+        bottom.set_title((f"RMS {np.sqrt(np.mean(seen ** 2)):.4g}" + (f" from t = {rec.t[start]:g} s" if start else ""))
+                         if len(seen) else "never measured", fontsize=8, loc="right")
     axes[0, 0].legend(loc="upper right", fontsize=8)
     axes[0, 0].set_title(title)
     axes[-1, 0].set_xlabel("t (s)")

@@ -92,8 +92,9 @@ def write_outputs(result: FitResult, out_dir, *, model_spec: str | None = None,
     if figures:
         from .figures import correlation_figure, recording_figure
         names = result.model.output_names
-        for r, (rec, Y) in enumerate(zip(recordings, result.predictions)):
-            paths.append(recording_figure(out / f"fit_{r}.png", f"fitted: {Path(rec.path).name}", rec, Y, names))
+        for r, (rec, Y, got) in enumerate(zip(recordings, result.predictions, result.recordings)):
+            paths.append(recording_figure(out / f"fit_{r}.png", f"fitted: {Path(rec.path).name}", rec, Y, names,
+                                          start=got.get("rmse_from", 0)))
         for r, v in enumerate(validation):
             paths.append(recording_figure(out / f"validation_{r}.png", "validation (free run" + (
                                           f", restarted every {v['window']:.3g} s" if v.get("window") else "") + "): "
