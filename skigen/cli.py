@@ -186,6 +186,8 @@ def _diagnose(args) -> int:
         print("what remains: " + ("a mismatch remains" + (f"; it follows {rem['explained_by']}: try --candidate "
                                                           f"'{rem['suggested_candidate']}'" if rem.get("explained_by") else "")
                                   if rem["mismatch"] else "the corrected model is consistent"))
+    for line in d.get("validation_disagrees", []):
+        print(f"validation: {line}")
     if (d["remaining"] or {}).get("integration"):
         print(f"integration: {d['remaining']['integration']}")
     for hint in (d["remaining"] or {}).get("units", []):
@@ -298,7 +300,7 @@ def _parser() -> argparse.ArgumentParser:
     d.add_argument("--candidate", action="append", default=[], metavar="NAME:EQUATION:FORMULA",
                    help="an extra additive candidate, e.g. 'stiction:v:-tanh(v/0.001)' (repeatable)")
     d.add_argument("--alpha", type=float, default=0.01, help="false-alarm rate of the decision (0.01)")
-    d.add_argument("--folds", type=int, default=5, help="contiguous folds of the cross-validation (5)")
+    d.add_argument("--folds", type=int, default=5, help="folds of the cross-validation (5), each three blocks of the recording dealt in turn")
     d.add_argument("--validate", action="append", default=[], metavar="DATA",
                    help="a further recording to compare the nominal and corrected models on, never fitted on "
                         "(repeatable)")

@@ -241,6 +241,24 @@ def _cart_csv(path, seconds=10.0, dt=cart.DT, measured=True):
     return path
 
 
+def test_a_validation_recording_the_model_does_not_explain_is_said(tmp_path, capsys):
+    """A clean recording diagnosed (no mismatch), validated on one with Coulomb friction: the
+    headline and the command line say that recording disagrees (a user's motor read only 'no
+    significant mismatch', its validation at mean NIS 126 in a table); a clean validation
+    recording says nothing."""
+    clean, other = _cart_csv(tmp_path / "clean.csv"), tmp_path / "coulomb.csv"
+    make("cart_coulomb", 10.0, SEED).write_csv(other)
+    again = tmp_path / "again.csv"
+    make("cart_clean", 10.0, SEED + 1).write_csv(again)
+    code = main(["diagnose", "models/cart.py", str(clean), "--out", str(tmp_path / "out"), "--no-figures",
+                 "--validate", str(other), "--validate", str(again)])
+    out = capsys.readouterr().out
+    assert code == 0 and "no significant mismatch" in out
+    said = [line for line in out.splitlines() if line.startswith("validation: ")]
+    assert len(said) == 1 and "coulomb.csv: the nominal model does not explain it (mean NIS" in said[0], out
+    assert "**A validation recording disagrees** — " in (tmp_path / "out" / "report.md").read_text()
+
+
 def test_python_candidates_take_the_command_line_s_form():
     """diagnose(candidates=["wave:r:sin(psi)"]) as --candidate takes it (it failed with 'too many
     values to unpack'); a malformed one says which forms are taken."""

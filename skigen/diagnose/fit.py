@@ -76,6 +76,7 @@ def evaluate_fit(model: Model, rec: Recording, run: RunResult | None = None, win
             "recording": str(rec.path), "samples": len(rec.t),
             "innovation_rms": {n: float(np.sqrt(np.nanmean(e[:, i] ** 2))) for i, n in enumerate(names)},
             "nis_mean": float(np.nanmean(run.nis)),
+            "nis_sum": float(np.nansum(run.nis)), "nis_dof": int(np.sum(run.measured)),
             "loglik": float(np.sum(run.loglik)),
             "loglik_per_sample": float(np.mean(run.loglik)),
             "free_run_rmse": {n: float(np.sqrt(np.nanmean(err[k0 + 1:, i] ** 2))) for i, n in enumerate(names)},

@@ -127,7 +127,8 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
                    if data["findings"] else "**A significant mismatch exists; no candidate explains it.**")
     else:
         verdict = "**A significant mismatch exists; the corrected model explains it.**"
-    L += [verdict, "", f"{meta['samples']} samples, dt = {meta['dt']:g} s. {fit['validation']}.", ""]
+    L += [verdict, ""] + [f"**A validation recording disagrees** — {line}.\n" for line in data.get("validation_disagrees", [])]
+    L += [f"{meta['samples']} samples, dt = {meta['dt']:g} s. {fit['validation']}.", ""]
     L += [f"Note: {n}." for n in data["notes"]] + [""] * bool(data["notes"])
     if rem.get("units"):
         L += ["**Check the units first** — the findings below may only be making up for them: "
