@@ -312,6 +312,15 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
             if float(more["f"]) < float(sol["f"]):
                 sol, stats = more, dict(more_stats, iter_count=stats["iter_count"] + more_stats["iter_count"])
                 xi, rho, nll, C, info = _at_optimum(prob, jac_g, sol, inputs, lengths, robust)
+        if (again := _held_noise_start(prob, solver, inputs, declared_noise, xi, negligible)) is not None:
+            more, more_stats = _solve(prob, solver, again, negligible, model.name if show_progress else None)
+            if float(more["f"]) < float(sol["f"]) - HELD_GAIN:
+                notes.append(f"filter error: a second optimum, {float(sol['f']) - float(more['f']):.3g} nat more "
+                             f"likely, was reached from the parameters fitted with the declared noise held (the "
+                             f"first had given the process noise {np.exp(np.max(xi[_q_rows(prob)])):.3g}× its "
+                             f"declared variance)")
+                sol, stats = more, dict(more_stats, iter_count=stats["iter_count"] + more_stats["iter_count"])
+                xi, rho, nll, C, info = _at_optimum(prob, jac_g, sol, inputs, lengths, robust)
     status = stats["return_status"]
     value = xi * scale
     std = np.sqrt(np.clip(np.diag(C), 0, None)) * scale
@@ -463,6 +472,39 @@ def _capped(V, model: Model, caps: dict) -> list[tuple[int, float]]:
     q = dict(zip(model.state_names, np.diag(model.process_noise())))
     return [(V.names.index(f"Q_scale_{n}"), float(np.log(max(cap, 1e-300) / q[n])))
             for n, cap in caps.items() if f"Q_scale_{n}" in V.names and q[n] > 0]
+
+
+NOISE_JUMP = np.log(100.0)   # a Q scale this far above the declared one: the process noise absorbed something
+HELD_GAIN = 1.0              # nat: a second optimum must be this much more likely to replace the first
+
+
+def _q_rows(prob: Problem) -> list[int]:
+    return [i for i, n in enumerate(prob.variables.names) if n.startswith("Q_scale_")]
+
+
+def _held_noise_start(prob: Problem, solver, inputs: dict, declared: np.ndarray, xi: np.ndarray, negligible):
+    """Filter error: where the optimum gave some equation's process noise more than NOISE_JUMP
+    e-folds over its declared variance and there are parameters to estimate, IPOPT's start from
+    the parameters fitted with the declared noise held, the noise then free (None otherwise). The
+    likelihood has a basin where the process noise explains what wrong parameters leave: a motor's
+    single step from rest gave L 0.0037 ± 3.5e-6 H for 0.05 (−13 000σ) with 4317× the speed's
+    declared noise, 150 nat less likely than the optimum near the truth."""
+    V = prob.variables
+    noise = [i for i, k in enumerate(V.kinds) if k == "noise"]
+    est = [i for i, k in enumerate(V.kinds) if k in ("parameter", "weight")]
+    q = _q_rows(prob)
+    if not est or not q or np.max(xi[q] - np.asarray(declared)[q]) <= NOISE_JUMP:
+        return None
+    held = dict(inputs, x0=np.array(declared, float), lbx=np.array(inputs["lbx"], float),
+                ubx=np.array(inputs["ubx"], float))
+    held["lbx"][noise] = held["ubx"][noise] = held["x0"][noise] = np.asarray(declared)[noise]
+    try:
+        first, _ = _solve(prob, solver, held, negligible, None)
+    except FitError:
+        return None
+    x = np.clip(np.asarray(first["x"]).ravel(), inputs["lbx"], inputs["ubx"])
+    x[noise] = np.asarray(declared)[noise]
+    return dict(inputs, x0=_noise_start(prob, dict(inputs, x0=x)))
 
 
 def _noise_shift(V, model: Model, noise: list[int], Q, R) -> np.ndarray:
