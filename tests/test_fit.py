@@ -833,10 +833,14 @@ def test_cli_fit_writes_the_contract_and_a_loadable_fitted_model(tmp_path, metho
         assert "R_scale_pos" in data["noise"]["scales"]
     else:
         assert "residual_std" in data["noise"]
-    fitted = load_model(out / "fitted_model.py")
-    for n, p in data["parameters"].items():
-        q = fitted.parameter_named(n)
-        assert q.value == p["value"] and q.std == pytest.approx(p["std"])
+    moved = tmp_path / "a" / "b" / "fitted_model.py"         # the file alone, moved: it still finds its model
+    moved.parent.mkdir(parents=True)
+    moved.write_text((out / "fitted_model.py").read_text())
+    for path in (out / "fitted_model.py", moved):
+        fitted = load_model(path)
+        for n, p in data["parameters"].items():
+            q = fitted.parameter_named(n)
+            assert q.value == p["value"] and q.std == pytest.approx(p["std"])
     assert "fitted by" in capsys.readouterr().out
     assert (out / "report.md").exists()
 

@@ -114,10 +114,12 @@ def _json(x):
 def _write_model_file(path: Path, result: FitResult, spec: str, recordings) -> Path:
     """A model file that loads the original declaration and sets the fitted values."""
     if is_module_spec(spec):
-        where = repr(spec)
-    else:
+        where, find = repr(spec), []
+    else:                       # beside this file as written, else where it was (this file moved alone)
         rel = os.path.relpath(Path(spec).resolve(), path.parent.resolve())
-        where = f'str(Path(__file__).resolve().parent / {rel!r})'
+        find = [f"DECLARED = Path(__file__).resolve().parent / {rel!r}",
+                f"DECLARED = DECLARED if DECLARED.is_file() else Path({str(Path(spec).resolve())!r})", ""]
+        where = "str(DECLARED)"
     values = {n: v["value"] for n, v in result.parameters.items()}
     std = {n: v["std"] for n, v in result.parameters.items() if v["std"] > 0}
     files = ", ".join(Path(r.path).name for r in recordings)
@@ -127,7 +129,7 @@ def _write_model_file(path: Path, result: FitResult, spec: str, recordings) -> P
              "values, with their standard deviations as the prior for the next fit."
              + (" The noise covariances are the calibrated ones." if "scales" in result.noise else ""),
              '"""', "from pathlib import Path", "", "import numpy as np  # noqa: F401", "",
-             "from skigen.modelfile import load_model", "",
+             "from skigen.modelfile import load_model", "", *find,
              f"model = load_model({where})",
              f"model.set_parameters({_dict(values)},", f"                     std={_dict(std)})"]
     if "scales" in result.noise:
@@ -154,7 +156,7 @@ def _write_report(path: Path, result: FitResult, validation, figures) -> Path:
     r = result
     lines = [f"# Fit of `{r.model.name}` by {r.method}", "",
              f"IPOPT {r.status.replace('_', ' ').lower()} in {r.iterations} iterations, {r.seconds:.1f} s; "
-             f"−log-likelihood {r.objective:.6g}.", ""]
+             f"log-likelihood {-r.objective:.6g} (less its constant term).", ""]
     if r.parameters or r.weights:
         lines += ["| quantity | unit | initial | fitted | std | 2σ interval | bounds |", "|---|---|---|---|---|---|---|"]
         for name, p in r.parameters.items():
