@@ -143,8 +143,8 @@ def test_a_sensor_offset_at_rest_keeps_the_declared_start():
     assert ll["offset"].recordings[0]["loglik"] - ll["bias"].recordings[0]["loglik"] > 6
     assert ll["offset"].initial_states == [{}]                       # started where declared
     output_error = fit(grey("offset"), [rec], show_progress=False)    # the default method says what it leaves out
-    assert any("declares process noise (on v), which output error leaves out" in n for n in output_error.notes)
-    assert not any("output error leaves out" in n for r in ll.values() for n in r.notes)
+    assert any("the free-run residuals exceed the declared sensor noise (pos" in n for n in output_error.notes)
+    assert not any("free-run residuals" in n for r in ll.values() for n in r.notes)
 
 
 def test_the_fit_figure_counts_the_rms_as_the_report_does(monkeypatch):
