@@ -455,6 +455,8 @@ def _update_findings(findings: list[dict], names: dict, fitted: dict, alpha: flo
                 f["cv_coefficient"], f["cv_std"] = f["coefficient"], f["std"]
                 f["coefficient"], f["std"] = fitted[n]["value"], fitted[n]["std"]
                 f["expression"], f["refit_parameter"] = s.describe(f["coefficient"]), n
+                if s.parameter in f.get("shape", {}):          # one value in the row, the refitted one
+                    f["shape"][s.parameter] = f["coefficient"]
             continue
         n = by_term.get((f["effect"], f["equation"], f.get("through", ""), f["expression"]))
         if n not in fitted:

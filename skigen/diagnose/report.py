@@ -179,7 +179,8 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
                   "", "| effect | equation | term | coefficient ± std | shape | evidence | free run without it |",
                   "|---|---|---|---|---|---|---|"]
             for f in data["findings"]:
-                shape = ", ".join(f"{k} {v}" for k, v in f.get("shape", {}).items() if k != "state") or "–"
+                shape = ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}"
+                                  for k, v in f.get("shape", {}).items() if k != "state") or "–"
                 L.append(f"| {f['effect']} | `{f['equation']}` | `{f['expression']}` | "
                          f"{_pm(f['coefficient'], f['std'])} {f.get('unit', '')} | {shape} | "
                          f"{f['evidence']:+.1f} | {_fmt(f.get('free_run_without'), '.3g')} |")
