@@ -234,6 +234,7 @@ def test_outside_the_catalog_a_mismatch_remains(diagnosed, name):
     assert d["mismatch_detected"] is True
     assert d["located"]["equations"] == [sc.equation], d["located"]
     assert d["findings"] == [] or d["remaining"]["mismatch"] is True, (d["findings"], d["remaining"])
+    assert "explained_by" in d["remaining"], d["remaining"]     # what it follows, named or not: a hint
     if d["findings"]:                     # whatever was corrected must at least fit better
         assert d["fit"]["after"]["loglik"] > d["fit"]["before"]["loglik"], d["fit"]
 

@@ -44,6 +44,7 @@ from .figures import diagnosis_figures, plot_residuals
 from .fit import DIVERGED, evaluate_fit, free_run_window, simulation_worth
 from .inputs import MIN_SAMPLES, check, load, usable
 from .locate import Location, locate
+from .suggest import explain
 from .name import Correction, basis_rms, beyond_parameters, focus_window, name_terms, recalibrated, shape_search
 from .plausible import screen, significant, term_item
 from .name import refit as refit_terms
@@ -329,6 +330,10 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         data["remaining"] = {"mismatch": True, "where": {"equations": loc.equations, "windows": data["located"]["windows"],
                                                           "regime": loc.regime},
                              "note": "no candidate explains the mismatch: it remains as detected"}
+        if loc.equations and loc.equations[0] in loc.disturbance:     # what it follows: a candidate to try
+            data["remaining"].update(explain(before_naming, rec, loc, out if figures else None))
+            if data["remaining"].get("figure"):
+                meta["figures"].append(Path(data["remaining"].pop("figure")))
     if data["remaining"].get("mismatch") and (hint := _integration_hint(nominal)):
         data["remaining"]["integration"] = hint
     if units:
