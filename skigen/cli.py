@@ -206,7 +206,7 @@ def _fit(args) -> int:
     model = load_model(args.model)
     options = _read_options(args)
     recs, held_out = ([load_recording(p, model, **options) for p in paths] for paths in (args.data, args.validate))
-    read = [n for rec in recs + held_out for n in rec.notes]
+    read = [n for rec in recs + held_out for n in rec.said()]
     for line in read:
         print(line)
     try:

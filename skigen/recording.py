@@ -124,6 +124,10 @@ class Recording:
                                  f"(--max-gap SECONDS; max_gap= in Python)")
         return parts, notes
 
+    def said(self) -> list[str]:
+        """The reading's notes, each naming this recording (one of several a fit reads)."""
+        return [n if n.startswith(str(self.path)) else f"{self.path}: {n}" for n in self.notes]
+
     def hole_note(self, what: str) -> str:
         """A sentence on this recording's input holes, ending in what was done about them."""
         return (f"{self.path}: the held input is not the input in its hole(s) longer than max_gap = "

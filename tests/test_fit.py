@@ -904,6 +904,24 @@ def test_an_estimate_stopped_a_rounding_error_past_its_bound_is_held_on_it():
     assert fit(_predator_prey(9.0, 5.0), [rec], show_progress=False).parameters["a"]["value"] == pytest.approx(1, abs=0.02)
 
 
+def test_a_reading_note_names_its_file_among_several(tmp_path):
+    """Two logs fitted together, the second without its rate gyro: the note says which file
+    ("output 'rate' (column 'rate') has no value" did not)."""
+    truth = dict(a=9.0, c=0.3, fc=0.5, b=2.0)
+    plant = pendulum(truth, q=(0.0, 0.02), rate_std=0.02)
+    paths = []
+    for seed in (1, 2):
+        rng = np.random.default_rng(seed)
+        U = smooth_noise(rng, 600, 5, 1.0)[:, None]
+        _, Y = simulate(plant, U, [0.3, 0.0], rng, q_std=(0.0, 0.02))
+        rec = recording(plant, U, Y)
+        outputs = {"angle": rec.outputs[:, 0], "rate": rec.outputs[:, 1] * (np.nan if seed == 2 else 1)}
+        paths.append(tmp_path / f"log{seed}.csv")
+        write_recording(paths[-1], rec.t, {"u": U[:, 0]}, outputs)
+    res = fit(plant, paths, method="filter-error", show_progress=False)
+    assert any(n.startswith(f"{paths[1]}: output 'rate'") and "never measured" in n for n in res.notes), res.notes
+
+
 def test_an_output_never_measured_has_its_noise_held():
     """Filter error on a pendulum whose rate gyro recorded nothing: its noise scale cannot be
     calibrated, and the fit used to refuse ("'R_scale_rate' has no effect on the likelihood ... --estimate

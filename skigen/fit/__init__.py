@@ -548,7 +548,7 @@ def _usable(recs: list[Recording], starts) -> tuple[list[Recording], list | None
     parts, part_starts, notes = [], [], []
     for rec, start in zip(recs, [None] * len(recs) if starts is None else starts):
         cut, stuck = rec.usable()
-        notes += list(rec.notes) + stuck
+        notes += rec.said() + stuck
         if rec.input_holes:
             notes.append(rec.hole_note(f"fitted as {len(cut)} recordings, "
                                        + ", ".join(f"{p.t[0]:g}–{p.t[-1]:g} s" for p in cut)))
