@@ -202,6 +202,19 @@ def _inputs_of(model: Model, equation: str) -> list[str]:
     return [v.name for v in model.inputs if ca.depends_on(e, v.sym)]
 
 
+def _reaching(model: Model, equation: str) -> list[str]:
+    """The inputs that drive ``equation`` directly or through the states it depends on, at any
+    depth (a burner's heat reaches a balloon's climb rate through the envelope's temperature)."""
+    seen, todo = set(), [equation]
+    while todo:
+        eq = todo.pop()
+        if eq in seen:
+            continue
+        seen.add(eq)
+        todo += [v.name for v in model.states if ca.depends_on(model.rhs[eq], v.sym)]
+    return [u for u in model.input_names if any(u in _inputs_of(model, eq) for eq in seen)]
+
+
 def _num(x: float) -> str:
     return f"{float(f'{x:.3g}'):g}"
 
@@ -392,10 +405,12 @@ def _saturations(u: str, unit: str, x: np.ndarray, both: bool) -> list[Structura
 
 
 def structural_candidates(model: Model, equations, inputs: np.ndarray) -> list[Structural]:
-    """Delay, lag, saturation and dead zone of every input that drives a listed equation.
-    ``inputs``: the recorded inputs (N, nu), for the grids of limits and widths."""
+    """Delay, lag, saturation and dead zone of every input that drives a listed equation, directly
+    or through other states (:func:`_reaching`: a burner's delay reaches the climb rate through the
+    envelope's temperature, and was never proposed). ``inputs``: the recorded inputs (N, nu), for
+    the grids of limits and widths."""
     dt = model.dt
-    used = sorted({u for eq in equations for u in _inputs_of(model, eq)}, key=model.input_names.index)
+    used = sorted({u for eq in equations for u in _reaching(model, eq)}, key=model.input_names.index)
     out = []
     for u in used:
         x = inputs[:, model.input_names.index(u)]

@@ -107,8 +107,8 @@ def screen(model: Model, corr, states: np.ndarray, rec: Recording, alpha: float,
             note = (f"not identifiable from this recording (the likelihood of its {s.parameter} has no maximum "
                     f"inside the range searched): excite {s.target} over a wider range")
         else:
-            note = (f"not identifiable from this recording (its likelihood still rises at the end of the range "
-                    f"searched, {s.parameter} {value:.4g}: the recording may want more, or another effect)")
+            note = (f"not identifiable from this recording (its likelihood is best at an end of the range "
+                    f"searched, {s.parameter} {value:.4g}, and may go on rising past it)")
         lost.append({"effect": s.effect, "equation": s.target, "expression": s.describe(value),
                      "coefficient": value, "std": std, "note": note})
     return type(corr)(kept, structural), {"compensating": comp, "not_identifiable": lost}
