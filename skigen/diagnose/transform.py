@@ -201,9 +201,9 @@ def smooth_dead_zone(x, width: float, smooth: float):
 
 
 def dead_zone(model: Model, u: str, width: float, smooth: float | None = None) -> Model:
-    """The plant sees nothing of u inside ±width and u ∓ width outside (smoothed over width/10)."""
+    """The plant sees nothing of u inside ±width and u ∓ width outside (smoothed over width/100)."""
     sym = _input(model, u)
-    return replace_input(model, u, smooth_dead_zone(sym, width, smooth or width / 10))
+    return replace_input(model, u, smooth_dead_zone(sym, width, smooth or width / 100))
 
 
 def backlash(model: Model, u: str, width: float, initial: float = 0.0) -> Model:
