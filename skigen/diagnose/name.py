@@ -25,9 +25,12 @@ each part of the recording is scored on.
    is set aside as compensating, no later round is built on it, and when a
    round adopts nothing else the next one searches without it (an anti-drag
    chosen by SKI over the damping a heavier cart needs). A
-   further change is kept only if, under the noise recalibrated with it, it
-   passes the rule :mod:`skigen.diagnose.evidence` applies to every finding
-   (its gain at proposal time was measured under the noise calibrated before it).
+   further change is kept only if it passes the rule
+   :mod:`skigen.diagnose.evidence` applies to every finding, each model under
+   the best of the noises calibrated with it, before it and before naming (its
+   gain at proposal time was measured under the noise calibrated before it). A
+   delay adopted in an earlier round is searched again after each later
+   adoption (:func:`redelayed`).
 
 Additive coefficients are then refitted jointly on the whole recording
 (augmented EKF: linearised about the mean, it never evaluates the model at
@@ -607,8 +610,8 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
         if len(history) > 1:               # a further change: weighed as evidence.weigh would weigh it
             ev, total = _share((recal, nominal, first), corr, new, score, rec, folds, rms, size)
             if ev < max(evidence_threshold(alpha), MIN_SHARE * total):
-                chosen.note = (f"not adopted: under the noise recalibrated with it, it adds {ev:+.1f} to the "
-                               f"{total:+.1f} the correction gains")
+                chosen.note = (f"not adopted: it adds {ev:+.1f} to the {total:+.1f} the correction gains "
+                               f"(cross-validated, each model under the better of the noises calibrated)")
                 break
         earlier = [e[0] for e in corr.structural]
         corr, nominal, current = new, recal, score
