@@ -199,7 +199,7 @@ def _diagnose(args) -> int:
 
 
 def _fit(args) -> int:
-    from .fit import FitError, fit
+    from .fit import FitError, fit, plus_minus
     from .fit.output import per_output, validate, write_outputs
     from .recording import load_recording
 
@@ -221,7 +221,7 @@ def _fit(args) -> int:
     print(f"{model.name} fitted by {args.method}: {result.status.replace('_', ' ').lower()} in "
           f"{result.iterations} iterations ({result.seconds:.1f} s)")
     for name, p in {**result.parameters, **result.weights}.items():
-        print(f"  {name:>12} = {p['value']:.6g} ± {p['std']:.2g}" + (f" {p['unit']}" if p.get("unit") else ""))
+        print(f"  {name:>12} = {plus_minus(p['value'], p['std'])}" + (f" {p['unit']}" if p.get("unit") else ""))
     for r in result.recordings + checks:
         kind = "validation" if r in checks else "fit"
         what = "one-step prediction RMSE" if kind == "fit" and args.method == "filter-error" else "free-run RMSE"

@@ -5,6 +5,7 @@ import json
 import math
 from pathlib import Path
 
+from ..fit import plus_minus as _pm
 from ..simulate import AMPLIFICATION
 
 __all__ = ["write_json", "write_markdown", "finding_line"]
@@ -53,17 +54,6 @@ def finding_line(f: dict) -> str:
 
 def _fmt(x, spec=".4g"):
     return "–" if x is None else format(x, spec)
-
-
-def _pm(value, std) -> str:
-    """value ± std, the value to the std's second digit (at least 4 significant): 2399.81 ± 0.6;
-    the value alone, 'no error bar', where the std is not a finite number (not identifiable)."""
-    if value is not None and math.isfinite(value) and (std is None or not math.isfinite(std)):
-        return f"{_fmt(value)} (no error bar)"
-    if value is None or std is None or not (math.isfinite(value) and math.isfinite(std)) or value == 0 or std <= 0:
-        return f"{_fmt(value)} ± {_fmt(std, '.2g')}"
-    digits = math.floor(math.log10(abs(value))) - math.floor(math.log10(std)) + 2
-    return f"{format(value, f'.{min(max(digits, 4), 15)}g')} ± {_fmt(std, '.2g')}"
 
 
 def _noise_table(noise: dict) -> list[str]:

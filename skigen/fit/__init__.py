@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import copy
 import functools
+import math
 import os
 from dataclasses import dataclass, field
 from time import perf_counter
@@ -821,6 +822,18 @@ def rms(e: np.ndarray) -> float | None:
 def value_text(v: float | None, fmt: str = ".4g") -> str:
     """``v`` formatted, or 'not measured' for None (an output without a reading)."""
     return "not measured" if v is None else f"{v:{fmt}}"
+
+
+def plus_minus(value, std) -> str:
+    """value ± std, the value to the std's second digit (at least 4 significant): 2399.81 ± 0.6;
+    the value alone, 'no error bar', where the std is not a finite number (not identifiable)."""
+    text = lambda x, spec=".4g": "–" if x is None else format(x, spec)
+    if value is not None and math.isfinite(value) and (std is None or not math.isfinite(std)):
+        return f"{text(value)} (no error bar)"
+    if value is None or std is None or not (math.isfinite(value) and math.isfinite(std)) or value == 0 or std <= 0:
+        return f"{text(value)} ± {text(std, '.2g')}"
+    digits = math.floor(math.log10(abs(value))) - math.floor(math.log10(std)) + 2
+    return f"{format(value, f'.{min(max(digits, 4), 15)}g')} ± {text(std, '.2g')}"
 
 
 def per_output(values: dict, fmt: str = ".4g") -> str:
