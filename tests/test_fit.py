@@ -741,6 +741,14 @@ def test_an_estimate_on_its_bound_is_named():
     assert residuals.startswith("output error: the free-run residuals exceed the declared sensor noise (angle")
 
 
+def test_a_value_is_printed_to_its_std_s_second_digit():
+    """The fit's command line printed 'Cf = 78.5037 ± 1.2'; it prints as the diagnosis does."""
+    from skigen.fit import plus_minus
+    assert plus_minus(78.5037, 1.2) == "78.5 ± 1.2"
+    assert plus_minus(0.300634, 0.00097) == "0.30063 ± 0.00097" and plus_minus(2399.812, 0.6) == "2399.81 ± 0.6"
+    assert plus_minus(5.0, float("nan")) == "5 (no error bar)"
+
+
 def test_a_vague_estimate_is_not_said_to_sit_on_a_bound():
     """Measured on a motor held at one steady state: J = 1.64 ± 6.6e4 above its bound 1e-5 was said
     to 'sit on its lower bound' (within 1e-3 std of it); it is far from it, and vague. An estimate
