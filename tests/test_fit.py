@@ -741,6 +741,17 @@ def test_an_estimate_on_its_bound_is_named():
     assert residuals.startswith("output error: the free-run residuals exceed the declared sensor noise (angle")
 
 
+def test_strongly_correlated_estimates_are_said():
+    """Estimates correlated beyond 0.99 are named in pairs (a car's Cf and Cr at 0.9965 were not);
+    noise scales are not estimates a user reads, and are left out."""
+    from skigen.fit import _correlated
+    corr = dict(names=["Cf", "Cr", "Iz", "Q_scale_vy", "Q_scale_r"],
+                matrix=[[1, 0.9965, 0.90, 0, 0], [0.9965, 1, 0.8997, 0, 0], [0.90, 0.8997, 1, 0, 0],
+                        [0, 0, 0, 1, -0.995], [0, 0, 0, -0.995, 1]])
+    (said,) = _correlated(corr, {"Cf", "Cr", "Iz"})
+    assert said.startswith("Cf and Cr are correlated +0.997: the recordings determine a combination")
+
+
 def test_a_value_is_printed_to_its_std_s_second_digit():
     """The fit's command line printed 'Cf = 78.5037 ± 1.2'; it prints as the diagnosis does."""
     from skigen.fit import plus_minus
