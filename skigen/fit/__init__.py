@@ -508,7 +508,7 @@ def _unexplained_residuals(model: Model, recs, predictions, params, alpha: float
         return []
     return [f"output error: the free-run residuals exceed the declared sensor noise ({', '.join(out)} its std): "
             f"a disturbance or a model error the free run does not follow, under which the error bars of "
-            f"{', '.join(params)} are optimistic (2–4× too narrow in the README's coverage checks, the coloured "
+            f"{', '.join(params)} are optimistic (2–7× too narrow in the coverage checks measured, the coloured "
             f"residuals' covariance notwithstanding); filter error (--method filter-error, a process_std "
             f"declared where the disturbance acts) models a disturbance"]
 
