@@ -123,12 +123,12 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     ``recording`` (a :class:`Recording`, a CSV, Parquet or ULog path, or a DataFrame); write report.json,
     report.md, figures and the corrected model into ``out_dir``.
 
-    candidates: extra additive terms, ``(name, equation, formula)`` or ``"name:equation:formula"`` — the formula in the model's
-    state and input names (``"-tanh(v/0.001)"``). alpha: false-alarm rate of the whole decision.
-    folds: folds of the blocked cross-validation (each DEFAULT_BLOCKS contiguous blocks dealt in turn). validate: further recordings, never
-    fitted on, on which the nominal and corrected models are compared. equations: equations to
-    test for a disturbance (default: the rate equations; kinematic identities ṗ = v are exact by
-    definition). refit: refit the corrected model jointly with `skigen fit` (filter error).
+    candidates: extra additive terms, ``(name, equation, formula)`` or ``"name:equation:formula"``,
+    the formula in the model's state and input names (``"-tanh(v/0.001)"``). alpha: false-alarm
+    rate of the whole decision. folds: folds of the blocked cross-validation (each DEFAULT_BLOCKS
+    contiguous blocks dealt in turn). validate: further recordings, never fitted on, on which the
+    nominal and corrected models are compared. equations: equations to test for a disturbance
+    (default: the rate equations; kinematic identities ṗ = v are exact by definition). refit: refit the corrected model jointly with `skigen fit` (filter error).
     time, time_unit, columns, max_gap: how to read recordings given as paths or DataFrames
     (see :func:`skigen.recording.load_recording`).
     """
@@ -249,7 +249,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     if rejected["compensating"] or rejected["not_identifiable"]:
         corr = refit_terms(calibrated, corr, rec, rms, size)
 
-    def noise_for(c):           # each drop-one model under the noise it calibrates to
+    def noise_for(c):           # the noise a drop-one model calibrates to (weigh takes the better of it)
         return before_naming if c.empty else recalibrated(before_naming, c, rec, user_noise)
     corr, ev, cv_after = weigh(calibrated, corr, rec, cv, alpha, rms, size, noise_for)
     report.correction = corr
