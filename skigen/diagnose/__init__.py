@@ -128,8 +128,8 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     rate of the whole decision. folds: folds of the blocked cross-validation (each DEFAULT_BLOCKS
     contiguous blocks dealt in turn). validate: further recordings, never fitted on, on which the
     nominal and corrected models are compared. equations: equations to test for a disturbance
-    (default: the rate equations; kinematic identities ṗ = v are exact by definition). refit: refit the corrected model jointly with `skigen fit` (filter error).
-    time, time_unit, columns, max_gap: how to read recordings given as paths or DataFrames
+    (default: the rate equations; kinematic identities ṗ = v are exact by definition). refit:
+    refit the corrected model jointly with `skigen fit` (filter error). time, time_unit, columns, max_gap: how to read recordings given as paths or DataFrames
     (see :func:`skigen.recording.load_recording`).
     """
     t_start = perf_counter()
