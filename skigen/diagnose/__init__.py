@@ -129,8 +129,9 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     contiguous blocks dealt in turn). validate: further recordings, never fitted on, on which the
     nominal and corrected models are compared. equations: equations to test for a disturbance
     (default: the rate equations; kinematic identities ṗ = v are exact by definition). refit:
-    refit the corrected model jointly with `skigen fit` (filter error). time, time_unit, columns, max_gap: how to read recordings given as paths or DataFrames
-    (see :func:`skigen.recording.load_recording`).
+    refit the corrected model jointly with `skigen fit` (filter error). time, time_unit, columns,
+    max_gap: how to read recordings given as paths or DataFrames (see
+    :func:`skigen.recording.load_recording`).
     """
     t_start = perf_counter()
     stage = _Stages(show_progress)
