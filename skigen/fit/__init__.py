@@ -528,7 +528,7 @@ def _absorbing(model: Model, noise: dict) -> list[str]:
             f"(`skigen diagnose` says what is missing)"]
 
 
-NOISE_JUMP = np.log(100.0)   # a Q scale this far above the declared one: the process noise absorbed something
+NOISE_JUMP = np.log(100.0)   # a noise scale (log variance) this far above the declared one: it absorbed something
 HELD_GAIN = 1.0              # nat: a second optimum must be this much more likely to replace the first
 
 
