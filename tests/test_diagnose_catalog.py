@@ -335,6 +335,15 @@ def test_a_grid_goes_on_past_a_best_end():
         assert value in (min(values), max(values)) and np.isnan(std)
 
 
+def _sample(f, x, u, dt: float, sub: int):
+    """The state one sample of ``dt`` after ``x``: RK4 in ``sub`` steps of f(x, u), u held."""
+    h = dt / sub
+    for _ in range(sub):
+        k1 = f(x, u); k2 = f(x + h / 2 * k1, u); k3 = f(x + h / 2 * k2, u); k4 = f(x + h * k3, u)
+        x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    return x
+
+
 def _motor(steps: int, coulomb: float, seed: int):
     """A DC motor θ̈ = −2θ̇ + 10V[k − steps] − coulomb·tanh(θ̇/0.01), three sines, 60 s at 100 Hz,
     encoder noise 2 mrad: (the nominal model without either effect, the recording)."""
@@ -352,13 +361,9 @@ def _motor(steps: int, coulomb: float, seed: int):
     seen = np.r_[np.zeros(steps), u][:N]
     f = lambda x, v: np.array([x[1], -2.0 * x[1] + 10.0 * v - coulomb * np.tanh(x[1] / 0.01)])
     x, X = np.zeros(2), np.zeros((N, 2))
-    for k in range(N):                         # RK4 at dt/10, the input held over the sample
+    for k in range(N):
         X[k] = x
-        for _ in range(10):
-            h = dt / 10
-            k1 = f(x, seen[k]); k2 = f(x + h / 2 * k1, seen[k]); k3 = f(x + h / 2 * k2, seen[k]); k4 = f(x + h * k3, seen[k])
-            x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        x = x + np.r_[0.0, 1e-3 * rng.normal()]
+        x = _sample(f, x, seen[k], dt, 10) + np.r_[0.0, 1e-3 * rng.normal()]
     return m, Recording("motor.csv", t, u[:, None], X[:, :1] + 0.002 * rng.normal(size=(N, 1)), ("V",), ("theta_enc",))
 
 
@@ -401,13 +406,9 @@ def test_a_lag_on_an_input_that_reaches_the_rate_through_another_state_is_named(
         q[k:k + n], k = rng.uniform(0.5, 1.5), k + n
     f = lambda x, u: np.array([x[1], 0.01 * (x[2] - 50) - 0.1 * x[1], -x[2] / 100 + 0.5 * x[3], (u - x[3]) / 20.0])
     x, X = np.array([0.0, 0.0, 50.0, 1.0]), np.zeros((N, 4))
-    for j in range(N):                       # RK4 at dt/20, the burner held over the sample
+    for j in range(N):
         X[j] = x
-        for _ in range(20):
-            s = dt / 20
-            k1 = f(x, q[j]); k2 = f(x + s / 2 * k1, q[j]); k3 = f(x + s / 2 * k2, q[j]); k4 = f(x + s * k3, q[j])
-            x = x + s / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        x = x + rng.normal(size=4) * [0.001, 0.005, 0.02, 0.0]
+        x = _sample(f, x, q[j], dt, 20) + rng.normal(size=4) * [0.001, 0.005, 0.02, 0.0]
     y = np.c_[X[:, 0] + rng.normal(0, 0.5, N), X[:, 2] + rng.normal(0, 0.3, N)]
     rec = Recording("balloon.csv", np.arange(N) * dt, q[:, None], y, ("Q",), ("h_gps", "T_env"))
     d = diagnose(m, rec, tmp_path, show_progress=False, figures=False, emit=False).data
@@ -438,13 +439,9 @@ def test_a_sharp_dead_zone_is_named_at_its_width(tmp_path):
     seen = np.sign(cmd) * np.maximum(np.abs(cmd) - 0.5, 0)
     f = lambda s, w: np.array([s[1], -25 * s[0] - 3 * s[1] + 25 * w])
     s, X = np.zeros(2), np.zeros((N, 2))
-    for j in range(N):                       # RK4 at dt/20
+    for j in range(N):
         X[j] = s
-        for _ in range(20):
-            h = dt / 20
-            k1 = f(s, seen[j]); k2 = f(s + h / 2 * k1, seen[j]); k3 = f(s + h / 2 * k2, seen[j]); k4 = f(s + h * k3, seen[j])
-            s = s + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        s = s + rng.normal(size=2) * [1e-5, 0.005]
+        s = _sample(f, s, seen[j], dt, 20) + rng.normal(size=2) * [1e-5, 0.005]
     rec = Recording("hydro.csv", np.arange(N) * dt, cmd[:, None], X[:, :1] + rng.normal(0, 0.002, (N, 1)), ("u",), ("x_meas",))
     d = diagnose(m, rec, tmp_path, show_progress=False, figures=False, emit=False).data
     top = d["findings"][0] if d["findings"] else None
@@ -474,11 +471,8 @@ def _bicycle_with_delay(seed: int, seconds: float, delay: int):
         AY[k] = rhs(x, ud[k])[1] + U * x[1]
         if k == n - 1:
             break
-        w, h = 2.0 * rng.standard_normal(2) * [1.0, 0.5], dt / 20
-        for _ in range(20):
-            k1 = rhs(x, ud[k])[0] + w; k2 = rhs(x + h / 2 * k1, ud[k])[0] + w
-            k3 = rhs(x + h / 2 * k2, ud[k])[0] + w; k4 = rhs(x + h * k3, ud[k])[0] + w
-            x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        w = 2.0 * rng.standard_normal(2) * [1.0, 0.5]
+        x = _sample(lambda z, d: rhs(z, d)[0] + w, x, ud[k], dt, 20)
     return np.arange(n) * dt, u, X[:, 1] + 0.005 * rng.standard_normal(n), AY + 0.1 * rng.standard_normal(n)
 
 

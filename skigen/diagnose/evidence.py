@@ -27,7 +27,7 @@ import numpy as np
 from ..model import Model
 from ..recording import Recording
 from .cv import Folds
-from .name import MIN_SHARE, Correction, cv_loglik, evidence_threshold, refit
+from .name import MIN_SHARE, Correction, best_cv_loglik, cv_loglik, evidence_threshold, refit
 
 __all__ = ["weigh", "cv_loglik"]
 
@@ -47,9 +47,8 @@ def weigh(nominal: Model, corr: Correction, rec: Recording, folds: Folds, alpha:
         def without(c):
             less = corr.without(c)
             other = noise_for(less)
-            score = lambda noise, k: float(cv_loglik(noise, k, rec, folds, rms, size).sum())
-            return (max(float(full.sum()), score(other, corr))
-                    - max(score(other, less), score(nominal, less)))
+            return (max(float(full.sum()), best_cv_loglik([other], corr, rec, folds, rms, size))
+                    - best_cv_loglik([other, nominal], less, rec, folds, rms, size))
         ev = {c: without(c) for c in items}
         weakest = min(items, key=lambda c: ev[c])
         if ev[weakest] >= max(threshold, MIN_SHARE * max(ev.values())):

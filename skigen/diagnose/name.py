@@ -62,7 +62,7 @@ from .errors import DiagnosisError
 from .plausible import compensating, significant, term_item
 
 __all__ = ["Correction", "Proposal", "name_terms", "refit", "basis_rms", "distinct", "start_priors",
-           "focus_window", "recalibrated", "significant"]
+           "focus_window", "recalibrated", "significant", "best_cv_loglik"]
 
 MAX_ROUNDS = 3
 FINALISTS = 2      # proposals scored again, each under the noise calibrated with it
@@ -647,9 +647,16 @@ def _share(noises: tuple, before: Correction, after: Correction, score: np.ndarr
     total was inflated (+11 243 where the in-sample gain was a few hundred) and a second effect
     adding +21 fell short of its 1 %."""
     base = Correction([a for a in after.additive if a[0].parameter])
-    best = lambda corr, among: max(float(np.sum(cv_loglik(n, corr, rec, folds, rms, size))) for n in among)
+    best = lambda corr, among: best_cv_loglik(among, corr, rec, folds, rms, size)
     full = max(float(np.sum(score)), best(after, noises[1:]))
     return full - best(before, noises), full - best(base, noises)
+
+
+def best_cv_loglik(noises, corr: Correction, rec: Recording, folds: Folds, rms: dict, size: dict) -> float:
+    """The summed cross-validated log-likelihood of ``corr`` under the best of ``noises`` (nominal
+    models that differ in their calibrated noise): each model is weighed under the noise that
+    serves it best among those calibrated (see :mod:`skigen.diagnose.evidence`)."""
+    return max(float(np.sum(cv_loglik(n, corr, rec, folds, rms, size))) for n in noises)
 
 
 def _label(s: Structural) -> str:
