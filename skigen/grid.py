@@ -30,6 +30,8 @@ GRID_PER_STAMP = 100         # a grid this many times longer than the stamps: a 
 PHASE_STAMPS = 256           # the inputs' first stamps that set the grid's phase
 TIE = 1e-6                   # samples: a stamp this close to half-way between two grid samples is a tie
 PHASE_ALPHA = 0.01           # Rayleigh test: stamps whose phase is uniform this likely set none
+OFF_GRID = 0.25              # samples: an output stamped on average this far from where it is used is noted
+OFFSET_UNIT = 1e-6           # samples: offsets are summed as integers of this (the stream sums to the same)
 
 
 def clock(t: float) -> str:
@@ -127,6 +129,24 @@ def _repeats(ts, before=None) -> tuple[int, float | None]:
     ts = np.asarray(ts) if before is None else np.concatenate([[before], ts])
     same = np.flatnonzero(np.diff(ts) == 0)
     return len(same), (float(ts[same[0] + 1]) if len(same) else None)
+
+
+def _offset_units(ts, k, start, dt) -> int:
+    """The sum of stamps ``ts`` minus their grid samples' times ``k``, in OFFSET_UNIT samples."""
+    return int(np.sum(np.rint((np.asarray(ts) - (start + np.asarray(k) * dt)) / (dt * OFFSET_UNIT)).astype(np.int64)))
+
+
+def _offset_note(name, used, offset, dt, phase_from) -> list[str]:
+    """A note when an output's ``used`` samples are stamped on average OFF_GRID samples or more from
+    the grid samples they are used at (``offset``: their sum, in OFFSET_UNIT samples)."""
+    mean = offset * OFFSET_UNIT / used if used else 0.0
+    if abs(mean) < OFF_GRID:
+        return []
+    ms, later = abs(mean) * dt * 1e3, mean > 0
+    return [f"output '{name}': its samples are stamped {ms:.3g} ms ({abs(mean):.2f} dt) "
+            f"{'after' if later else 'before'} the grid samples they are used at, on average (the grid "
+            f"takes its phase from the {phase_from}' stamps): the model at t is compared with the reading "
+            f"stamped at t {'+' if later else '−'} {ms:.3g} ms"]
 
 
 def _column_notes(name, column, output, count, early, dropped, repeated, first_repeat, origin, start, dt):
@@ -243,6 +263,8 @@ def to_grid(samples: Samples, dt: float, input_names, output_names, input_hold: 
         early = int(np.sum(ts < start - dt / 2))
         notes += _column_notes(name, cols[name], True, len(ts), early, len(ts) - len(used) - early,
                                *_repeats(ts), origin, start, dt)
+        notes += _offset_note(name, len(used), _offset_units(ts[used], k, start, dt), dt,
+                              "inputs" if input_names else "outputs")
     holes = [Hole(h.t0 + origin, h.t1 + origin, h.columns, h.inputs) for h in
              _holes(series, input_names + output_names, input_names, start, end, max_gap, cols)]
     return Recording(samples.source, origin + t, inputs, outputs, input_names, output_names,
@@ -269,6 +291,7 @@ class _Column:
         self.new = []                 # stamps not yet looked at for holes
         self.first = self.last = None
         self.count = self.early = self.used = self.repeated = 0
+        self.offset = 0               # the used samples' stamps minus their grid times, in OFFSET_UNIT
         self.first_repeat = None
         self.prev = None              # the last stamp looked at for holes (the grid start at first)
 
@@ -479,6 +502,7 @@ class GridStream:
             kk, used = _nearest(ts, self.start, dt, n)
             inside = (kk >= a) & (kk < b)
             outputs[kk[inside] - a, j] = v[used[inside]]
+            c.offset += _offset_units(ts[used[inside]], kk[inside], self.start, dt)
             c.early += int(np.sum(ts < self.start - dt / 2))
             c.used += len(used)
             c.drop(m)
@@ -514,6 +538,8 @@ class GridStream:
             self.notes += _column_notes(name, cols[name], output, c.count, c.early,
                                         c.count - c.used - c.early if output else 0, c.repeated,
                                         c.first_repeat, self.origin, self.start, dt)
+            if output:
+                self.notes += _offset_note(name, c.used, c.offset, dt, "inputs" if self.input_names else "outputs")
 
     def time(self, k) -> float:
         """The time of grid sample ``k`` (seconds), as in the recording."""

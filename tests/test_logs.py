@@ -206,9 +206,30 @@ def test_readings_half_a_sample_before_the_inputs_are_each_used_once(tmp_path, f
     rec = stream_recording(path, MODEL, rows=50) if stream else load_recording(path, MODEL)
     if stream:
         list(rec)
-    assert not rec.notes, rec.notes
+    assert tuple(rec.notes) == ("output 'phi': its samples are stamped 10 ms (0.50 dt) before the grid samples they "
+                         "are used at, on average (the grid takes its phase from the inputs' stamps): the model "
+                         "at t is compared with the reading stamped at t − 10 ms",), rec.notes
     res = skigen.run(MODEL, path if stream else both, filter="ukf")
     assert res.measured.mean() == 1.0 and np.allclose(res.mean, clean.mean, atol=1e-12)
+
+
+@pytest.mark.parametrize("stream", [False, True])
+def test_readings_stamped_off_the_inputs_grid_are_noted_jitter_is_not(tmp_path, flight, stream):
+    """Readings on their own rows 0.3 dt after the inputs (jitter ±0.1 dt): a note gives the
+    offset, 6 ms; the same readings jittered ±0.4 dt about the inputs' stamps get none. Before,
+    a reading a third of a sample off its grid sample was used there without a word."""
+    rng = np.random.default_rng(5)
+    ins = flight[["t", "delta"]]
+    for shift, jitter, said in [(0.3, 0.1, "5.92 ms (0.30 dt) after"), (0.0, 0.4, None)]:
+        outs = flight[["t", "phi"]].assign(t=flight.t + (shift + rng.uniform(-jitter, jitter, len(flight))) * 0.02)
+        both = pd.concat([ins, outs]).sort_values("t", kind="stable").reset_index(drop=True)
+        path = tmp_path / "off.csv"
+        both.to_csv(path, index=False)
+        rec = stream_recording(path, MODEL, rows=50) if stream else load_recording(path, MODEL)
+        if stream:
+            list(rec)
+        notes = [n for n in rec.notes if "stamped" in n]
+        assert len(notes) == (said is not None) and (said is None or said in notes[0]), rec.notes
 
 
 def test_an_absurd_time_stamp_is_an_error_naming_its_row(tmp_path, flight):
