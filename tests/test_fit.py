@@ -21,6 +21,8 @@ import shutil
 import sys
 
 import casadi as ca
+import re
+
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
@@ -912,6 +914,24 @@ def test_a_prior_the_data_contradict_and_a_filter_without_process_noise_are_said
     assert any(n.startswith("a = ") and "prior std from its declared prior 0.9 ± 0.005" in n for n in res.notes)
     assert any("declares no process noise on any state, so filter error calibrates none" in n for n in res.notes)
     assert not any("prior" in n for n in fit(_predator_prey(1.0, 0.5), [rec], show_progress=False).notes)
+
+
+@pytest.mark.parametrize("method", ["output-error", "filter-error"])
+def test_a_tight_prior_the_data_contradict_is_said_with_where_the_data_alone_put_it(method):
+    """a = 0.9 ± 0.0003 against a truth of 1 (the data alone: 0.994 ± 0.004) moves only 1.8–2
+    prior std, so 'more than 3 prior std' never said it; the shift is 23–24 times the √(σ₀² − σ²)
+    a right prior allows (measured), and the note says where the recordings alone put a
+    (0.9867, measured). The same tight prior at the truth is not said (shift 1.3 of it)."""
+    rec = _stocked_recording()
+    res = fit(_predator_prey(0.9, 0.5).set_parameters({}, std={"a": 0.0003}), [rec], method=method,
+              show_progress=False)
+    (note,) = [n for n in res.notes if "prior" in n]
+    assert abs(res.parameters["a"]["value"] - 0.9) < 3 * 0.0003
+    times, alone = re.search(r"(\d+) times the shift .* put it near ([\d.]+)", note).groups()
+    assert 20 <= int(times) <= 27 and 0.98 < float(alone) < 1.0, note
+    right = fit(_predator_prey(1.0, 0.5).set_parameters({}, std={"a": 0.0003}), [rec], method=method,
+                show_progress=False)
+    assert not any("prior" in n for n in right.notes), right.notes
 
 
 def test_an_estimate_stopped_a_rounding_error_past_its_bound_is_held_on_it():

@@ -78,7 +78,8 @@ def covariance(J: np.ndarray, rho: np.ndarray | None, lengths: list[int], prior:
     J: (Σ N_r · n_rho) × p Jacobian of the pseudo-residuals, sample-major (A = JᵀJ + prior,
     the Fisher information); rho: n_rho × Σ N_r pseudo-residuals (B: their AR noise model,
     per recording); prior: prior precision per variable; G: Jacobian of the equality
-    constraints (or None). Returns (C, info) with the AR orders used.
+    constraints (or None). Returns (C, info) with the AR orders used and the variances of A⁻¹
+    (``fisher_var``: what a white-residual model with the prior would claim).
     """
     p = J.shape[1]
     Z = null_space(G) if G is not None and G.shape[0] else np.eye(p)
@@ -86,11 +87,12 @@ def covariance(J: np.ndarray, rho: np.ndarray | None, lengths: list[int], prior:
     A = Jz.T @ Jz + Z.T @ np.diag(prior) @ Z
     d = np.sqrt(np.clip(np.diag(A), 1e-300, None))         # invert in the normalised basis
     Ainv = np.linalg.pinv(A / np.outer(d, d), rcond=1e-12) / np.outer(d, d)
+    fisher = Z @ Ainv @ Z.T
     if rho is None:
-        return Z @ Ainv @ Z.T, {"ar_orders": []}
+        return fisher, {"ar_orders": [], "fisher_var": np.diag(fisher)}
     n_rho = rho.shape[0]
     Jr = Jz.reshape(-1, n_rho, Jz.shape[1])
-    B, start, info = Z.T @ np.diag(prior) @ Z, 0, {"ar_orders": []}
+    B, start, info = Z.T @ np.diag(prior) @ Z, 0, {"ar_orders": [], "fisher_var": np.diag(fisher)}
     for n in lengths:
         Bi, orders = coloured_score_covariance(Jr[start:start + n], rho[:, start:start + n].T)
         B += Bi
