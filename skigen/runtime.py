@@ -97,6 +97,7 @@ class RunResult:
     notes: tuple = ()         # what reading the recording decided
     trace: Trace | None = None   # with run(..., trace=True)
     next_prior: tuple | None = None   # (z, C): the prior for the sample after the last (C as in Trace)
+    gate: float = Guard.gate  # the innovation gate the run had, in std (0: none, as on the casadi backend)
 
     def __post_init__(self):
         if self.measured is None:
@@ -148,7 +149,8 @@ class RunResult:
         return cls(first.filter, cat("t"), cat("mean"), cat("std"), cat("innovation"), cat("innovation_var"),
                    cat("nis"), cat("loglik"), cat("prior_var"), cat("code"), last.final_cov, cat("measured"),
                    first.holes, first.notes,
-                   Trace.concat([p.trace for p in parts]) if first.trace is not None else None, last.next_prior)
+                   Trace.concat([p.trace for p in parts]) if first.trace is not None else None, last.next_prior,
+                   first.gate)
 
 
 EVENT_WORDS = {Status.OUTLIER_REJECTED: "gated (outlier not used)", Status.SENSOR_STUCK: "stuck reading",
@@ -171,6 +173,7 @@ class RunSummary:
         self.events = {c: 0 for c in EVENTS}
         self.first = {c: None for c in EVENTS}       # the time of each event's first sample (s)
         self.per_output = np.zeros(len(filt.aug.model.output_names), int)   # samples where each reading was used
+        self.gate, self.beyond, self.first_beyond = Guard.gate, 0, None   # ungated: readings used beyond Guard.gate
 
     def add(self, part: RunResult) -> "RunSummary":
         ok, used = np.isfinite(part.nis), np.isfinite(part.innovation)     # a reading gated or stuck is not used
@@ -181,7 +184,13 @@ class RunSummary:
         self.nis_sum += float(part.nis[ok].sum())
         self.nis_count += int(ok.sum())
         self.expected_sum += float(used[ok].sum())
-        self.holes, self.notes = part.holes, part.notes
+        self.holes, self.notes, self.gate = part.holes, part.notes, part.gate
+        if not part.gate:
+            with np.errstate(invalid="ignore"):
+                far = np.flatnonzero((np.abs(part.innovation) > Guard.gate * np.sqrt(part.innovation_var)).any(axis=1))
+            self.beyond += len(far)
+            if self.first_beyond is None and len(far):
+                self.first_beyond = float(part.t[far[0]])
         for c in EVENTS:
             at = np.flatnonzero(part.code == c)
             self.events[c] += len(at)
@@ -200,8 +209,10 @@ class RunSummary:
         return [f"{n} {EVENT_WORDS[c]}" for c, n in self.events.items() if n]
 
     def attention(self) -> list[str]:
-        """What a person should look at, briefly: the holes and the events."""
-        return ([f"{len(self.holes)} hole(s)"] if self.holes else []) + self.event_counts()
+        """What a person should look at, briefly: the holes and the events (and, in a run without
+        a gate, the samples with a reading beyond the default gate that were used)."""
+        return (([f"{len(self.holes)} hole(s)"] if self.holes else []) + self.event_counts()
+                + ([f"{self.beyond} with a reading beyond {Guard.gate:g}σ used (no gate)"] if self.beyond else []))
 
     def kept(self) -> np.ndarray | None:
         """SKI: True for the weights whose term is kept; None for other filters. A variance the
@@ -236,8 +247,14 @@ class RunSummary:
             trouble = self.events[Status.NUMERICAL_FAILURE] or self.events[Status.REINITIALISED]
             if trouble and (why := aug.model.unstable_step()):
                 out.append(f"why steps may fail: {why}")
-        else:
+        elif self.gate:
             out.append("events: none (no outlier, stuck reading, bad input, rejection or restart)")
+        if not self.gate:
+            out.append(f"ungated run (the casadi backend, which neither gates nor tests for a stuck sensor "
+                       f"outside a part redone after a non-finite step; or a guard with gate 0): "
+                       + (f"{self.beyond} sample(s) used a reading beyond {Guard.gate:g}σ of its prediction, "
+                          f"which the default gate would not, first at t = {clock(self.first_beyond)} s"
+                          if self.beyond else f"no reading was beyond {Guard.gate:g}σ of its prediction"))
         if self.nis_count:
             expected = self.expected_sum / self.nis_count
             out.append(f"mean NIS {self.nis_sum / self.nis_count:.3f} (expected {expected:.3f}: the "
@@ -861,10 +878,10 @@ def _part(filt, t, outputs, raw, holes=(), notes=()) -> RunResult:
                      valid, holes, notes, trace)
 
 
-def _steps(filt, stepper, backend, pieces, again, holes=(), notes=(), strict=False, trace=False):
+def _steps(filt, stepper, backend, pieces, again, holes=(), notes=(), strict=False, trace=False, gate=Guard.gate):
     """Step over ``pieces`` (grid index of the first sample, t, step inputs, outputs), restarting the
     states before a piece whose first index is in ``again`` (that sample's code: REINITIALISED, as
-    the policy's restart, unless the step failed); a RunResult per piece."""
+    the policy's restart, unless the step failed); a RunResult per piece, ``gate`` its gate."""
     for a, t, u, y in pieces:
         restart = a in again and a > 0
         if restart:
@@ -876,6 +893,7 @@ def _steps(filt, stepper, backend, pieces, again, holes=(), notes=(), strict=Fal
             raise FloatingPointError(f"the {filt.kind} filter of '{filt.aug.model.name}' produced non-finite "
                                      f"numbers at t = {clock(t[np.argmax(raw['code'] == Status.NUMERICAL_FAILURE)])} s")
         part = _part(filt, t, y, raw, holes, notes)
+        part.gate = gate
         C = np.asarray(stepper.C_post, float)
         part.final_cov = C @ C.T if filt.square_root else C
         part.next_prior = np.array(stepper.z, float).ravel(), np.array(stepper.C, float)
@@ -959,7 +977,8 @@ def iter_run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", re
     parts = list(zip(bounds[:-1], bounds[1:]))
     pieces = ((a, rec.t[a:b], inputs[a:b], rec.outputs[a:b]) for a, b in
               (progress(parts, len(parts), f"{label}, {N} samples in parts") if show_progress else parts))
-    yield from _steps(filt, stepper, backend, pieces, again, rec.holes, rec.notes, strict, trace)
+    yield from _steps(filt, stepper, backend, pieces, again, rec.holes, rec.notes, strict, trace,
+                      _gate(backend, guard))
 
 
 def _stream_pieces(grid, foh: bool, chunk: int):
@@ -1007,7 +1026,12 @@ def iter_run_stream(filt: DerivedFilter, grid, *, backend: str = "python", real:
     pieces = _stream_pieces(grid, model.input_hold == "foh", chunk)
     if show_progress:
         pieces = progress(pieces, None, f"{label}, parts of a streamed file")
-    yield from _steps(filt, stepper, backend, pieces, grid.restarts)
+    yield from _steps(filt, stepper, backend, pieces, grid.restarts, gate=_gate(backend, guard))
+
+
+def _gate(backend: str, guard: Guard | None) -> float:
+    """The innovation gate a run has, in std: none on the casadi backend."""
+    return 0.0 if backend == "casadi" else (guard or Guard()).gate
 
 
 def run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", real: str = "double",

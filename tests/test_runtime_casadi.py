@@ -237,3 +237,25 @@ def test_the_prior_after_a_part_is_the_traces(rec, backend):
         assert sorted(priors) == cuts
         for c in cuts:
             np.testing.assert_array_equal(priors[c][1], full.trace.C_next[c - 1])
+
+
+def test_an_ungated_run_says_so_and_counts_the_readings_a_gate_would_not_have_used(rec):
+    """A reading 5 deg off (50 noise std) on the casadi backend, which has no gate: its summary
+    said 'events: none (no outlier, …)' beside a mean NIS of 13 and spoilt weights; it now says
+    the run was ungated and counts the samples that used a reading beyond the default gate (the
+    outlier and the 7 its update threw off, measured). The python backend gates it; a clean casadi run
+    says no reading was beyond."""
+    filt = derive(build(), "ukf")
+    bad = rec.outputs.copy()
+    bad[180, 0] += 5.0
+    spoiled = Recording("w", rec.t, rec.inputs, bad, ("delta",), ("phi",), holes=rec.holes)
+    casadi = run(filt, spoiled, backend="casadi", show_progress=False).summary()
+    (line,) = [s for s in casadi.lines() if s.startswith("ungated run")]
+    beyond = int(line.split(": ")[1].split(" sample(s)")[0])
+    assert beyond == 8 and f"first at t = {rec.t[180]:.6g} s" in line, line
+    assert not any(s.startswith("events: none") for s in casadi.lines())
+    assert f"{beyond} with a reading beyond 5σ used (no gate)" in casadi.attention()
+    python = run(filt, spoiled, show_progress=False).summary()
+    assert python.events[Status.OUTLIER_REJECTED] == 1 and not any("ungated" in s for s in python.lines())
+    clean = run(filt, rec, backend="casadi", show_progress=False).summary().lines()
+    assert any(s.endswith("no reading was beyond 5σ of its prediction") for s in clean), clean
