@@ -110,7 +110,8 @@ def _run(args) -> int:
 
 
 def _ran(args, model, n, t0, t1, summary) -> int:
-    print(f"{model.name} {args.filter} ({args.backend}): {n} samples of dt = {model.dt:g} s, "
+    backend = args.backend + (f", {args.real}" if args.real != "double" else "")
+    print(f"{model.name} {args.filter} ({backend}): {n} samples of dt = {model.dt:g} s, "
           f"t = {clock(t0)}–{clock(t1)} s -> {args.out}")
     print("\n".join(summary.lines()))
     return 0

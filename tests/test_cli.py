@@ -106,6 +106,13 @@ def test_module_attribute_spec_works(recording, tmp_path):
     assert "mean NIS" in r.stdout
 
 
+def test_a_float_run_says_float(recording, tmp_path):
+    """The run's header names the precision of a float C run (it said '(c)' alone)."""
+    r = skigen("run", MODEL, str(recording), "--filter", "ekf", "--backend", "c", "--real", "float",
+               "--out", str(tmp_path / "o.csv"))
+    assert r.returncode == 0 and "wingrock ekf (c, float): 201 samples" in r.stdout, r.stdout + r.stderr
+
+
 def test_float_precision_needs_the_c_backend(recording, tmp_path):
     r = skigen("run", MODEL, str(recording), "--filter", "ekf", "--real", "float", "--out", str(tmp_path / "o.csv"))
     assert r.returncode == 1 and "real='float' is the precision of the generated C: give backend 'c'" in r.stderr
