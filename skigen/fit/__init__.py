@@ -285,11 +285,8 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     free = [i for i in range(len(V)) if i not in held]
     G = _dense(jac_g(theta0 / scale, p))
     lost = unidentified(J0[:, free], prior.ravel()[free], [V.names[i] for i in free], G[:, free])
-    if lost:
-        raise NotIdentifiable(f"the recordings cannot identify every quantity of '{model.name}': " + "; ".join(lost)
-                       + ". Hold some at their declared values (estimate only the others: estimate=[...] in Python, "
-                       "--estimate NAME for each on the command line), give them a prior std, or record richer "
-                       "excitation")
+    if lost and method != "output-error":
+        raise _not_identifiable(model, lost)
     lower = _resolution_floor(model, V, recs, prob.solver_inputs["lbx"])
     inputs = dict(prob.solver_inputs, x0=np.maximum(theta0, lower) / scale, lbx=lower / scale,
                   ubx=prob.solver_inputs["ubx"] / scale, p=p)
@@ -304,9 +301,21 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     if show_progress:
         note(f"fitting '{model.name}' by {method}: {len(V)} unknowns, {sum(lengths)} samples")
     negligible = None if prob.nlp["g"].shape[0] else functools.partial(_negligible_gain, prob, inputs)
-    sol, stats = _solve(prob, solver, inputs, negligible, model.name if show_progress else None)
+    try:
+        sol, stats = _solve(prob, solver, inputs, negligible, model.name if show_progress else None)
+    except FitError:
+        if lost:
+            raise _not_identifiable(model, lost) from None
+        raise
     robust = method == "output-error"      # simulation residuals may be coloured; innovations are white
     xi, rho, nll, C, info = _at_optimum(prob, jac_g, sol, inputs, lengths, robust)
+    if lost:          # seen at the start only: the free run there may not move what tells them apart
+        J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(xi, p))
+        if again := unidentified(J[:, free], prior.ravel()[free], [V.names[i] for i in free],
+                                 _dense(jac_g(xi, p))[:, free]):
+            raise _not_identifiable(model, again)
+        notes.append(f"output error: at the starting values the free run did not tell every quantity apart "
+                     f"({'; '.join(lost)}); at the optimum it does")
     if method == "filter-error":
         for again in _noise_restarts(prob, model, inputs, declared_noise, sol, xi, C, noise_from):
             more, more_stats = _solve(prob, solver, again, negligible, model.name if show_progress else None)
@@ -354,6 +363,13 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
         result.notes += _unexplained_residuals(model, recs, result.predictions, params)
     result.fitted_recordings = recs
     return result
+
+
+def _not_identifiable(model: Model, lost: list[str]) -> NotIdentifiable:
+    return NotIdentifiable(f"the recordings cannot identify every quantity of '{model.name}': " + "; ".join(lost)
+                           + ". Hold some at their declared values (estimate only the others: estimate=[...] in "
+                           "Python, --estimate NAME for each on the command line), give them a prior std, or "
+                           "record richer excitation")
 
 
 AT_BOUND = 1e-3     # standard errors: an estimate this close to a bound sits on it, if also within
