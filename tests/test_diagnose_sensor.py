@@ -63,6 +63,24 @@ def test_a_sensor_stuck_partway_and_an_input_hole_are_left_out_and_said(tmp_path
     assert "Note: DataFrame: output 'p_meas' holds one reading" in (tmp_path / "report.md").read_text()
 
 
+def test_an_output_hole_in_the_stretch_diagnosed_is_said():
+    """Readings missing for 20 s of the 46 s diagnosed (44 %) (after a force hole) are said with their share;
+    one before the force hole, outside the stretch, is not. A battery log whose voltage was
+    missing for 87 % of it was reported as 'no significant mismatch' without a word."""
+    import numpy as np
+    import pandas as pd
+    from benchmarks.scenarios import make
+    from skigen.diagnose.inputs import load, usable
+    sc = make("cart_clean", seed=SEED)
+    frame = pd.DataFrame({"t": sc.t, **sc.inputs, **sc.outputs})
+    frame.loc[1200:1400, "F"] = np.nan
+    frame.loc[300:600, "p_meas"] = np.nan
+    frame.loc[3000:5000, "p_meas"] = np.nan
+    rec, notes = usable(load(sc.model_file, frame)[2])
+    (said,) = [n for n in notes if n.startswith("readings missing")]
+    assert said.endswith("29.99–50.01 s (20 s) without p_meas (44% of the recording)"), said
+
+
 def _vertical():
     """A multirotor's vertical axis, its thrust gain and drags declared off (truth 20, 0.3, 0.05)."""
     from skigen import Model

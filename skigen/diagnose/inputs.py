@@ -52,6 +52,12 @@ def usable(rec: Recording) -> tuple[Recording, list[str]]:
     if rec.input_holes:
         notes.append(rec.hole_note(f"diagnosed on the longest stretch between them, {longest.t[0]:g}–"
                                    f"{longest.t[-1]:g} s ({len(longest)} of {len(rec)} samples)"))
+    span = longest.t[-1] - longest.t[0]
+    quiet = [h for h in rec.holes if not h.inputs and h.t1 > longest.t[0] and h.t0 < longest.t[-1]]
+    if quiet and span > 0:
+        notes.append("readings missing for longer than the maximum gap, where the filters only predict and the "
+                     "diagnosis sees nothing: " + "; ".join(f"{h} ({(min(h.t1, longest.t[-1]) - max(h.t0, longest.t[0])) / span:.0%} "
+                                                             f"of the recording)" for h in quiet))
     return longest, notes
 
 
