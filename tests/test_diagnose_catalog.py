@@ -205,6 +205,21 @@ def test_a_user_candidate_that_cannot_be_read_is_named_with_what_it_may_use():
         user_candidates(m, [("gain", "x", "u *")])
     with pytest.raises(ValueError, match=r"candidate 'gain': no equation 'v' \(states: x\)"):
         user_candidates(m, [("gain", "v", "u")])
+    with pytest.raises(ValueError, match=r"formula 'tanh\(x, 2\)' cannot be evaluated: .*\(functions: tanh, "):
+        user_candidates(m, [("drag", "x", "tanh(x, 2)")])         # was a raw CasADi traceback
+
+
+def test_a_caret_in_a_formula_is_a_power_binding_as_on_paper():
+    """'-r^3' raised a TypeError traceback (Python's xor); a caret is now a power, and binds as one:
+    2·x^2 + 1 is 2x² + 1, not Python's (2x) xor 3."""
+    import casadi as ca
+    from skigen.diagnose.catalog import user_candidates
+    from skigen.diagnose.transform import formula
+    m = _echo()
+    x = m.states[0].sym
+    f = ca.Function("f", [x], [formula(m, "2*x^2 + 1"), formula(m, "-x^3"), formula(m, "2^3^2")])
+    assert [float(v) for v in f(3.0)] == [19.0, -27.0, 512.0]
+    assert user_candidates(m, ["cubic:x:-x^3"])[0].formula == "-x^3"
 
 
 @pytest.mark.parametrize("role", [None, "velocity"])

@@ -63,17 +63,21 @@ _FUNCS = {"tanh": ca.tanh, "exp": ca.exp, "log": ca.log, "sqrt": ca.sqrt, "abs":
 
 
 def formula(model: Model, text: str) -> ca.SX:
-    """A formula over the model's state and input names (with tanh, exp, abs, sign, …) as SX:
-    ``formula(model, "-tanh(v/0.005)")``."""
+    """A formula over the model's state and input names (with tanh, exp, abs, sign, …; ``**`` or
+    ``^`` for a power) as SX: ``formula(model, "-tanh(v/0.005)")``."""
     names = symbols(model)
     try:
-        value = eval(compile(text, "<formula>", "eval"), {"__builtins__": {}}, {**_FUNCS, **names})
+        power = text.strip().replace("^", "**")     # a power, as in MATLAB and on paper, binding as ** does
+        value = eval(compile(power, "<formula>", "eval"), {"__builtins__": {}}, {**_FUNCS, **names})
     except NameError as exc:
         hint = ("; time is not a symbol of the model: declare an input for it (model.input('clock', unit='s')) "
                 "and give the recording a 'clock' column holding the time" if exc.name in ("t", "time") else "")
         raise ValueError(f"formula '{text}': {exc} (known names: {', '.join(names)}){hint}") from None
     except SyntaxError as exc:
         raise ValueError(f"formula '{text}' is not an expression: {exc.msg}") from None
+    except Exception as exc:                    # a function called wrongly, an operator on the wrong things
+        raise ValueError(f"formula '{text}' cannot be evaluated: {str(exc).splitlines()[0]} (functions: "
+                         f"{', '.join(k for k in _FUNCS if k != 'pi')}; ** or ^ for a power)") from None
     value = ca.SX(value)
     if value.shape != (1, 1):
         raise ValueError(f"formula '{text}' is not a scalar")
