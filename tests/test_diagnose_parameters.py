@@ -119,6 +119,29 @@ def test_a_finding_the_joint_refit_no_longer_needs_is_left_out():
     # a second limit on the same equation keeps its own parameter (both once showed the last one's)
     assert (findings[2]["coefficient"], findings[2]["parameter"]) == (2.1, "physical_limit_v_2")
     assert findings[0]["parameter"] == "physical_limit_v"
+    # a second refit keeps the cross-validated search's value (the first refit's replaced it, and a
+    # rudder stop searched at 0.5 rad read 'cross-validated 0.2208', the first refit's number)
+    _update_findings(findings, {"cubic_stiffness_v": cubic}, {"cubic_stiffness_v": dict(value=7.4e5, std=2.9e3)},
+                     alpha=0.01)
+    assert (findings[1]["coefficient"], findings[1]["cv_coefficient"], findings[1]["cv_std"]) == (7.4e5, 6.08e5, 3.4e3)
+
+
+def test_a_finding_not_needed_that_the_refit_corrects_as_a_nominal_term_is_not_said_left_out():
+    """An input gain the joint refit no longer needs, where the refit without it corrects the
+    nominal's own input gain (a lifted correction): the report said 'left out of the corrected
+    model' beside a corrected model holding input_gain_r_correction."""
+    from skigen.diagnose import _not_needed
+    from skigen.diagnose.catalog import Additive
+    gain = Additive("input_gain", "r", "delta", "")
+    f = dict(effect="input_gain", equation="r", expression="delta", kind="additive", coefficient=0.0025,
+             std=0.0012, cv_coefficient=-0.0044, cv_std=0.00015)
+    lifted = {"loglik": 100.0, "lifted": [dict(effect="input_gain", equation="r", formula="delta")],
+              "parameters": {"input_gain_r_correction": dict(value=0.00248, std=0.0012)}}
+    (item,) = _not_needed([f], [gain], {"loglik": 100.0}, lifted, alpha=0.01)
+    assert item["note"].endswith("not a finding: the corrected model refits the nominal's own input gain on r "
+                                 "instead (input_gain_r_correction = 0.00248 ± 0.0012)"), item["note"]
+    (item,) = _not_needed([f], [gain], {"loglik": 100.0}, {"loglik": 100.0}, alpha=0.01)
+    assert item["note"].endswith("left out of the corrected model")
 
 
 def test_a_finding_a_simulation_is_better_without_is_flagged():

@@ -493,15 +493,16 @@ def windows_where_it_acts(nominal: Model, after, rec, equations, states) -> tupl
 
 
 def _update_findings(findings: list[dict], names: dict, fitted: dict, alpha: float) -> None:
-    """The refitted values in the findings; the std keeps the shape search's share. A finding whose
-    refitted coefficient is no longer significant gets a note saying so."""
+    """The refitted values in the findings (the cross-validated search's kept as cv_coefficient and
+    cv_std from the first refit on); the std keeps the shape search's share. A finding whose
+    refitted coefficient is no longer significant is marked."""
     by_target = {(c.effect, c.target, c.side): (n, c) for n, c in names.items() if isinstance(c, C.Structural)}
     by_term = {c.key + (c.text,): n for n, c in names.items() if c is not None and not isinstance(c, C.Structural)}
     for f in findings:
         if f["kind"] == "structural":
             n, s = by_target.get((f["effect"], f.get("output") or f.get("input"), f.get("side", "")), (None, None))
             if n in fitted:
-                f["cv_coefficient"], f["cv_std"] = f["coefficient"], f["std"]
+                f.setdefault("cv_coefficient", f["coefficient"]), f.setdefault("cv_std", f["std"])
                 f["coefficient"], f["std"] = fitted[n]["value"], fitted[n]["std"]
                 f["expression"], f["refit_parameter"] = s.describe(f["coefficient"]), n
                 if s.parameter in f.get("shape", {}):          # one value in the row, the refitted one
@@ -511,7 +512,7 @@ def _update_findings(findings: list[dict], names: dict, fitted: dict, alpha: flo
         if n not in fitted:
             continue
         spread = f.get("shape_search", {}).get("coefficient_std_from_shape", 0.0)
-        f["cv_coefficient"], f["cv_std"] = f["coefficient"], f["std"]
+        f.setdefault("cv_coefficient", f["coefficient"]), f.setdefault("cv_std", f["std"])
         f["coefficient"] = fitted[n]["value"]
         std = fitted[n]["std"]
         f["std"] = float(np.hypot(std, spread)) if std is not None and np.isfinite(std) else std
@@ -537,7 +538,20 @@ def _not_needed(unneeded: list[dict], terms: list, full: dict, fewer: dict, alph
                       f"not needed: after the joint refit its coefficient is within {z:.2f} std of zero "
                       f"(cross-validated before it: {f['cv_coefficient']:.4g} ± {f['cv_std']:.2g}) and the "
                       f"refit without it is as likely ({-drop:+.1f} log-likelihood): the refitted constants "
-                      f"take over what it explained; left out of the corrected model") for f, c in zip(unneeded, terms)]
+                      f"take over what it explained; {_kept_as(f, fewer)}") for f, c in zip(unneeded, terms)]
+
+
+def _kept_as(finding: dict, refit: dict) -> str:
+    """Where a finding not needed went: out of the corrected model, or, where that refit corrects
+    the nominal's own term of the same kind (a lifted correction), into that correction."""
+    effect, eq = finding["effect"], finding["equation"]
+    if any((d["effect"], d["equation"]) == (effect, eq) for d in refit.get("lifted", [])):
+        name = f"{effect}_{eq}_correction"
+        p = refit.get("parameters", {}).get(name)
+        value = f" ({name} = {p['value']:.4g} ± {p['std']:.2g})" if p else ""
+        return (f"not a finding: the corrected model refits the nominal's own {effect.replace('_', ' ')} on "
+                f"{eq} instead{value}")
+    return "left out of the corrected model"
 
 
 def _flag_one_step_only(findings: list[dict], free_all: float) -> None:
