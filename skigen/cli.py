@@ -140,7 +140,7 @@ def _generate(args) -> int:
 
 def _diagnose(args) -> int:
     from .diagnose import DiagnosisError, diagnose
-    from .diagnose.report import finding_line, where
+    from .diagnose.report import finding_line, noise_covers_sentence, where
 
     try:
         report = diagnose(args.model, args.data, args.out, candidates=args.candidate, alpha=args.alpha,
@@ -187,6 +187,8 @@ def _diagnose(args) -> int:
         print("what remains: " + ("a mismatch remains" + (f"; it follows {rem['explained_by']}: try --candidate "
                                                           f"'{rem['suggested_candidate']}'" if rem.get("explained_by") else "")
                                   if rem["mismatch"] else "the corrected model is consistent"))
+    if (d["remaining"] or {}).get("noise_covers"):
+        print(f"consistent only with {noise_covers_sentence(d['remaining']['noise_covers'])}")
     for line in d.get("validation_disagrees", []):
         print(f"validation: {line}")
     if (d["remaining"] or {}).get("integration"):

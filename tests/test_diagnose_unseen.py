@@ -244,7 +244,24 @@ def test_outside_the_catalog_a_mismatch_remains(diagnosed, name):
 def test_wrong_noise_alone_is_no_mismatch(diagnosed, name):
     d = diagnosed(name)["data"]
     assert d["mismatch_detected"] is False, d["consistency"]
-    assert d["findings"] == []
+    assert d["findings"] == [] and "noise_covers" not in d["remaining"]     # declared too large: nothing hides
+
+
+def test_noise_declared_far_too_small_is_said_beside_no_mismatch(tmp_path):
+    """The clean tanks recording, the process noise declared 40× too small (1600× in variance):
+    'no significant mismatch', and the report says the verdict rests on the calibrated noise, at
+    about 1600× the declared variance on h1 and h2 (measured 1.43e3, 1.40e3), since a noise declared
+    that far off cannot be told from physics hiding in it (a battery cell's hysteresis, outside
+    the catalog, was 'consistent' at 4.6·10⁵× and said nowhere)."""
+    import re
+    from skigen.diagnose import diagnose
+    sc = make("tanks_clean", seed=SEED)
+    d = diagnose(tanks.build("two_tanks_q_small", process_scale=1 / 40), sc.recording(), tmp_path,
+                 show_progress=False, figures=False, emit=False).data
+    assert d["mismatch_detected"] is False and d["findings"] == []
+    ratios = {n: float(r) for n, r in re.findall(r"process noise on (\w+) at ([\d.e+]+)×", "; ".join(d["remaining"]["noise_covers"]))}
+    assert set(ratios) == {"h1", "h2"} and all(800 < r < 3200 for r in ratios.values()), ratios
+    assert "**Consistent only with noise far above the declared**" in (tmp_path / "report.md").read_text()
 
 
 @pytest.mark.parametrize("name", MISDECLARED)

@@ -202,6 +202,8 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     if units:
         data["remaining"]["units"] = units
     if not verdict.mismatch:
+        if covers := noise_covers(declared, user_noise):
+            data["remaining"]["noise_covers"] = covers
         data["candidates_not_named"] = [_candidate(c, "not tried: no significant mismatch to explain")
                                         for c in user_cands]
         data["fit"]["recordings"] = [_compared(calibrated, None, r, user, caveats) for r in others]
@@ -335,6 +337,8 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         loc.windows, loc.regime = w, regime or loc.regime
         stage("testing what remains")
         data["remaining"] = remaining(T.constants(corrected), rec, after.run, eqs, alpha, out if figures else None)
+        if not data["remaining"]["mismatch"] and (covers := noise_covers(filed, user_noise)):
+            data["remaining"]["noise_covers"] = covers
         if data["remaining"].get("figure"):
             meta["figures"].append(Path(data["remaining"].pop("figure")))
     else:
@@ -431,6 +435,21 @@ def _compared(nominal: Model, corrected: Model | None, rec, user: Model, notes: 
 
 
 DELAY_PASSES = 4     # delay, then constants, in turn: at most this many times
+NOISE_COVERS = 100.0  # × a declared variance: a model consistent only with more says so (as skigen fit's note)
+
+
+def noise_covers(model: Model, declared: tuple) -> list[str]:
+    """The noises of ``model`` over NOISE_COVERS times their declared variance (``declared``: Q, R):
+    a verdict of consistency that needs them rests on that noise. (A battery cell with a
+    hysteresis voltage no candidate has was 'consistent' with the process noise on its state of
+    charge at 4.6·10⁵ times its declared variance, said nowhere.)"""
+    out = []
+    for kind, names, mine, theirs in (("process noise on", model.state_names, model.process_noise(), declared[0]),
+                                      ("sensor noise on", model.output_names, model.measurement_noise(), declared[1])):
+        for name, a, b in zip(names, np.diag(mine), np.diag(theirs)):
+            if b > 0 and a > NOISE_COVERS * b:
+                out.append(f"the {kind} {name} at {a / b:.3g}× its declared variance (std {np.sqrt(a / b):.3g}×)")
+    return out
 
 
 def _delays_refitted(declared: Model, calibrated: Model, corr: Correction, refit_info: dict, rec, alpha: float,

@@ -106,6 +106,13 @@ def _free_run_span(metrics: dict) -> str:
             f"of it follows the recording")
 
 
+def noise_covers_sentence(covers: list[str]) -> str:
+    """What a consistent verdict rests on, when a calibrated noise is far above the declared one."""
+    return ("; ".join(covers) + ": the recording cannot tell a noise declared that much too small from physics "
+            "the model misses hiding in that noise; if the declared noise is right, something is missing there "
+            "(skigen fit notes the same)")
+
+
 def write_markdown(path, data: dict, meta: dict) -> Path:
     """meta: model, recording, samples, dt, folds, figures, kinematic, proposals, generated, seconds."""
     c, loc, fit, rem = data["consistency"], data["located"], data["fit"], data["remaining"]
@@ -118,6 +125,8 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
     else:
         verdict = "**A significant mismatch exists; the corrected model explains it.**"
     L += [verdict, ""] + [f"**A validation recording disagrees** — {line}.\n" for line in data.get("validation_disagrees", [])]
+    if rem.get("noise_covers"):
+        L += [f"**Consistent only with noise far above the declared** — {noise_covers_sentence(rem['noise_covers'])}.", ""]
     L += [f"{meta['samples']} samples, dt = {meta['dt']:g} s. {fit['validation']}.", ""]
     L += [f"Note: {n}." for n in data["notes"]] + [""] * bool(data["notes"])
     if rem.get("units"):
@@ -216,7 +225,8 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
             L.append("")
         L += ["## 7. What remains", ""]
         if not rem.get("mismatch"):
-            L.append("The corrected model, refitted with calibrated noise, is consistent with the recording.")
+            L.append("The corrected model, refitted with calibrated noise, is consistent with the recording"
+                     + (f", but only with {noise_covers_sentence(rem['noise_covers'])}." if rem.get("noise_covers") else "."))
         else:
             at = rem.get("where") or {}
             L.append("**A mismatch remains** " + (f"in `{'`, `'.join(at.get('equations', []))}`" if at else "")
