@@ -152,7 +152,7 @@ def _diagnose(spec, digest, path, tmp: Path, final: Path, opt: dict, row: dict) 
     d = report.data
     span = d["diagnosed"]                      # the longest stretch between input holes
     row.update(samples=span["samples"], duration_s=_num(span["end"] - span["start"]), start=_num(span["start"]))
-    row["notes"] = d["notes"]
+    row["notes"] = d["notes"] + [f"consistent only with {c}" for c in d["remaining"].get("noise_covers", [])]
     row["mean_nis"] = d["consistency"]["nis_mean"]
     row["nis_expected"] = d["consistency"]["nis_expected"]
     row["mismatch"] = bool(d["mismatch_detected"])
