@@ -291,7 +291,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         for m in (base, anchored):
             if m is not None:
                 m.covariances(**noise)
-        joint = lambda c: refit_jointly(nominal, base, c, rec, loc.equations, refit, anchored, window, user_noise)
+        joint = lambda c: refit_jointly(nominal, base, c, rec, loc.equations, refit, anchored, window, user_noise, alpha)
         corrected, names, notes, refit_info = joint(corr.without_parameters())
         for _ in range(DELAY_PASSES):        # the delay and the constants, searched in turn
             if (moved := _delays_refitted(declared, calibrated, corr, refit_info, rec, alpha, rms, size)) is corr:
