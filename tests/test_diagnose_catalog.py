@@ -547,3 +547,17 @@ def test_a_delay_is_searched_again_at_the_refitted_constants(tmp_path):
         p = d["refit"]["parameters"][name]
         assert abs(p["value"] - truth) < 4 * p["std"], (name, p)
     assert d["remaining"]["mismatch"] is False
+
+
+def test_grids_of_quantiles_have_their_gaps_filled():
+    """|δ| of a command clipped at ±0.611 for a third of the run: its quantiles 0.105, 0.570, 0.611
+    left a 5.4× gap in which a rudder stop went unseen; on a log scale no neighbours are now more
+    than 1.5× apart, on a linear one no gap is wider than the span over 8, and the quantiles
+    themselves stay in the grid."""
+    from skigen.diagnose.catalog import GRID_RATIO, GRID_STEPS, filled
+    g = filled([0.105, 0.570, 0.611], log=True)
+    assert {0.105, 0.570, 0.611} <= set(g) and len(g) == 7
+    assert np.all(np.diff(np.log(g)) <= np.log(GRID_RATIO) + 1e-12)
+    lin = filled([-1.0, -0.9, 2.0], log=False)
+    assert {-1.0, -0.9, 2.0} <= set(lin) and np.max(np.diff(lin)) <= 3.0 / GRID_STEPS + 1e-12
+    assert filled([0.2, 0.25], log=True) == (0.2, 0.25) and filled([1.0], log=True) == (1.0,)
