@@ -14,8 +14,10 @@ the recording by CasADi (``mapaccum``, 1024 samples a call): about 15× faster t
 policy — no gate, no stuck-sensor test, no restart after rejections or a gap, no
 bound on the prior std — so its innovations are the filter's own (what the
 diagnosis scores); where nothing fails it equals ``python`` with
-:meth:`Guard.off`. A part in which a step gives a non-finite number (or an input
-is not finite) is redone by the Python stepper with the default :class:`Guard`.
+:meth:`Guard.off`. A part in which a step gives a non-finite number is redone by
+the Python stepper with the default :class:`Guard`; a part in which an input is
+not finite (an input hole) with :meth:`Guard.off`, whose bad-input rule a chain
+cannot take.
 The restarts after an input hole, the parts and the result are those of the
 other backends.
 """
@@ -444,6 +446,7 @@ class CasadiStepper:
         st = filt.initial()
         self.z, self.C, self.mem, self.s = st["z"], st["C"], st["mem"], st.get("s")
         self.C_post = self.C
+        self.u_held = np.zeros(filt.aug.shapes["nu"])    # the last finite value of each input (bad-input rule)
         self._key = self._chained = None
 
     def _chain(self):
@@ -467,9 +470,12 @@ class CasadiStepper:
         if key in _RUNS:              # this very run was done before: its records and end state
             raw, (self.z, self.C, self.s, self.mem, self.C_post) = _RUNS[key]
             return {k: v.copy() for k, v in raw.items()}
-        raws = ([self._direct(U, Y)] if direct else
-                [self._piece(U[a:a + PIECE], Y[a:a + PIECE]) for a in range(0, N, PIECE)]) \
-            if np.all(np.isfinite(U)) else [None]
+        if not np.all(np.isfinite(U)):     # an input not known (a hole): its rule, and no other policy
+            return self._fallback(U, Y, Guard.off())
+        if N:
+            self.u_held = U[-1].copy()
+        raws = [self._direct(U, Y)] if direct else [self._piece(U[a:a + PIECE], Y[a:a + PIECE])
+                                                    for a in range(0, N, PIECE)]
         if any(r is None for r in raws):
             self.z, self.C, self.s, self.mem, self.C_post = start
             return self._fallback(U, Y)
@@ -559,15 +565,20 @@ class CasadiStepper:
             raw.update(C_post=Cp, z_next=out["z_next"], C_next=Cn, mem=mem)
         return raw
 
-    def _fallback(self, U, Y) -> dict[str, np.ndarray]:
-        """The part again, by the Python stepper and its guards, from the same state."""
-        if self.strict:
+    def _fallback(self, U, Y, guard: Guard | None = None) -> dict[str, np.ndarray]:
+        """The part again, by the Python stepper from the same state: with its guards (``guard``,
+        default :class:`Guard`) after a non-finite number; with ``Guard.off()``, this backend's
+        policy, where an input is not known (it predicts with the last known one and uses no
+        reading: the bad-input rule, which a chain cannot take)."""
+        if self.strict and guard is None:
             raise FloatingPointError(f"the {self.filt.kind} filter of '{self.filt.aug.model.name}' produced "
                                      f"non-finite numbers")
-        py = PythonStepper(self.filt)
+        py = PythonStepper(self.filt, guard)
         _start(py, dict(z=self.z, C=self.C, mem=self.mem, s=self.s))
+        py.u_held = self.u_held.copy()
         raw = _step_python(py, U, Y, self.trace)
         self.z, self.C, self.mem, self.s, self.C_post = py.z, py.C, py.mem, py.s, py.C_post
+        self.u_held = py.u_held
         return raw
 
 
@@ -909,6 +920,20 @@ def restarts(rec: Recording, model: Model) -> list[int]:
     return sorted(k for k in ks if 0 < k < len(rec.t))
 
 
+def held_through(t: np.ndarray, k: np.ndarray, holes, dt: float, hold: str) -> np.ndarray:
+    """True at the grid samples ``k`` (times ``t``, s) inside an input hole (t0, t1), up to the one
+    at which the input is known again (:func:`restarts`): the held value is not the input there, so
+    the step gets a non-finite input and the policy's bad-input rule predicts with the last known
+    one and uses no reading (an update under a wrong input teaches it to the weights: an aileron
+    unknown for 1.5 s moved its effectiveness by 2.4σ, the gyro fused against the held command).
+    ``dt``, ``hold``: the model's step and input hold; k counts from the grid's first sample."""
+    out = np.zeros(len(t), bool)
+    tol, first = 1e-6 * dt, (t[0] - dt * k[0]) if len(t) else 0.0
+    for t0, t1 in holes:
+        out |= (t > t0 + tol) & (k < first_known(t1 - first, dt, hold))
+    return out
+
+
 def forget_states(stepper, filt: DerivedFilter) -> None:
     """The input was unknown for a while: the physical states restart from RESTART_SCALE times
     their declared covariance (mean kept; the recovery policy's widening, so that the first
@@ -970,6 +995,10 @@ def iter_run(filt: DerivedFilter, rec: Recording, *, backend: str = "python", re
     check_columns(model, rec)
     stepper = _stepper(filt, backend, real, show_progress, cache_dir, guard, init, strict, trace)
     inputs, N = step_inputs(model, rec.inputs), len(rec.t)
+    stale = held_through(rec.t, np.arange(N), [(h.t0, h.t1) for h in rec.input_holes], model.dt, model.input_hold)
+    if stale.any():
+        inputs = np.array(inputs, float)
+        inputs[stale] = np.nan
     chunk = chunk or CHUNK[backend]
     again = set(restarts(rec, model))
     bounds = sorted(set(range(0, N, chunk)) | again | {k for k in cuts if 0 < k < N}) + [N]
@@ -1004,6 +1033,11 @@ def _stream_pieces(grid, foh: bool, chunk: int):
 
 def _cut(grid, k0, t, u, y, chunk):
     m = len(t)
+    holes = [(a + grid.origin, b + grid.origin) for (a, b), names in grid.spans.items()
+             if any(n in grid.input_names for n in names)]
+    if holes:
+        u = np.array(u, float)
+        u[held_through(t, k0 + np.arange(m), holes, grid.dt, grid.hold)] = np.nan
     cuts = sorted({0, m} | set(range(0, m, chunk)) | {k - k0 for k in grid.restarts if k0 < k < k0 + m})
     for a, b in zip(cuts[:-1], cuts[1:]):
         yield k0 + a, t[a:b], u[a:b], y[a:b]
