@@ -48,8 +48,8 @@ def finding_line(f: dict) -> str:
     return (f"{where(f)}: {f['expression']}, coefficient {f['coefficient']:.6g} {bar}, "
             f"cross-validated evidence {f['evidence']:+.1f}, free run without it "
             f"{'diverges' if free is None or not math.isfinite(free) else format(free, '.3g')}"
-            + "".join(f"; not told apart from {where(a)} ({a['expression']}, {a['coefficient']:.6g}): it explains "
-                      f"the recording as well" for a in f.get("as_good", [])))
+            + "".join(f"; not told apart from {where(a)}: {a['expression']}, coefficient {a['coefficient']:.6g}, "
+                      f"explains the recording as well" for a in f.get("as_good", [])))
 
 
 def _fmt(x, spec=".4g"):
