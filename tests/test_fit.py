@@ -1008,6 +1008,16 @@ def test_a_noise_that_covers_a_missing_effect_is_said():
     assert not any("the model misses something" in n for n in right.notes), right.notes
 
 
+def test_a_noise_scale_the_data_do_not_place_is_not_said_to_cover_something():
+    """A battery's state-of-charge noise came out 289 ± 783 times its declared variance: the note
+    said the model misses something there, where the data do not place that noise at all. A scale
+    is said only when its logarithm is more than 2 std above log 100."""
+    from skigen.fit import _surely_above
+    assert not _surely_above(dict(value=289.0, std=783.0), 100.0)
+    assert _surely_above(dict(value=779.0, std=80.0), 100.0) and not _surely_above(dict(value=90.0, std=1.0), 100.0)
+    assert _surely_above(dict(value=150.0, std=None), 100.0)
+
+
 def test_an_output_never_measured_has_its_noise_held():
     """Filter error on a pendulum whose rate gyro recorded nothing: its noise scale cannot be
     calibrated, and the fit used to refuse ("'R_scale_rate' has no effect on the likelihood ... --estimate

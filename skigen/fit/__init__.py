@@ -548,12 +548,20 @@ def _absorbing(model: Model, noise: dict) -> list[str]:
     80 with 779× the declared process noise on vy, 'solved', said nowhere)."""
     kinds = {"Q_scale_": "process noise", "R_scale_": "sensor noise"}
     big = [f"the {kinds[n[:8]]} on {n[8:]} {v['value']:.3g}× its declared variance"
-           for n, v in noise.get("scales", {}).items() if n[:8] in kinds and v["value"] > np.exp(NOISE_JUMP)]
+           for n, v in noise.get("scales", {}).items() if n[:8] in kinds and _surely_above(v, np.exp(NOISE_JUMP))]
     if not big:
         return []
     return [f"{'; '.join(big)}: the model misses something that noise now covers (or the noise was declared far "
             f"too small), and the constants are those that explain the recordings best beside it "
             f"(`skigen diagnose` says what is missing)"]
+
+
+def _surely_above(scale: dict, level: float) -> bool:
+    """A noise scale (value, std) above ``level`` by more than 2 std of its logarithm (std/value):
+    289 ± 783 says nothing about where the noise is, and is not said."""
+    v, sd = scale["value"], scale.get("std")
+    spread = 2 * sd / v if sd is not None and np.isfinite(sd) and v > 0 else 0.0
+    return v > 0 and np.log(v) - spread > np.log(level)
 
 
 NOISE_JUMP = np.log(100.0)   # a noise scale (log variance) this far above the declared one: it absorbed something
