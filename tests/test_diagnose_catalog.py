@@ -561,3 +561,20 @@ def test_grids_of_quantiles_have_their_gaps_filled():
     lin = filled([-1.0, -0.9, 2.0], log=False)
     assert {-1.0, -0.9, 2.0} <= set(lin) and np.max(np.diff(lin)) <= 3.0 / GRID_STEPS + 1e-12
     assert filled([0.2, 0.25], log=True) == (0.2, 0.25) and filled([1.0], log=True) == (1.0,)
+
+
+def test_a_sensor_finding_says_what_its_output_reads():
+    """A current sensor reading (u − 0.05·ω)/1.2 had its gain labelled '(reads w)'; it now gives
+    the output's formula, and a sensor of a state alone still names the state."""
+    from skigen import Model
+    from skigen.diagnose import _reads
+    from skigen.diagnose.report import where
+    m = Model("motor_i", dt=0.01)
+    w, u = m.state("w"), m.input("u")
+    m.dynamics({w: -w + u})
+    m.output("i_meas", (u - 0.05 * w) / 1.2)
+    m.output("w_meas", w)
+    f = dict(effect="sensor_gain", output="i_meas", equation="w", reads=_reads(m, "i_meas"))
+    assert where(f) == "sensor_gain of i_meas (reads ((u-(0.05*w))/1.2))"
+    assert _reads(m, "w_meas") is None
+    assert where(dict(effect="sensor_gain", output="w_meas", equation="w")) == "sensor_gain of w_meas (reads w)"

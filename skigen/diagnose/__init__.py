@@ -686,6 +686,8 @@ def _findings(nominal: Model, corr: Correction, ev: dict, shapes: dict, worth: d
         f.update({"output": s.output, "shape": {s.parameter: value, **({"side": s.side} if s.side else {}),
                                                 "output": s.output}}
                  if s.output else {"input": s.input})
+        if s.output and (reads := _reads(nominal, s.output)):
+            f["reads"] = reads
         if s.side:
             f["side"] = s.side
         out.append(f)
@@ -707,6 +709,14 @@ def _as_good(findings: list[dict], history) -> None:
         for f in findings:
             if p.as_good and _signal(f) in adopted:
                 f["as_good"] = p.as_good
+
+
+def _reads(nominal: Model, output: str) -> str | None:
+    """What an output reads, where it is not a state alone (a current (u − k·ω)/R): its formula."""
+    expr = ca.SX(next(v.sym for v in nominal.outputs if v.name == output))
+    if expr.is_symbolic():
+        return None
+    return str(expr)
 
 
 def _acted_on(nominal: Model, s) -> list[str]:

@@ -34,7 +34,8 @@ def where(f: dict) -> str:
     """'effect on equation' (or on the input a structural item acts on; 'effect of output (reads
     state)' for a sensor), and the input it acts through (report.json's finding or term item)."""
     if f.get("output"):
-        return f"{f['effect']} of {f['output']}" + (f" (reads {f['equation']})" if f.get("equation") else "")
+        reads = f.get("reads") or f.get("equation")
+        return f"{f['effect']} of {f['output']}" + (f" (reads {reads})" if reads else "")
     on = f.get("equation") or f.get("input")
     return f"{f['effect']} on {on}" + (f" through {f['through']}" if f.get("through") else "")
 
