@@ -573,8 +573,8 @@ def test_a_sensor_finding_says_what_its_output_reads():
     w, u = m.state("w"), m.input("u")
     m.dynamics({w: -w + u})
     m.output("i_meas", (u - 0.05 * w) / 1.2)
-    m.output("w_meas", w)
+    m.output("speed", w)
     f = dict(effect="sensor_gain", output="i_meas", equation="w", reads=_reads(m, "i_meas"))
     assert where(f) == "sensor_gain of i_meas (reads ((u-(0.05*w))/1.2))"
-    assert _reads(m, "w_meas") is None
-    assert where(dict(effect="sensor_gain", output="w_meas", equation="w")) == "sensor_gain of w_meas (reads w)"
+    assert _reads(m, "speed") is None
+    assert where(dict(effect="sensor_gain", output="speed", equation="w")) == "sensor_gain of speed (reads w)"
