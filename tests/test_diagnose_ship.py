@@ -4,7 +4,8 @@ command, in closed loop, on a system none of the scenarios has. Before, the limi
 quantiles collapsed onto the command's clip (0.105, 0.570, 0.611 rad), the cross-validation saw
 only grid points, and the joint refit kept two insignificant corrections of the nominal's own
 constants: the 20° stop was named as an input gain and a backlash, the 15° stop as 0.221 ± 0.019
-after an input gain (truth 0.262). Each now names the stop alone, within its error bar."""
+after an input gain (truth 0.262). Each now names the stop alone, within its error bar. And
+Norrbin's cubic yaw damping, which the catalog did not have."""
 import numpy as np
 import pandas as pd
 import pytest
@@ -26,9 +27,10 @@ def ship() -> Model:
     return m
 
 
-def voyage(seed: int, stop_deg: float | None, seconds: float = 400.0) -> pd.DataFrame:
+def voyage(seed: int, stop_deg: float | None, seconds: float = 400.0, a3: float = 0.0) -> pd.DataFrame:
     """Heading steps of ±10–40° every 30–60 s, PD on the measured heading and rate, the command
-    clipped at ±35° and the rudder at ±stop_deg; RK4 at DT with the model's process noise."""
+    clipped at ±35° and the rudder at ±stop_deg, Norrbin's cubic yaw damping a3·r³ (s²/rad²) in
+    the plant; RK4 at DT with the model's process noise."""
     rng = np.random.default_rng(seed)
     n = int(seconds / DT) + 1
     ref, k = np.zeros(n), 0
@@ -37,7 +39,7 @@ def voyage(seed: int, stop_deg: float | None, seconds: float = 400.0) -> pd.Data
         ref[k:k + h] = np.deg2rad(rng.choice([-40, -25, -10, 10, 25, 40]))
         k += h
     stop = np.deg2rad(stop_deg) if stop_deg else np.inf
-    f = lambda x, d: np.array([x[1], (K * d - x[1]) / T_N])
+    f = lambda x, d: np.array([x[1], (K * d - x[1] - a3 * x[1] ** 3) / T_N])
     x, rows = np.zeros(2), []
     for k in range(n):
         y = x + np.array([0.0035, 0.002]) * rng.standard_normal(2)
@@ -62,3 +64,14 @@ def test_a_rudder_stop_behind_a_clipped_command_is_named_alone(tmp_path, seed, s
 def test_a_clean_voyage_names_nothing(tmp_path):
     d = diagnose(ship(), voyage(3, None), tmp_path, show_progress=False, figures=False, emit=False).data
     assert not d["mismatch_detected"] and d["findings"] == []
+
+
+def test_norrbin_s_cubic_yaw_damping_is_named_as_such(tmp_path):
+    """The yaw damping of a ship grows with r³ (Norrbin: T ṙ + r + a₃ r³ = K δ, a₃ = 500 s²/rad²,
+    so −50·r³ on ṙ). Without a cubic damping in the catalog it was named as a quadratic drag,
+    2.47 ± 0.22, and called consistent; now cubic_damping, within its error bar of 50."""
+    d = diagnose(ship(), voyage(7, None, a3=500.0), tmp_path, show_progress=False, figures=False, emit=False).data
+    [damping] = d["findings"]
+    assert (damping["effect"], damping["equation"]) == ("cubic_damping", "r"), d["findings"]
+    assert abs(damping["coefficient"] - 50.0) < 2.5 * damping["std"] < 5.0, (damping["coefficient"], damping["std"])
+    assert not d["remaining"]["mismatch"]

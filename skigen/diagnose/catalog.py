@@ -36,6 +36,8 @@ READINGS = {
     "bias": "a constant offset in the rate (a slope, a mis-trimmed actuator, a wrong weight or hover thrust)",
     "viscous_damping": "damping proportional to the rate (viscous friction, linear drag)",
     "quadratic_drag": "drag growing with the square of the speed (aerodynamic or hydrodynamic)",
+    "cubic_damping": "damping growing with the cube of the rate (a ship's yaw damping after Norrbin, a "
+                     "hardening damper)",
     "coulomb_friction": "dry (Coulomb) friction: a constant force opposing the motion",
     "cubic_stiffness": "a hardening spring: a restoring force growing with the cube of the displacement",
     "linear_stiffness": "a spring the model leaves out or misjudges: a restoring force proportional to the displacement",
@@ -250,6 +252,7 @@ def additive_candidates(model: Model, equations, scale: dict[str, float],
         if rate_like:
             add("viscous_damping", f"-{eq}")
             add("quadratic_drag", f"-{eq}*abs({eq})", sign=1)
+            add("cubic_damping", f"-{eq}**3", sign=1)
             for k in COULOMB_WIDTHS:
                 w = _num(max(k * scale.get(eq, 1.0), 1e-12))
                 add("coulomb_friction", f"-tanh({eq}/{w})", f"width {w} {units[eq]}".rstrip(),
