@@ -321,6 +321,7 @@ def _additive(nominal, current: Correction, cands, rec, folds: Folds, rms, size,
     new = Correction(current.additive + kept, current.structural)
     score = cv_loglik(nominal, new, rec, folds, rms, size)
     new, score = _swaps(nominal, current, new, score, cands, rec, folds, rms, size, states)
+    new, score = _simplest(nominal, current, new, score, cands, rec, folds, rms, size, states, alpha)
     label = ", ".join(_where(c) for c, *_ in new.additive[len(current.additive):])
     return Proposal("additive", 0.0, len(new.additive) - len(current.additive), new, label, score)
 
@@ -362,6 +363,46 @@ def _swaps(nominal, current: Correction, new: Correction, score, cands, rec, fol
             if np.sum(s) > np.sum(score):
                 new, score = trial, s
     return new, score
+
+
+SIMPLER_CORRELATION = 0.95
+
+
+def _simplest(nominal, current: Correction, new: Correction, score, cands, rec, folds, rms, size, states,
+              alpha: float):
+    """Several terms ARD keeps on one equation may together draw what one other candidate draws
+    alone (a viscous damping and a cubic damping for a quadratic drag seen over a narrow range
+    of speeds): each candidate whose values along the trajectory follow the kept terms' sum
+    (|r| > SIMPLER_CORRELATION) replaces them when its cross-validated log-likelihood is within
+    what a finding must add (:func:`evidence_threshold`) of theirs: fewer numbers for the same
+    evidence. The best such replacement is kept."""
+    n0 = len(current.additive)
+    added = new.additive[n0:]
+    eqs = [e for e in {a[0].equation for a in added} if sum(a[0].equation == e for a in added) > 1]
+    if not eqs:
+        return new, score
+    vals = dict(zip(cands, basis_values(nominal, rec, states, cands)))
+    best = None
+    for eq in eqs:
+        mine = [a for a in added if a[0].equation == eq]
+        drawn = sum(coef * vals[c] for c, coef, _ in mine if c in vals)
+        if np.ndim(drawn) == 0 or np.std(drawn) == 0:
+            continue
+        for c in cands:
+            if c.equation != eq or any(c.group == a[0].group for a in new.additive) or np.std(vals[c]) == 0:
+                continue
+            if abs(np.corrcoef(vals[c], drawn)[0, 1]) < SIMPLER_CORRELATION:
+                continue
+            trial = Correction(current.additive + [a for a in added if a[0].equation != eq] + [(c, 0.0, 0.0)],
+                               new.structural)
+            try:
+                trial = refit(nominal, trial, rec, rms, size)
+                s = cv_loglik(nominal, trial, rec, folds, rms, size)
+            except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):
+                continue
+            if np.sum(s) > np.sum(score) - evidence_threshold(alpha) and (best is None or np.sum(s) > np.sum(best[1])):
+                best = trial, s
+    return best if best is not None else (new, score)
 
 
 def _filters_of(base: Model, s: Structural):
