@@ -42,7 +42,8 @@ def _add_data_options(p: argparse.ArgumentParser) -> None:
                    help="read model input/output NAME from COLUMN (repeatable); ULog columns are "
                         "topic.field, topic.field[i] or topic:instance.field")
     p.add_argument("--max-gap", type=float, default=1.0, metavar="SECONDS",
-                   help="report spans longer than this without a sample of a column (default 1 s)")
+                   help="report spans longer than this (and 5 samples of the model's dt) without a sample of a "
+                        "column (default 1 s)")
 
 
 def _read_options(args) -> dict:

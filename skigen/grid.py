@@ -11,7 +11,8 @@ jittered stamps land where they were meant to. Inputs are held from there
 hold); an output is used at its grid sample (a nearer sample of the same
 output wins; the others are counted and reported). Grid samples without one are "not measured" and
 the filter predicts through them. A column with no sample for longer than
-``max_gap`` seconds is a :class:`Hole`, reported with its time span.
+``max_gap`` seconds (and MIN_GAP_SAMPLES samples of dt) is a :class:`Hole`, reported with its
+time span.
 """
 from __future__ import annotations
 
@@ -30,6 +31,7 @@ GRID_PER_STAMP = 100         # a grid this many times longer than the stamps: a 
 PHASE_STAMPS = 256           # the inputs' first stamps that set the grid's phase
 TIE = 1e-6                   # samples: a stamp this close to half-way between two grid samples is a tie
 PHASE_ALPHA = 0.01           # Rayleigh test: stamps whose phase is uniform this likely set none
+MIN_GAP_SAMPLES = 5         # a hole is longer than max_gap and than this many samples of the model's dt
 OFF_GRID = 0.25              # samples: an output stamped on average this far from where it is used is noted
 OFFSET_UNIT = 1e-6           # samples: offsets are summed as integers of this (the stream sums to the same)
 
@@ -222,9 +224,17 @@ def _holes(series, names, inputs, start, end, max_gap, columns) -> list[Hole]:
     return [Hole(a, b, tuple(columns[n] for n in c), any(n in inputs for n in c)) for (a, b), c in sorted(spans.items())]
 
 
+def hole_threshold(max_gap: float, dt: float) -> float:
+    """Seconds without a sample that make a hole: ``max_gap``, and at least MIN_GAP_SAMPLES of the
+    model's dt (a building model at dt = 60 s under the default 1 s listed every sample interval
+    of its log as a hole)."""
+    return max(float(max_gap), MIN_GAP_SAMPLES * dt)
+
+
 def to_grid(samples: Samples, dt: float, input_names, output_names, input_hold: str = "zoh", *,
             time_unit: str = "s", max_gap: float = 1.0, min_samples: int = 2) -> Recording:
     """The samples on the grid of step ``dt`` (seconds); see the module docstring for the rule."""
+    max_gap = hole_threshold(max_gap, dt)
     input_names, output_names = tuple(input_names), tuple(output_names)
     scale, note = time_scale(samples, time_unit, dt)
     notes = list(samples.notes) + ([note] if note else [])
@@ -328,7 +338,7 @@ class GridStream:
 
     def __init__(self, stream, dt: float, input_names, output_names, input_hold: str = "zoh", *,
                  time_unit: str = "s", max_gap: float = 1.0, min_samples: int = 2, block: int = 1 << 16):
-        self.stream, self.dt, self.hold, self.max_gap = stream, dt, input_hold, max_gap
+        self.stream, self.dt, self.hold, self.max_gap = stream, dt, input_hold, hole_threshold(max_gap, dt)
         self.input_names, self.output_names = tuple(input_names), tuple(output_names)
         self.names = self.input_names + self.output_names
         self.time_unit, self.min_samples, self.block = time_unit, min_samples, block

@@ -541,3 +541,19 @@ def test_failed_steps_of_a_step_too_long_for_a_fast_mode_are_explained(flight):
     m.output("phi", th, noise_std=0.1)
     lines = skigen.run(m, flight, filter="ukf").summary().lines()
     assert any(line.startswith("why steps may fail: model 'lagged': its rk4 step of 0.02 s amplifies") for line in lines), lines
+
+
+def test_a_slow_model_s_log_has_no_hole_at_every_sample():
+    """A building model at dt = 60 s read with the default max_gap of 1 s: every sample interval was
+    a hole ('0–60 s (60 s) without Q1, …; … 1994 more'), a real 31-minute gap buried among them.
+    A hole is now also longer than 5 samples of dt: only the real gap is one."""
+    m = skigen.Model("room", dt=60.0)
+    T, q = m.state("T", std=1.0, process_std=0.01), m.input("q")
+    m.dynamics({T: -T / 3600.0 + q / 1000.0})
+    m.output("T_meas", T, noise_std=0.1)
+    t = np.arange(300) * 60.0
+    frame = pd.DataFrame({"t": t, "q": 1.0, "T_meas": 20.0})
+    rec = load_recording(frame[(frame.t < 6000) | (frame.t > 7860)], m)
+    (hole,) = rec.holes
+    assert (hole.t0, hole.t1) == (5940.0, 7920.0) and rec.max_gap == 300.0
+    assert load_recording(frame, m).holes == ()
