@@ -566,6 +566,7 @@ def _surely_above(scale: dict, level: float) -> bool:
 
 NOISE_JUMP = np.log(100.0)   # a noise scale (log variance) this far above the declared one: it absorbed something
 HELD_GAIN = 1.0              # nat: a second optimum must be this much more likely to replace the first
+HELD_JUMP = np.log(10.0)     # a process noise this far above the declared one: the parameters are refitted with it held
 
 
 def _q_rows(prob: Problem) -> list[int]:
@@ -573,7 +574,7 @@ def _q_rows(prob: Problem) -> list[int]:
 
 
 def _held_noise_start(prob: Problem, solver, inputs: dict, declared: np.ndarray, xi: np.ndarray, negligible):
-    """Filter error: where the optimum gave some equation's process noise more than NOISE_JUMP
+    """Filter error: where the optimum gave some equation's process noise more than HELD_JUMP
     e-folds over its declared variance and there are parameters to estimate, IPOPT's start from
     the parameters fitted with the declared noise held, the noise then free (None otherwise). The
     likelihood has a basin where the process noise explains what wrong parameters leave: a motor's
@@ -583,7 +584,7 @@ def _held_noise_start(prob: Problem, solver, inputs: dict, declared: np.ndarray,
     noise = [i for i, k in enumerate(V.kinds) if k == "noise"]
     est = [i for i, k in enumerate(V.kinds) if k in ("parameter", "weight")]
     q = _q_rows(prob)
-    if not est or not q or np.max(xi[q] - np.asarray(declared)[q]) <= NOISE_JUMP:
+    if not est or not q or np.max(xi[q] - np.asarray(declared)[q]) <= HELD_JUMP:
         return None
     held = dict(inputs, x0=np.array(declared, float), lbx=np.array(inputs["lbx"], float),
                 ubx=np.array(inputs["ubx"], float))
