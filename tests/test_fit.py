@@ -1112,3 +1112,9 @@ def test_filter_error_leaves_a_basin_where_process_noise_explains_wrong_paramete
         p = res.parameters[name]
         assert abs(p["value"] - value) < 4 * p["std"], (name, p)
     assert any("a second optimum" in n for n in res.notes), res.notes
+
+
+def test_a_correlation_near_one_is_printed_with_the_digits_that_tell_it_from_one():
+    """k0 and E of an Arrhenius rate, correlated 0.99969, read '+1.000'."""
+    from skigen.fit import _near_one
+    assert [_near_one(c) for c in (0.99969, -0.9965, 0.5)] == ["+0.99969", "-0.997", "+0.500"]

@@ -409,9 +409,16 @@ def _correlated(correlation: dict, estimated: set) -> list[str]:
     inertia at 0.9965, each 44 % and 68 % uncertain, said nowhere)."""
     names, C = correlation["names"], np.asarray(correlation["matrix"], float)
     ours = [i for i, n in enumerate(names) if n in estimated]
-    return [f"{names[i]} and {names[j]} are correlated {C[i, j]:+.3f}: the recordings determine a combination "
+    return [f"{names[i]} and {names[j]} are correlated {_near_one(C[i, j])}: the recordings determine a combination "
             f"of them far better than either, and their errors move together"
             for a, i in enumerate(ours) for j in ours[a + 1:] if abs(C[i, j]) > CORRELATED]
+
+
+def _near_one(c: float) -> str:
+    """A correlation with the digits that tell it from ±1 (0.99969 is '+0.99969', not '+1.000')."""
+    gap = 1.0 - abs(c)
+    digits = 3 if gap >= 1e-3 else min(12, 1 - int(np.floor(np.log10(max(gap, 1e-12)))))
+    return f"{c:+.{digits}f}"
 
 
 def _prior_notes(model: Model, parameters: dict, fisher_std: dict) -> list[str]:
