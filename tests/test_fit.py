@@ -1118,3 +1118,19 @@ def test_a_correlation_near_one_is_printed_with_the_digits_that_tell_it_from_one
     """k0 and E of an Arrhenius rate, correlated 0.99969, read '+1.000'."""
     from skigen.fit import _near_one
     assert [_near_one(c) for c in (0.99969, -0.9965, 0.5)] == ["+0.99969", "-0.997", "+0.500"]
+
+
+def test_an_iteration_limit_counts_each_method_s_iterations():
+    """'250 iterations' for --max-iter 200 read as a miscount: the error now says how many of Fisher
+    scoring and how many Newton steps, each at most the limit."""
+    m, y, v, u = _linear("limited")
+    k, c = m.parameter("k", 0.5), m.parameter("c", 3.0)
+    m.dynamics({y: v, v: -k * y - c * v + u})
+    m.output("pos", y, noise_std=0.01)
+    truth = _linear("limited_truth")[0]
+    ty, tv = truth.states[0].sym, truth.states[1].sym
+    truth.dynamics({ty: tv, tv: -4.0 * ty - 0.5 * tv + truth.inputs[0].sym})
+    truth.output("pos", ty, noise_std=0.01)
+    with pytest.raises(FitError, match=r"stopped at the iteration limit .*\(status Maximum_Iterations_Exceeded, "
+                                       r"2 iterations of Fisher scoring, then 2 Newton steps\)"):
+        fit(m, [_excited(truth)], max_iter=2, show_progress=False)

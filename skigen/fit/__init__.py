@@ -35,7 +35,9 @@ _IPOPT_WORDS = {
     "Solve_Succeeded": "converged",
     "Solved_To_Acceptable_Level": "converged to the acceptable tolerance",
     "Maximum_Iterations_Exceeded": "stopped at the iteration limit before converging (raise max_iter, "
-                                   "or start nearer: are the declared values of the right order?)",
+                                   "or start nearer: are the declared values of the right order? A ridge "
+                                   "of two constants the recordings hardly tell apart, an Arrhenius k0 "
+                                   "and E, also takes many steps)",
     "Maximum_CpuTime_Exceeded": "ran out of time before converging",
     "Infeasible_Problem_Detected": "found the constraints infeasible (multiple shooting could not be "
                                    "made continuous: try longer shooting intervals)",
@@ -454,6 +456,7 @@ def _solve(prob: Problem, solver, inputs: dict, negligible, label: str | None) -
     sol = scoring(**inputs)
     stats = scoring.stats()
     iterations, status = stats["iter_count"], stats["return_status"]
+    counted = f"{iterations} iterations"
     if prob.progress.stopped:
         status = NEGLIGIBLE_STATUS
     if status not in ("Solve_Succeeded", "Solved_To_Acceptable_Level", NEGLIGIBLE_STATUS):
@@ -462,12 +465,12 @@ def _solve(prob: Problem, solver, inputs: dict, negligible, label: str | None) -
                  f"Newton steps (exact Hessian)")
         sol = newton()(**dict(inputs, x0=sol["x"], lam_x0=sol["lam_x"], lam_g0=sol["lam_g"]))
         stats = newton().stats()
+        counted = f"{iterations} iterations of Fisher scoring, then {stats['iter_count']} Newton steps"
         iterations, status = iterations + stats["iter_count"], stats["return_status"]
         if prob.progress.stopped:
             status = NEGLIGIBLE_STATUS
     if status not in ("Solve_Succeeded", "Solved_To_Acceptable_Level", NEGLIGIBLE_STATUS):
-        raise FitError(f"IPOPT {_IPOPT_WORDS.get(status, status)} (status {status}, "
-                       f"{iterations} iterations)")
+        raise FitError(f"IPOPT {_IPOPT_WORDS.get(status, status)} (status {status}, {counted})")
     return sol, dict(stats, iter_count=iterations, return_status=status)
 
 
