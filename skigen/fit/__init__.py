@@ -548,7 +548,8 @@ def _unexplained_residuals(model: Model, recs, predictions, params, alpha: float
             f"a disturbance or a model error the free run does not follow, under which the error bars of "
             f"{', '.join(params)} are optimistic (2–7× too narrow in the coverage checks measured, the coloured "
             f"residuals' covariance notwithstanding); filter error (--method filter-error, a process_std "
-            f"declared where the disturbance acts) models a disturbance"]
+            f"declared where the disturbance acts) models a disturbance. Or the search stopped in a local "
+            f"optimum: a fit from other starting values tells"]
 
 
 def _absorbing(model: Model, noise: dict) -> list[str]:
@@ -562,8 +563,9 @@ def _absorbing(model: Model, noise: dict) -> list[str]:
     if not big:
         return []
     return [f"{'; '.join(big)}: the model misses something that noise now covers (or the noise was declared far "
-            f"too small), and the constants are those that explain the recordings best beside it "
-            f"(`skigen diagnose` says what is missing)"]
+            f"too small, or the search stopped in a local optimum whose misfit the noise covers: a fit from "
+            f"other starting values tells), and the constants are those that explain the recordings best "
+            f"beside it (`skigen diagnose` says what is missing)"]
 
 
 def _surely_above(scale: dict, level: float) -> bool:
