@@ -364,7 +364,26 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     if method == "output-error" and (params := list(result.parameters) + list(result.weights)):
         result.notes += _unexplained_residuals(model, recs, result.predictions, params)
     result.fitted_recordings = recs
+    if method == "filter-error" and _starts_at_the_fit(result.model, recs, tested):
+        again = fit(model, recs, method=method, estimate=estimate, max_iter=max_iter, tol=tol, starts="declared",
+                    show_progress=show_progress, noise_from=noise_from, noise_caps=noise_caps)
+        again.notes.append(f"filter error: the recordings' start, judged against the declared one at the starting "
+                           f"values, agrees with it at the fitted ones: refitted from the declared start, "
+                           f"{result.objective - again.objective:.3g} nat more likely")
+        again.seconds += result.seconds
+        return again
     return result
+
+
+def _starts_at_the_fit(fitted: Model, recs, tested) -> bool:
+    """Every recording whose start was judged off the declared one (at the starting values) starts on
+    it at the fitted values: the wrong values, not the recording, moved the start (an epidemic
+    from β = 0.3 for 0.4 was given a vague start and an initial S 4σ off the true one)."""
+    off = [r for r, rs in enumerate(tested) if rs is not None and not rs.consistent]
+    if not off:
+        return False
+    again = [recorded_start(fitted, recs[r]) for r in off]
+    return all(rs is not None and rs.consistent for rs in again)
 
 
 def _not_identifiable(model: Model, lost: list[str]) -> NotIdentifiable:
