@@ -1181,3 +1181,20 @@ def test_a_start_judged_off_at_wrong_starting_values_is_judged_again_at_the_fit(
     for name in ("beta", "gamma"):
         assert res.parameters[name]["std"] == pytest.approx(near.parameters[name]["std"], rel=0.05)
     assert res.initial_states == [{}] and res.objective == pytest.approx(near.objective, abs=0.01)
+
+
+def test_output_error_s_prior_note_counts_the_coloured_residuals():
+    """A building's a2 (prior 4e-5 ± 1e-6, truth 5e-5) by output error under process noise: the
+    recordings know it to ± 1.27e-6 (the sandwich), the white Fisher information claims ± 2e-7.
+    The note said 'the recordings alone put it near 5.187e-05 ± 2e-07'; it now gives the
+    coloured ± and says the prior counted too little. With white residuals (c = 1) the shift's
+    allowance is √(σ₀² − σ²), as before."""
+    from skigen.fit import _prior_notes
+    m = Model("room", dt=60.0)
+    m.parameter("a2", 4e-5, std=1e-6)
+    sigma = 1 / np.sqrt(1 / 2e-7 ** 2 + 1 / 1e-6 ** 2)            # white posterior std, prior included
+    coloured = _prior_notes(m, {"a2": dict(value=5.139e-5, std=1.2e-6, initial=4e-5)}, {"a2": sigma})
+    assert len(coloured) == 2 and "as if their residuals were white" in coloured[0]
+    assert "the recordings alone put it near 5.18" in coloured[1] and "± 1.2e-06." in coloured[1], coloured
+    (white,) = _prior_notes(m, {"a2": dict(value=4.963e-5, std=sigma, initial=4e-5)}, {"a2": sigma})
+    assert f"(± {np.sqrt(1e-12 - sigma ** 2):.2g})" in white and "± 2e-07." in white, white

@@ -397,6 +397,7 @@ AT_BOUND = 1e-3     # standard errors: an estimate this close to a bound sits on
 ON_BOUND = 1e-6     # × its size (at least 1): a std of 6.6e4 put 1.64 'on' a bound at 1e-5
 VAGUE = 10.0        # a std this many times the value: the data hardly determine it
 PRIOR_CONFLICT = 3.0   # stds of the shift a right prior allows: a shift beyond says they disagree
+COLOURED = 1.5         # output error: a reported std this many times the white one outweighs a prior
 
 
 def _bound_notes(parameters: dict) -> list[str]:
@@ -443,26 +444,37 @@ def _near_one(c: float) -> str:
 
 
 def _prior_notes(model: Model, parameters: dict, fisher_std: dict) -> list[str]:
-    """A note per estimate whose shift from its declared prior the prior does not allow.
+    """A note per estimate whose shift from its declared prior the prior does not allow, and, in
+    output error, per prior the recordings outweighed as if their residuals were white.
 
-    With a Gaussian prior of std σ₀ and a posterior std σ (Fisher, prior included), the shift
-    θ − θ₀ has std √(σ₀² − σ²) when the prior is right (the prior-predictive check of a
-    linear-Gaussian model); a shift beyond PRIOR_CONFLICT times that says the prior and the
-    recordings disagree. A tight prior barely moves (a = 0.9 ± 0.0003 against data saying 0.994
-    ± 0.004 moved 1.8 prior std, 22 times what it allows, and was not said); the note gives
-    where the recordings alone put the estimate, θ₀ + (θ − θ₀) σ₀² / (σ₀² − σ²)."""
+    With a Gaussian prior of std σ₀, the recordings alone know θ to f (white residuals: 1/f² = 1/σ²
+    − 1/σ₀², σ the posterior std of the Fisher information, prior included) or to c·f (c = the
+    reported std over σ: output error's coloured residuals); the estimate moves from θ₀ by
+    K = σ₀²/(σ₀² + f²) of the way to where they put it, and a right prior allows a shift of std
+    K·√(σ₀² + c²f²) (√(σ₀² − σ²) for c = 1: the prior-predictive check of a linear-Gaussian
+    model). A shift beyond PRIOR_CONFLICT times that says the prior and the recordings disagree;
+    the note gives where the recordings alone put θ, θ₀ + (θ − θ₀)/K ± c·f. (A tight prior
+    a = 0.9 ± 0.0003 against data saying 0.994 ± 0.004 moved 1.8 prior std, 22 times what it
+    allows, and was not said.)"""
     notes = []
     for name, p in parameters.items():
-        sd, f = model.parameter_named(name).std, fisher_std.get(name, 0.0)
-        shift, room = p["value"] - p["initial"], np.sqrt(max(sd ** 2 - f ** 2, 0.0)) if sd else 0.0
-        if not (room > 0 and abs(shift) > PRIOR_CONFLICT * room):
+        sd, sigma = model.parameter_named(name).std, fisher_std.get(name, 0.0)
+        if not sd or not 0 < sigma < sd:
             continue
-        alone, alone_std = p["initial"] + shift * sd ** 2 / room ** 2, f * sd / room
-        notes.append(f"{name} = {p['value']:.6g} ± {p['std']:.2g} lies {abs(shift) / sd:.2g} prior std from its "
-                     f"declared prior {p['initial']:.6g} ± {sd:.2g}, {abs(shift) / room:.0f} times the shift the "
-                     f"prior allows with these recordings (± {room:.2g}); the recordings alone put it near "
-                     f"{alone:.6g} ± {alone_std:.2g}. The prior and the recordings disagree, and the estimate is a "
-                     f"compromise of the two. Check the prior")
+        f = 1 / np.sqrt(1 / sigma ** 2 - 1 / sd ** 2)
+        c = max(p["std"] / sigma, 1.0)
+        K = sd ** 2 / (sd ** 2 + f ** 2)
+        shift, room = p["value"] - p["initial"], K * np.hypot(sd, c * f)
+        if c > COLOURED:
+            notes.append(f"{name}: output error weighed the recordings against its declared prior ± {sd:.2g} as if "
+                         f"their residuals were white; coloured, they know {name} {c:.2g}× less well than that, "
+                         f"so the prior counted too little (filter error weighs both as they are)")
+        if abs(shift) > PRIOR_CONFLICT * room:
+            notes.append(f"{name} = {p['value']:.6g} ± {p['std']:.2g} lies {abs(shift) / sd:.2g} prior std from its "
+                         f"declared prior {p['initial']:.6g} ± {sd:.2g}, {abs(shift) / room:.0f} times the shift the "
+                         f"prior allows with these recordings (± {room:.2g}); the recordings alone put it near "
+                         f"{p['initial'] + shift / K:.6g} ± {c * f:.2g}. The prior and the recordings disagree, and "
+                         f"the estimate is a compromise of the two. Check the prior")
     return notes
 
 
