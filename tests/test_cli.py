@@ -181,7 +181,7 @@ def test_run_reads_a_mapped_log_in_ms_and_says_what_happened(tmp_path):
     assert "mean NIS" in r.stdout and "expected 1.000" in r.stdout
     rows = list(csv.reader(open(out)))
     assert len(rows) == 1 + 201 and rows[0][20:22] == ["status", "measured_phi"]
-    assert rows[1 + 80][20:22] == ["predicted", "0"] and rows[1][20:22] == ["measured", "1"]
+    assert rows[1 + 80][20:22] == ["bad_input", "0"] and rows[1][20:22] == ["measured", "1"]   # the input unknown
     r = skigen("run", MODEL, str(path), "--map", "delta=cmd", "--map", "phi=roll", "--out", str(out))
     assert r.returncode == 2 and "is the time in ms?" in r.stderr and "Traceback" not in r.stderr
     r = skigen("run", MODEL, str(path), "--map", "delta", "--out", str(out))

@@ -696,7 +696,7 @@ def test_filter_error_leaves_the_noise_basin_of_a_wrong_start(monkeypatch, resta
     (measured: 0.0500, 0.0049, K 0.49978 ± 0.00018)."""
     fitting = sys.modules["skigen.fit"]
     monkeypatch.setattr(fitting, "MOVED", fitting.MOVED if restart in ("both", "moved") else np.inf)
-    monkeypatch.setattr(fitting, "NOISE_JUMP", fitting.NOISE_JUMP if restart in ("both", "held") else np.inf)
+    monkeypatch.setattr(fitting, "HELD_JUMP", fitting.HELD_JUMP if restart in ("both", "held") else np.inf)
     rng = np.random.default_rng(1)
     hold = rng.integers(60, 240, 40)
     P = np.repeat(rng.uniform(0, 100, 40), hold)[:3000]

@@ -445,7 +445,8 @@ def test_an_output_rejected_for_reject_limit_samples_restarts_while_another_is_u
 @pytest.mark.parametrize("backend", ["python", "c", "casadi"])
 def test_a_restart_after_an_input_hole_is_reported(backend):
     """The states restart where the input is known again after a hole: that sample's status is
-    'recovered' and the run's summary counts it, on every backend."""
+    'recovered' and the run's summary counts it, on every backend; the samples in the hole, whose
+    input is not known, are 'bad_input' and use no reading."""
     import pandas as pd
     from skigen.recording import load_recording
     from skigen.runtime import restarts
@@ -461,6 +462,10 @@ def test_a_restart_after_an_input_hole_is_reported(backend):
     res = run(derive(model, "ukf"), rec, backend=backend, show_progress=False)
     status = res.columns()["status"]
     assert status[k] == "recovered" and list(np.flatnonzero(status == "recovered")) == [k]
-    assert res.std[k, 1] > 3 * res.std[k - 1, 1]                  # the restart: v's std jumps
+    inside = np.flatnonzero(status == "bad_input")
+    assert rec.t[inside[0]] > 3.0 and inside[-1] == k - 1 and np.isnan(res.innovation[inside]).all()
+    before = inside[0] - 1                                         # the last sample the input was known
+    assert res.std[k, 1] > 3 * res.std[before, 1]                  # the restart: v's std jumps
     lines = res.summary().lines()
-    assert f"events: 1 recovered (states restarted), first at t = {rec.t[k]:g} s" in lines, lines
+    assert (f"events: {len(inside)} bad input, first at t = {rec.t[inside[0]]:g} s; 1 recovered (states "
+            f"restarted), first at t = {rec.t[k]:g} s") in lines, lines
