@@ -46,7 +46,8 @@ READINGS = {
     "input_gain": "the input acts more or less strongly than modelled (actuator gain, mass or inertia error)",
     "ground_effect": "extra thrust close to the ground, decaying with height",
     "input_delay": "the plant responds to the input a few samples late (transport or computation delay)",
-    "actuator_lag": "the actuator follows its command with a first-order lag",
+    "actuator_lag": "the actuator follows its command with a first-order lag (on a plant linear in the "
+                    "states, a first-order lag of the sensor reads the same)",
     "input_saturation": "the actuator cannot deliver more than a limit",
     "dead_zone": "small commands produce nothing (backlash, stiction in the actuator, an ESC dead band)",
     "fractional_delay": "the plant responds to the input a delay off the sample grid (a whole number of "
