@@ -145,6 +145,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         nominal, moved = started(nominal, rec, "every filter of the diagnosis starts from the declared mean with "
                                  f"{DIFFUSE:g}× the declared std; the corrected model file declares the user's start")
         caveats += moved
+        start_note = moved[0] if moved else None
         others = []
         for r in validate or []:
             other, more = usable(load(nominal, r, **read)[2])
@@ -319,6 +320,10 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         head = header_lines(user.name, spec or "a model given in Python", rec.path, data["findings"])
         filed = _start_as(T.copy_model(corrected, f"{nominal.name}_corrected"), user)
         filed = report.corrected = write_model_file(path, filed, notes, header=head)
+        if start_note and (rs := recorded_start(filed, rec)) is not None and rs.consistent:
+            caveats[caveats.index(start_note)] += (
+                "; judged with the corrected model, the recording starts at the declared state after all: "
+                "the misfit at its start was what the findings explain")
         data["corrected_model"] = str(path)
         if emit:
             stage("emitting the corrected filter's C")
