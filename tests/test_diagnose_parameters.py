@@ -303,3 +303,65 @@ def test_a_delay_found_twice_is_not_told_apart_from_itself(tmp_path):
     (delay,) = rep.findings
     assert (delay["effect"], delay["coefficient"]) == ("input_delay", 3.0)
     assert "as_good" not in delay, delay["as_good"]
+
+
+def test_a_sensor_gain_the_refit_puts_at_one_is_not_needed():
+    """A water heater whose efficiency drifts (outside the catalog) had a sensor gain named at
+    1.00001 ± 0.01 after the joint refit (0.963 in cross-validation): a gain of 1 changes nothing,
+    but only additive coefficients were tested, and against zero. A sensor's gain is now tested
+    against 1 (its offset against 0), and left out when the refit without it is as likely."""
+    from skigen.diagnose import _not_needed, _update_findings
+    from skigen.diagnose.catalog import output_candidates
+    m = Model("heater", dt=1.0)
+    T_ = m.state("T", std=1.0, process_std=0.01)
+    m.dynamics({T_: -0.01 * T_ + m.input("P")})
+    m.output("T_meas", T_, noise_std=0.1)
+    gain = next(s for s in output_candidates(m, ["T_meas"], np.linspace(20, 60, 100)[:, None])
+                if s.effect == "sensor_gain")
+    f = dict(effect="sensor_gain", equation="T", output="T_meas", kind="structural", coefficient=0.963, std=0.0052,
+             expression="0.963·T_meas", shape={"gain": 0.963, "output": "T_meas"})
+    _update_findings([f], {"sensor_gain_T_meas": gain}, {"sensor_gain_T_meas": dict(value=1.00001, std=0.01)}, 0.01)
+    assert f["refit_insignificant"] and (f["cv_coefficient"], f["coefficient"]) == (0.963, 1.00001)
+    (item,) = _not_needed([f], [gain], {"loglik": 100.0}, {"loglik": 99.0}, alpha=0.01)
+    assert item["output"] == "T_meas" and "within 2.58 std of 1 (cross-validated before it: 0.963" in item["note"]
+    real = dict(f, coefficient=1.1, std=0.01)
+    real.pop("refit_insignificant"), real.pop("cv_coefficient"), real.pop("cv_std")
+    _update_findings([real], {"sensor_gain_T_meas": gain}, {"sensor_gain_T_meas": dict(value=1.1, std=0.01)}, 0.01)
+    assert "refit_insignificant" not in real
+
+
+def test_an_actuator_lag_is_not_searched_below_the_integration_step():
+    """A crane's drive rate limit (outside the catalog) was named as a lag of 3.6 ms at dt = 10 ms,
+    ± 0.1 %: one RK4 step of 10 ms on it decays by 0.942 where the lag decays by 0.064, and a gimbal's
+    1.8 ms lag at 5 ms made the corrected model unstable (RK4's factor 1.0035). The lag's grid goes
+    down past its first value, dt, by halves while the lowest is best, but not below dt/substeps."""
+    from skigen.diagnose.catalog import structural_candidates
+    from skigen.diagnose.name import _past_ends
+    m = Model("drive", dt=0.01, discretization="rk4", substeps=2)
+    v, F = m.state("v", std=1.0), m.input("F")
+    m.dynamics({v: F - v})
+    m.output("v_meas", v, noise_std=0.01)
+    lag = next(s for s in structural_candidates(m, ["v"], np.random.default_rng(0).normal(size=(100, 1)))
+               if s.effect == "actuator_lag")
+    seen = {x: -x for x in lag.grid}                  # the shortest always best
+    _past_ends(lambda x: -x, lag, seen)
+    assert min(seen) == pytest.approx(0.005) and lag.least == pytest.approx(0.005)
+
+
+def test_what_remains_is_suggested_in_the_user_s_names_with_three_periods_at_least(monkeypatch):
+    """A suggestion named an actuator-lag state of the corrected model (i_act), which the user's
+    model does not have, so the candidate it suggested failed; and periods of one or two cycles
+    over a state's range (any smooth curve) read as 'sin(2*pi*x/0.712)'. Shapes now have three
+    cycles at least, and only the user's states and inputs are offered."""
+    import types
+    from skigen.diagnose import suggest
+    x = np.linspace(0.0, 6.0, 200)
+    periods = [float(f.split("/")[-1].rstrip(")")) for f, _ in suggest._shapes("x", x) if f.startswith(("sin", "cos"))]
+    assert max(periods) == pytest.approx(2.0) and min(periods) == pytest.approx(0.3)
+    rng = np.random.default_rng(0)
+    th, i_act = rng.normal(size=200), rng.normal(size=200)
+    d = 2.0 * i_act + 1.5 * th
+    loc = types.SimpleNamespace(equations=["om"], disturbance={"om": (d, np.full(200, 0.1))}, states=None)
+    monkeypatch.setattr(suggest, "features", lambda model, rec, states: {"th": (th, None), "i_act": (i_act, None)})
+    assert suggest.explain(None, None, loc)["explained_by"] == "i_act"
+    assert suggest.explain(None, None, loc, names={"th", "om", "i"})["explained_by"] == "th"

@@ -307,7 +307,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         _update_findings(data["findings"], names, refit_info.get("parameters", {}), alpha)
         if unneeded := [f for f in data["findings"] if f.pop("refit_insignificant", False)]:
             stage("refitting without the findings the joint refit no longer needs")
-            gone = [names[f["parameter"]] for f in unneeded]
+            gone = [names[f["refit_parameter"] if f["kind"] == "structural" else f["parameter"]] for f in unneeded]
             again = joint(corr.without_parameters().without(*gone))
             if dropped := _not_needed(unneeded, gone, refit_info, again[3], alpha):
                 corrected, names, notes, refit_info = again
@@ -341,7 +341,8 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
                                             "rate (along the corrected model's filtered trajectory)")
         loc.windows, loc.regime = w, regime or loc.regime
         stage("testing what remains")
-        data["remaining"] = remaining(T.constants(corrected), rec, after.run, eqs, alpha, out if figures else None)
+        data["remaining"] = remaining(T.constants(corrected), rec, after.run, eqs, alpha, out if figures else None,
+                                      set(nominal.state_names + nominal.input_names))
         if not data["remaining"]["mismatch"] and (covers := noise_covers(filed, user_noise)):
             data["remaining"]["noise_covers"] = covers
         if data["remaining"].get("figure"):
@@ -531,6 +532,9 @@ def _update_findings(findings: list[dict], names: dict, fitted: dict, alpha: flo
                 f["expression"], f["refit_parameter"] = s.describe(f["coefficient"]), n
                 if s.parameter in f.get("shape", {}):          # one value in the row, the refitted one
                     f["shape"][s.parameter] = f["coefficient"]
+                no_effect = NO_EFFECT.get(s.effect)
+                if no_effect is not None and f["std"] and not significant(f["coefficient"] - no_effect, f["std"], alpha):
+                    f["refit_insignificant"] = True             # a sensor's gain of 1, offset of 0: no change
             continue
         n = by_term.get((f["effect"], f["equation"], f.get("through", ""), f["expression"]))
         if n not in fitted:
@@ -554,15 +558,31 @@ def _not_needed(unneeded: list[dict], terms: list, full: dict, fewer: dict, alph
     z = stats.norm.isf(alpha / 2)
     if not 2 * drop < stats.chi2.ppf(1 - alpha, len(unneeded)):
         for f in unneeded:
-            _note(f, f"after the joint refit its coefficient is within {z:.2f} std of zero (cross-validated: "
+            _note(f, f"after the joint refit its coefficient is within {z:.2f} std of {_no_effect(f)} (cross-validated: "
                      f"{f['cv_coefficient']:.4g} ± {f['cv_std']:.2g}), but the refit without it is "
                      + (f"{drop:.1f} less likely" if np.isfinite(drop) else "not comparable"))
         return []
-    return [term_item(c, f["coefficient"], f["std"],
-                      f"not needed: after the joint refit its coefficient is within {z:.2f} std of zero "
-                      f"(cross-validated before it: {f['cv_coefficient']:.4g} ± {f['cv_std']:.2g}) and the "
-                      f"refit without it is as likely ({-drop:+.1f} log-likelihood): the refitted constants "
-                      f"take over what it explained; {_kept_as(f, fewer)}") for f, c in zip(unneeded, terms)]
+    return [_item(c, f, f"not needed: after the joint refit its coefficient is within {z:.2f} std of "
+                        f"{_no_effect(f)} (cross-validated before it: {f['cv_coefficient']:.4g} ± {f['cv_std']:.2g}) "
+                        f"and the refit without it is as likely ({-drop:+.1f} log-likelihood): the refitted "
+                        f"constants take over what it explained; {_kept_as(f, fewer)}") for f, c in zip(unneeded, terms)]
+
+
+NO_EFFECT = {"sensor_gain": 1.0, "sensor_offset": 0.0}   # a structural change's value that changes nothing
+
+
+def _no_effect(f: dict) -> str:
+    """The value at which a finding changes nothing: zero, or a sensor gain's 1."""
+    return "1" if f.get("kind") == "structural" and NO_EFFECT.get(f["effect"]) == 1.0 else "zero"
+
+
+def _item(c, f: dict, note: str) -> dict:
+    """A finding as a report item that is not one (an additive term's, or a structural change's)."""
+    if isinstance(c, C.Structural):
+        return {"effect": c.effect, "equation": f["equation"], "expression": f["expression"],
+                "coefficient": f["coefficient"], "std": f["std"], "note": note} | (
+                    {"output": c.output} if c.output else {"input": c.input})
+    return term_item(c, f["coefficient"], f["std"], note)
 
 
 def _kept_as(finding: dict, refit: dict) -> str:

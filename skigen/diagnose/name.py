@@ -467,6 +467,8 @@ def _past_ends(total, s: Structural, seen: dict) -> None:
         if 0 < j < len(xs) - 1:
             return
         x = xs[j] * s.beyond if (j > 0) == (xs[j] > 0) else xs[j] / s.beyond
+        if s.least and abs(x) < s.least:          # below what the integration step resolves
+            return
         seen[x] = total(x)
 
 

@@ -3,8 +3,9 @@ candidate term to try (``--candidate NAME:EQUATION:FORMULA``).
 
 The smoothed disturbance d(t) of the located equation is regressed on simple
 shapes of each state and input x along the filtered trajectory — x, x·|x|,
-x³, tanh(x/s), and sin/cos(2πx/L) for periods L from the range of x down to
-1/20 of it — each with an intercept, weighted by d's precision; the shape with
+x³, tanh(x/s), and sin/cos(2πx/L) for periods L from a third of the range of x
+down to 1/20 of it (three cycles at least: one or two over the range are any
+smooth curve, and read as a period that is not there) — each with an intercept, weighted by d's precision; the shape with
 the largest weighted R² names the feature and the suggested formula. It is a
 hint for a person, not a finding: it is not cross-validated. Below an R² of
 ``HINT_R2`` no shape of one state or input explains the leftover (coloured
@@ -32,7 +33,7 @@ def _shapes(name: str, x: np.ndarray):
     yield f"{name}**3", x ** 3
     yield f"tanh({name}/{_num(0.05 * s)})", np.tanh(x / (0.05 * s))
     span = float(np.ptp(x)) or 1.0
-    for L in span / np.array([1, 2, 3, 5, 8, 12, 20]):
+    for L in span / np.array([3, 5, 8, 12, 20]):
         for fn, f in (("sin", np.sin), ("cos", np.cos)):
             yield f"{fn}(2*pi*{name}/{_num(L)})", f(2 * np.pi * x / L)
 
@@ -46,15 +47,17 @@ def _r2(d: np.ndarray, w: np.ndarray, phi: np.ndarray) -> tuple[float, np.ndarra
     return float(1 - res @ res / max(tot @ tot, 1e-300)), coef
 
 
-def explain(model, rec, loc: Location, out_dir=None) -> dict:
-    """{"explained_by", "r2", "suggested_candidate"[, "figure"]} for the first located equation."""
+def explain(model, rec, loc: Location, out_dir=None, names=None) -> dict:
+    """{"explained_by", "r2", "suggested_candidate"[, "figure"]} for the first located equation;
+    ``names``: the states and inputs a suggestion may use (the user's model's: a corrected model's
+    own states, an actuator's lag, are not the user's to write a candidate in)."""
     eq = loc.equations[0]
     d, sd = loc.disturbance[eq]
     w = 1.0 / np.maximum(sd, 1e-12 * (np.abs(d).max() + 1e-300)) ** 2
     w = w / w.mean()
     best = (-np.inf, None, None, None, None)
     for name, (x, _) in features(model, rec, loc.states).items():
-        if name.startswith("|") or np.ptp(x) == 0:
+        if name.startswith("|") or np.ptp(x) == 0 or (names is not None and name not in names):
             continue
         for formula, phi in _shapes(name, x):
             r2, coef = _r2(d, w, phi)
