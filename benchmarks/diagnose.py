@@ -39,7 +39,7 @@ def _silverbox(_: str) -> dict:
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         rep = diagnose(G.linear, train, tmp, show_progress=False)
-    found = "; ".join(f"{f['effect']} on {f['equation']} {f['coefficient']:.4g}±{f['std'] or 0:.2g}" for f in rep.findings)
+    found = "; ".join(f"{f['effect']} on {f['equation']} {f['coefficient']:.4g}" + (f"±{f['std']:.2g}" if f['std'] is not None and f['std'] == f['std'] else "") for f in rep.findings)
     return dict(samples=len(train.t), seconds=time.perf_counter() - t0, found=found or "-",
                 right=bool(rep.findings) and rep.findings[0]["effect"] == "cubic_stiffness",
                 peak_mb=resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)

@@ -435,7 +435,7 @@ def one(name: str, out: Path, seconds: float | None, seed: int) -> dict:
     row = dict(name=name, samples=len(sc.t), seconds=dt, mismatch=d["mismatch_detected"],
                equations=",".join(d["located"]["equations"]), recall=rec, precision=prec,
                regime=d["located"].get("regime"), truth=f"{sc.effect or '-'} {sc.truth if sc.truth else ''}",
-               found="; ".join(f"{f['effect']} on {f['equation']} {f['coefficient']:.4g}±{f['std'] or 0:.2g}"
+               found="; ".join(f"{f['effect']} on {f['equation']} {f['coefficient']:.4g}" + (f"±{f['std']:.2g}" if f['std'] is not None and f['std'] == f['std'] else "")
                                for f in d["findings"]) or "-",
                right=_right(sc, d),
                ll=(sum(f["loglik_before"] for f in fit["folds"]), sum(f["loglik_after"] for f in fit["folds"]))
