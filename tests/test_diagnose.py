@@ -78,7 +78,11 @@ def test_right_effect_on_right_equation(diagnosed, name):
     assert top["coefficient"] == pytest.approx(sc.truth, rel=CONCEALED[name])
     if top["kind"] == "additive":                               # the truth within its error bar
         assert abs(top["coefficient"] - sc.truth) < 4 * top["std"], top
-    assert top["std"] > 0 and top["evidence"] > 0
+    if top["effect"] == "input_delay":                          # a whole number of samples: no error bar
+        assert not np.isfinite(top["std"]), top
+    else:
+        assert top["std"] > 0
+    assert top["evidence"] > 0
     assert len(d["findings"]) == 1, d["findings"]            # nothing spurious beside it
     said = lambda f: tuple(f.get(k) for k in ("effect", "equation", "input", "output", "expression"))
     assert said(top) not in map(said, top.get("as_good", [])), top   # not told apart from itself
