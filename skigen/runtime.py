@@ -466,14 +466,14 @@ class CasadiStepper:
         U, Y = np.asarray(inputs, float).reshape(N, -1), np.asarray(outputs, float).reshape(N, -1)
         start = self.z, self.C, self.s, self.mem, self.C_post
         direct = self._chained is None and self.filt.step.n_instructions() > CHAIN_BELOW * N
+        if not np.all(np.isfinite(U)):     # an input not known (a hole): its rule, and no other policy
+            return self._fallback(U, Y, Guard.off())
+        if N:                              # every input known: the last is what a hole holds
+            self.u_held = U[-1].copy()
         key = None if direct else self._run_key(U, Y)
         if key in _RUNS:              # this very run was done before: its records and end state
             raw, (self.z, self.C, self.s, self.mem, self.C_post) = _RUNS[key]
             return {k: v.copy() for k, v in raw.items()}
-        if not np.all(np.isfinite(U)):     # an input not known (a hole): its rule, and no other policy
-            return self._fallback(U, Y, Guard.off())
-        if N:
-            self.u_held = U[-1].copy()
         raws = [self._direct(U, Y)] if direct else [self._piece(U[a:a + PIECE], Y[a:a + PIECE])
                                                     for a in range(0, N, PIECE)]
         if any(r is None for r in raws):
