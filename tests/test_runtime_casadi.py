@@ -262,3 +262,16 @@ def test_an_ungated_run_says_so_and_counts_the_readings_a_gate_would_not_have_us
     assert python.events[Status.OUTLIER_REJECTED] == 1 and not any("ungated" in s for s in python.lines())
     clean = run(filt, rec, backend="casadi", show_progress=False).summary().lines()
     assert any(s.endswith("no reading was beyond 5σ of its prediction") for s in clean), clean
+
+
+def test_a_run_answered_from_the_cache_holds_the_same_input_through_a_hole(rec, fresh_chains):
+    """The same run twice, cut where the input hole begins: the second's part before the hole
+    comes from the run cache, and the hole then holds the last input known before it, as the
+    python backend does (it held the zeros of a fresh stepper)."""
+    filt = derive(build(), "ukf")
+    k = int(np.searchsorted(rec.t, rec.holes[0].t0 + 1e-9, side="right"))     # the hole's first sample
+    py = run(filt, rec, guard=Guard.off(), show_progress=False)
+    for _ in range(2):
+        again = RunResult.concat(list(iter_run(filt, rec, backend="casadi", cuts=[k], show_progress=False)))
+        assert again.code[k] == Status.BAD_INPUT
+        _close(again, py, trace=False)
