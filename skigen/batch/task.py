@@ -157,7 +157,7 @@ def _diagnose(spec, digest, path, tmp: Path, final: Path, opt: dict, row: dict) 
     row["nis_expected"] = d["consistency"]["nis_expected"]
     row["mismatch"] = bool(d["mismatch_detected"])
     row["findings"] = [f"{where(f)} ({f['coefficient']:.4g}"
-                       + (f" ± {f['std']:.2g})" if f.get("std") is not None else ")")
+                       + (f" ± {f['std']:.2g})" if f.get("std") is not None and np.isfinite(f["std"]) else ")")
                        + "".join(f", or {where(a)} ({a['coefficient']:.4g})" for a in f.get("as_good", []))
                        for f in d["findings"]]
     row["quantities"] = {f"{f['effect']}@{f.get('output') or f['equation']}" + (f"@{f['through']}" if f.get("through") else ""): [_num(f["coefficient"]),

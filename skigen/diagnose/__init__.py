@@ -705,7 +705,6 @@ def _findings(nominal: Model, corr: Correction, ev: dict, shapes: dict, worth: d
             f["shape_search"] = shapes[c]
         out.append(f)
     for s, value, std in corr.structural:
-        std = float("nan") if s.integer else std      # a whole number of samples: a choice, no error bar
         f = {"effect": s.effect, "equation": "+".join(_acted_on(nominal, s)), "expression": s.describe(value),
              "coefficient": value, "std": std, "evidence": ev[s], "free_run_without": worth[s], "kind": "structural",
              "parameter": s.parameter, "unit": s.unit, "reading": s.reading}

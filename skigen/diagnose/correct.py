@@ -329,9 +329,9 @@ def header_lines(nominal_name: str, source: str, recording: str, findings) -> li
            "dynamics are unchanged, the found terms are added with their identified coefficients as known",
            "dynamics (the nominal unknown term, if any, is left out). Findings (validation log-likelihood gain):"]
     for f in findings:
+        bar = f"± {f['std']:.2g}" if f["std"] is not None and np.isfinite(f["std"]) else "(no error bar)"
         out.append(f"  - {f['effect']} on {f['equation']}: {f['expression']}, coefficient "
-                   f"{f['coefficient']:.6g} ± {f['std'] if f['std'] is None else format(f['std'], '.2g')} "
-                   f"(+{f['evidence']:.1f})")
+                   f"{f['coefficient']:.6g} {bar} (+{f['evidence']:.1f})")
     out += ["Use it as any model file: skigen run THIS_FILE DATA.csv --filter ekf --out result.csv;",
             "skigen generate THIS_FILE --filter ekf --out DIR."]
     return out

@@ -475,7 +475,7 @@ def _past_ends(total, s: Structural, seen: dict) -> None:
 def _profile(total, s: Structural, evaluated) -> tuple[float, float, float]:
     """Best parameter by whole-recording log-likelihood ``total(v)`` (past the evaluated ends while
     one is best, :func:`_past_ends`): Brent's search between the best evaluated point's neighbours
-    (log scale for scale parameters); std from the curvature."""
+    (log scale for scale parameters); std from the curvature (none for a whole number)."""
     seen = {float(x): total(x) for x in evaluated}
     _past_ends(total, s, seen)
     def bracket():
@@ -494,8 +494,8 @@ def _profile(total, s: Structural, evaluated) -> tuple[float, float, float]:
             minimize_scalar(f, bounds=(to(xs[j - 1]), to(xs[j + 1])), method="bounded",
                             options={"xatol": 2e-3 * (1 if s.log else abs(xs[j]))})
         xs, ys, j = bracket()
-    std = np.nan
-    if 0 < j < len(xs) - 1 and np.all(np.isfinite(ys[j - 1:j + 2])):
+    std = np.nan                        # a whole number of samples is a choice, with no error bar
+    if not s.integer and 0 < j < len(xs) - 1 and np.all(np.isfinite(ys[j - 1:j + 2])):
         x3 = np.log(xs[j - 1:j + 2]) if s.log else xs[j - 1:j + 2]
         a = np.polyfit(x3, ys[j - 1:j + 2], 2)[0]
         if a < 0:
