@@ -338,6 +338,16 @@ def _where(c: Additive) -> str:
 SWAP_CORRELATION = 0.5
 
 
+def _scored(nominal, trial: Correction, rec, folds, rms, size) -> tuple[Correction, np.ndarray] | None:
+    """``trial`` with its additive coefficients refitted, and its per-fold cross-validated
+    log-likelihood; None where its filter diverges."""
+    try:
+        trial = refit(nominal, trial, rec, rms, size)
+        return trial, cv_loglik(nominal, trial, rec, folds, rms, size)
+    except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):
+        return None
+
+
 def _swaps(nominal, current: Correction, new: Correction, score, cands, rec, folds, rms, size, states):
     """ARD keeps one of several terms that explain the same thing (a one-sided limit or a cubic
     spring for a hardening): each kept term is swapped for every other candidate on its equation
@@ -354,14 +364,10 @@ def _swaps(nominal, current: Correction, new: Correction, score, cands, rec, fol
             constant = min(np.std(vals[k]), np.std(vals[c])) == 0       # a bias is tried against every term
             if not constant and abs(np.corrcoef(vals[k], vals[c])[0, 1]) < SWAP_CORRELATION:
                 continue
-            trial = Correction(new.additive[:i] + [(c, 0.0, 0.0)] + new.additive[i + 1:], new.structural)
-            try:
-                trial = refit(nominal, trial, rec, rms, size)
-                s = cv_loglik(nominal, trial, rec, folds, rms, size)
-            except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):
-                continue
-            if np.sum(s) > np.sum(score):
-                new, score = trial, s
+            scored = _scored(nominal, Correction(new.additive[:i] + [(c, 0.0, 0.0)] + new.additive[i + 1:],
+                                                 new.structural), rec, folds, rms, size)
+            if scored is not None and np.sum(scored[1]) > np.sum(score):
+                new, score = scored
     return new, score
 
 
@@ -393,15 +399,11 @@ def _simplest(nominal, current: Correction, new: Correction, score, cands, rec, 
                 continue
             if abs(np.corrcoef(vals[c], drawn)[0, 1]) < SIMPLER_CORRELATION:
                 continue
-            trial = Correction(current.additive + [a for a in added if a[0].equation != eq] + [(c, 0.0, 0.0)],
-                               new.structural)
-            try:
-                trial = refit(nominal, trial, rec, rms, size)
-                s = cv_loglik(nominal, trial, rec, folds, rms, size)
-            except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):
-                continue
-            if np.sum(s) > np.sum(score) - evidence_threshold(alpha) and (best is None or np.sum(s) > np.sum(best[1])):
-                best = trial, s
+            scored = _scored(nominal, Correction(current.additive + [a for a in added if a[0].equation != eq]
+                                                 + [(c, 0.0, 0.0)], new.structural), rec, folds, rms, size)
+            if scored is not None and np.sum(scored[1]) > np.sum(score) - evidence_threshold(alpha) and \
+                    (best is None or np.sum(scored[1]) > np.sum(best[1])):
+                best = scored
     return best if best is not None else (new, score)
 
 
