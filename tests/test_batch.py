@@ -149,7 +149,12 @@ def test_fit_each_log_gives_parameters_with_std(fleet, client, tmp_path):
         assert row["quantities"][name][0] == pytest.approx(p["value"], rel=1e-6)
         assert row["quantities"][name][1] == pytest.approx(p["std"], rel=1e-6)
     assert (tmp_path / "flight_11" / "fit.json").exists() and (tmp_path / "flight_11" / "fitted_model.py").exists()
-    assert "std_w_abs_theta_p" in (tmp_path / "summary.csv").read_text().splitlines()[0]
+    import csv
+    table = list(csv.DictReader(open(tmp_path / "summary.csv")))
+    assert "std_w_abs_theta_p" in table[0] and "mean_nis" not in table[0]     # a fit has no filter NIS
+    line = next(r for r in table if r["log"] == "flight_11")
+    for o, e in alone.recordings[0]["rmse"].items():                           # but each output's rmse
+        assert float(line[f"rmse_{o}"]) == pytest.approx(e, rel=1e-6)
 
 
 def test_a_step_is_a_move_and_a_slow_drift_is_not():

@@ -232,7 +232,7 @@ def batch(model, logs, out_dir, *, mode: str = "run", filter: str = "ski", backe
                     cluster.close()
     ordered, order = order_rows([rows[n] for n in names])
     moved = moves(ordered)
-    csv_path = write_summary(out / "summary.csv", ordered, moved)
+    csv_path = write_summary(out / "summary.csv", ordered, moved, mode)
     fig = plot_summary(out / "summary.png", ordered, moved, order, title=f"{m.name}: {mode}"
                        + (f" ({filter}, {backend})" if mode == "run" else "")) if figures else None
     counts = {s: sum(r["status"] == s for r in ordered) for s in ("ok", "diverged", "failed")}

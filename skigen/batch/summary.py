@@ -28,8 +28,8 @@ __all__ = ["order_rows", "moves", "write_summary", "plot_summary", "threshold", 
 
 ALPHA = 0.05
 EPOCH = (1e9, 4.1e9)      # seconds since 1970: 2001–2100
-FIXED = ["file", "log", "status", "message", "notes", "samples", "duration_s", "start", "seconds", "mean_nis",
-         "nis_expected"]
+FIXED = ["file", "log", "status", "message", "notes", "samples", "duration_s", "start", "seconds"]
+NIS = ["mean_nis", "nis_expected"]        # a filter's (a run, a diagnosis); a fit gives each output's rmse instead
 
 
 def order_rows(rows: list[dict]) -> tuple[list[dict], str]:
@@ -81,12 +81,16 @@ def _cell(x) -> str:
     return printable(x, 1000)
 
 
-def write_summary(path, rows: list[dict], moved: list[dict]) -> Path:
-    """``summary.csv``: the fixed columns, each quantity and its ``std_``, then ``moved`` (the
-    quantities that moved at this log), and for a diagnosis ``mismatch`` and ``findings``."""
+def write_summary(path, rows: list[dict], moved: list[dict], mode: str = "run") -> Path:
+    """``summary.csv``: the fixed columns, the NIS (a run, a diagnosis) or each output's
+    ``rmse_`` (a fit), each quantity and its ``std_``, then ``moved`` (the quantities that moved
+    at this log), and for a diagnosis ``mismatch`` and ``findings``."""
     qs = quantities(rows)
-    diag = any(r.get("mismatch") is not None for r in rows)
-    header = FIXED + [c for q in qs for c in (q, f"std_{q}")] + ["moved"] + (["mismatch", "findings"] if diag else [])
+    diag = mode == "diagnose"
+    outputs = list(dict.fromkeys(o for r in rows for o in r.get("rmse") or {}))
+    own = [f"rmse_{o}" for o in outputs] if mode == "fit" else NIS
+    header = (FIXED + own + [c for q in qs for c in (q, f"std_{q}")] + ["moved"]
+              + (["mismatch", "findings"] if diag else []))
     at = {}
     for m in moved:
         at.setdefault(m["log"], []).append(m["quantity"])
@@ -96,6 +100,7 @@ def write_summary(path, rows: list[dict], moved: list[dict]) -> Path:
         w.writerow(header)
         for r in rows:
             vals = [r.get(c) for c in FIXED]
+            vals += [(r.get("rmse") or {}).get(o) for o in outputs] if mode == "fit" else [r.get(c) for c in NIS]
             for q in qs:
                 vals += list((r.get("quantities") or {}).get(q, [None, None]))
             vals.append(at.get(r["log"], []))
