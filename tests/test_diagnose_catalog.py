@@ -350,6 +350,24 @@ def test_a_grid_goes_on_past_a_best_end():
         assert value in (min(values), max(values)) and np.isnan(std)
 
 
+@pytest.mark.parametrize("peak", [0.9262, 1.0832, 2.4171, -0.0371])
+def test_a_profile_resolves_a_sharp_peak_above_one_as_below(peak):
+    """A gain known to 0.04 % (a gyro's 1.0832 ± 0.0004 from a precise encoder) is profiled to a
+    fraction of its std, above 1 as below it, and so is an offset (not log-scaled); its std is
+    the curvature's. (Rounded to 3 significant digits, 1.08 came out 1.09, 25σ off, while
+    0.926 resolved.)"""
+    from skigen.diagnose.catalog import SENSOR_GAINS, Structural
+    from skigen.diagnose.name import _profile
+    log = peak > 0
+    sd = 4e-4 * abs(peak)
+    values = SENSOR_GAINS if log else (-0.3, -0.1, -0.03, 0.03, 0.1, 0.3)
+    s = Structural("sensor_gain", "", "gain", "", values, False, log, None, None, "", beyond=1.5)
+    total = lambda v: -0.5 * ((v - peak) / sd) ** 2
+    value, best, std = _profile(total, s, values)
+    assert abs(value - peak) < 0.5 * sd and best > -0.125
+    assert std == pytest.approx(sd, rel=0.1)
+
+
 def _sample(f, x, u, dt: float, sub: int):
     """The state one sample of ``dt`` after ``x``: RK4 in ``sub`` steps of f(x, u), u held."""
     h = dt / sub

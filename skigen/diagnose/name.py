@@ -56,7 +56,7 @@ from ..model import Model
 from ..recording import Recording
 from ..runtime import parallel
 from . import transform as T
-from .catalog import Additive, Structural, _num, feedthrough
+from .catalog import Additive, Structural, feedthrough
 from .cv import Folds, ekf_priors, ekf_run, fit_without, fits_without, fold_loglik, loglik
 from .errors import DiagnosisError
 from .plausible import compensating, significant, term_item
@@ -422,6 +422,14 @@ def _filters_of(base: Model, s: Structural):
 
 
 EXTENSIONS = 3      # steps of Structural.beyond past the grid's end (an offset: to 27 × the output's RMS)
+RESOLUTION = 2e-4   # relative: where a profile stops (on 3 significant digits, and to 2e-3, a gyro's
+                    # gain of 1.08 ± 0.0004 came out 1.09, 25σ off, while a gain below 1 resolved to
+                    # 0.1 %: the encoder's 1/1.08 won and an input gain made up for the rest)
+
+
+def _value(v: float) -> float:
+    """A profiled value, rounded well below :data:`RESOLUTION` (its evaluations are shared)."""
+    return float(f"{float(v):.6g}")
 
 
 def _structural(base: Model, s: Structural, rec: Recording, folds: Folds):
@@ -434,7 +442,7 @@ def _structural(base: Model, s: Structural, rec: Recording, folds: Folds):
     filt = _filters_of(base, s)
 
     def per_fold(v):
-        v = float(round(v)) if s.integer else float(_num(v))
+        v = float(round(v)) if s.integer else _value(v)
         if v not in table:
             try:
                 table[v] = fold_loglik(filt(v), rec, folds)
@@ -489,12 +497,12 @@ def _profile(total, s: Structural, evaluated) -> tuple[float, float, float]:
         to = (lambda x: np.log(x)) if s.log else (lambda x: x)
         back = (lambda x: float(np.exp(x))) if s.log else float
         def f(x):
-            v = float(_num(back(x)))
+            v = _value(back(x))
             seen[v] = total(v)
             return -seen[v]
         with np.errstate(invalid="ignore"):      # a refused value (−inf) is a golden-section step
             minimize_scalar(f, bounds=(to(xs[j - 1]), to(xs[j + 1])), method="bounded",
-                            options={"xatol": 2e-3 * (1 if s.log else abs(xs[j]))})
+                            options={"xatol": RESOLUTION * (1 if s.log else abs(xs[j]))})
         xs, ys, j = bracket()
     std = np.nan                        # a whole number of samples is a choice, with no error bar
     if not s.integer and 0 < j < len(xs) - 1 and np.all(np.isfinite(ys[j - 1:j + 2])):
