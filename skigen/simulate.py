@@ -7,7 +7,7 @@ import numpy as np
 from .derive.augment import augment, memory_values, step_inputs
 from .model import Model
 
-__all__ = ["AMPLIFICATION", "free_run", "growth_rate", "simulation_window", "windowed_free_run"]
+__all__ = ["AMPLIFICATION", "free_run", "free_run_noise", "growth_rate", "simulation_window", "windowed_free_run"]
 
 AMPLIFICATION = 10.0    # a free run is scored over windows within which it amplifies a state error at most this much
 
@@ -111,3 +111,30 @@ def windowed_free_run(model: Model, states: np.ndarray, inputs: np.ndarray, k0: 
     k = (steps.reshape(inside.shape)[inside] + 1)
     out[k] = np.asarray(H.map(len(k))(X, U[k].T, M[k].T)).T
     return out
+
+
+def free_run_noise(model: Model, states: np.ndarray, inputs: np.ndarray, k0: int, window: int) -> np.ndarray:
+    """The RMSE per output (ny,) that the model's own noise gives a free run of the right model, as
+    :func:`windowed_free_run` scores it: each window starts from the state exactly known, the
+    process noise Q (per sample) accumulates along the linearisation about ``states`` (N × nx),
+    P_{k+1} = F_k P_k F_kᵀ + Q, and the reading adds R: RMSE² = mean over the scored samples
+    of diag(H_k P_k H_kᵀ + R). An integrator's random walk makes it grow with the window."""
+    aug, f, h, nx = _declared(model)
+    x = aug.z[:nx]
+    J = ca.Function("J", [x, aug.u, aug.mem], [ca.jacobian(f, x), ca.jacobian(h, x)])
+    N, ny = len(states), len(model.outputs)
+    n = N - 1 - k0
+    if n <= 0:
+        return np.full(ny, np.nan)
+    U, M = step_inputs(model, inputs), memory_values(model, inputs)
+    F, H = (np.asarray(a).reshape(r, N, nx).transpose(1, 0, 2)
+            for a, r in zip(J.map(N)(np.asarray(states, float).T, U.T, M.T), (nx, ny)))
+    Q, R = model.process_noise(), model.measurement_noise()
+    window = int(min(max(window, 1), n))
+    P, total = np.zeros((nx, nx)), np.zeros(ny)
+    for k in range(k0, N - 1):
+        if (k - k0) % window == 0:
+            P = np.zeros((nx, nx))
+        P = F[k] @ P @ F[k].T + Q
+        total += np.einsum("ij,jk,ik->i", H[k + 1], P, H[k + 1])
+    return np.sqrt(total / n + np.diag(R))

@@ -254,8 +254,35 @@ def test_a_worse_free_run_is_named_per_output():
     """The caveat for a correction that free-runs worse than the nominal, on the recording or on
     a --validate one, names each output that got worse (one never measured is not compared)."""
     from skigen.diagnose import _worse
-    before, after = {"v": 0.01306, "soc": None, "i": 0.5}, {"v": 0.01387, "soc": 0.1, "i": 0.4}
+    before = {"free_run_rmse": {"v": 0.01306, "soc": None, "i": 0.5}}
+    after = {"free_run_rmse": {"v": 0.01387, "soc": 0.1, "i": 0.4}}
     assert _worse(before, after) == "v (0.01306 → 0.01387)" and _worse(after, after) == ""
+    within = dict(after, free_run_noise={"v": 0.0139, "soc": 0.2, "i": 0.1})   # as good as the noise allows
+    assert _worse(before, within) == ""
+
+
+def test_a_free_runs_noise_is_a_random_walks_for_an_integrator():
+    """free_run_noise against the closed form: a random walk x[k+1] = x[k] + w[k] (var q) read with
+    var r, scored over n samples from an exactly known start, has mean squared error
+    q·(n + 1)/2 + r; restarted every w samples, q·(w + 1)/2 + r; a damped state (x[k+1] = a·x[k]
+    + w) levels off at q/(1 − a²)."""
+    from skigen import Model
+    from skigen.simulate import free_run_noise
+    q, r, n = 0.04, 0.01, 400
+    for a in (1.0, 0.9):
+        m = Model("walk", dt=1.0, discretization="euler")
+        x = m.state("x", std=1.0, process_std=np.sqrt(q))
+        u = m.input("u")
+        m.dynamics({x: (a - 1) * x + u})
+        m.output("y", x, noise_std=np.sqrt(r))
+        states, inputs = np.zeros((n + 1, 1)), np.zeros((n + 1, 1))
+        whole, windowed = (free_run_noise(m, states, inputs, 0, w)[0] ** 2 for w in (n, 40))
+        if a == 1.0:
+            assert whole == pytest.approx(q * (n + 1) / 2 + r, rel=1e-12)
+            assert windowed == pytest.approx(q * 41 / 2 + r, rel=1e-12)
+        else:
+            mean = np.mean([q * (1 - a ** (2 * j)) / (1 - a ** 2) for j in range(1, n + 1)]) + r
+            assert whole == pytest.approx(mean, rel=1e-12) and whole < q / (1 - a ** 2) + r
 
 
 def test_a_correction_under_which_the_noises_trade_off_is_still_adopted(tmp_path):

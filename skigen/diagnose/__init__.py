@@ -332,7 +332,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         stage("fit of the corrected model")
         after = evaluate_fit(corrected, rec, window=window)
         data["fit"]["after"] = after.metrics
-        if worse := _worse(before.metrics["free_run_rmse"], after.metrics["free_run_rmse"]):
+        if worse := _worse(before.metrics, after.metrics):
             caveats.append(f"the corrected model free-runs worse than the nominal on {worse}: its findings improve "
                            "the one-step predictions, not the simulation; weigh them with care")
         w, regime = windows_where_it_acts(calibrated, after, rec, loc.equations, loc.states)
@@ -363,7 +363,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     data["fit"]["recordings"] = [_compared(calibrated, corrected, r, user, caveats) for r in others]
     data["validation_disagrees"] = _disagreeing(data["fit"]["recordings"], alpha)
     for r, v in zip(others, data["fit"]["recordings"]):
-        if v["after"] and (worse := _worse(v["before"]["free_run_rmse"], v["after"]["free_run_rmse"])):
+        if v["after"] and (worse := _worse(v["before"], v["after"])):
             caveats.append(f"on the validation recording {r.path} the corrected model free-runs worse than the "
                            f"nominal ({worse}): it does not carry over to that recording; weigh the findings with care")
     if figures:
@@ -398,9 +398,13 @@ def _unnamed(user_cands, additive, data: dict, model: Model, rec, states) -> lis
 
 
 def _worse(before: dict, after: dict) -> str:
-    """'y (0.1 → 0.2), …': the outputs whose free-run RMSE ``after`` exceeds ``before``, or ''."""
-    return ", ".join(f"{k} ({before[k]:.4g} → {after[k]:.4g})" for k in after
-                     if None not in (after[k], before.get(k)) and after[k] > before[k])
+    """'y (0.1 → 0.2), …': the outputs whose free-run RMSE (in the ``free_run_rmse`` of the fit
+    metrics ``after``) exceeds ``before``'s and the one the model's noise gives a right model's
+    free run (``free_run_noise``: within it, as under an integrator's random walk, which of two
+    free runs strays less is chance), or ''."""
+    b, a, noise = before["free_run_rmse"], after["free_run_rmse"], after.get("free_run_noise", {})
+    return ", ".join(f"{k} ({b[k]:.4g} → {a[k]:.4g})" for k in a
+                     if None not in (a[k], b.get(k)) and a[k] > b[k] and not a[k] <= (noise.get(k) or 0.0))
 
 
 def started(model: Model, rec, what: str) -> tuple[Model, list[str]]:

@@ -9,6 +9,9 @@ AMPLIFICATION-fold over the record (an open-loop unstable plant flown in closed
 loop: no simulation of it follows a recording for long), it is restarted from the
 EKF's state every window within which it does so AMPLIFICATION-fold (the largest
 Lyapunov exponent along the filtered trajectory, skigen.simulate.growth_rate).
+Beside each RMSE, the one the model's own noise would give the right model's free
+run (skigen.simulate.free_run_noise): a free run within it is as good as the noise
+lets a simulation be, however its RMSE compares with another model's.
 """
 from __future__ import annotations
 
@@ -19,7 +22,7 @@ import numpy as np
 from ..model import Model
 from ..recording import Recording
 from ..runtime import RunResult
-from ..simulate import growth_rate, simulation_window, windowed_free_run
+from ..simulate import free_run_noise, growth_rate, simulation_window, windowed_free_run
 from .cv import ekf_run
 
 __all__ = ["Fit", "evaluate_fit", "free_run", "free_run_window", "settle", "simulation_worth"]
@@ -86,6 +89,9 @@ def evaluate_fit(model: Model, rec: Recording, run: RunResult | None = None, win
         }
     metrics["free_run_rmse"] = {n: (v if np.isfinite(v) and not away[:, i].any() else None)
                                 for i, (n, v) in enumerate(metrics["free_run_rmse"].items())}
+    nx = len(model.states)
+    noise = free_run_noise(model, run.mean[:, :nx], rec.inputs, k0, window)
+    metrics["free_run_noise"] = {n: float(v) if np.isfinite(v) else None for n, v in zip(names, noise)}
     return Fit(metrics, run, free, window)
 
 

@@ -83,6 +83,9 @@ def _metrics_table(rows: list[tuple[str, dict, dict | None]]) -> list[str]:
         for k in b["free_run_rmse"]:
             L.append(f"| | free-run RMSE `{k}` ({_free_run_span(b)}) | "
                      f"{_fmt(b['free_run_rmse'][k])} | {_fmt(get(a, 'free_run_rmse', k))} |")
+            if "free_run_noise" in b:
+                L.append(f"| | free-run RMSE `{k}` the model's noise alone gives | {_fmt(b['free_run_noise'][k])} | "
+                         f"{_fmt(get(a, 'free_run_noise', k))} |")
     return L
 
 
