@@ -322,7 +322,7 @@ class Model:
         return [v.name for v in self.outputs]
 
     def weights(self) -> list[tuple[str, str, Term, ca.SX]]:
-        """(weight name, equation, term, direction over the block's equations) per weight.
+        """(weight name, its equation (a direction's: joined by '+'), term, the term's expression there) per weight.
 
         A weight is named ``w_<term key>``, or ``w_<equation>_<term key>`` where
         the same term enters several equations with separate weights.
@@ -331,10 +331,7 @@ class Model:
         for b in self.unknowns:
             for t in b.terms:
                 if t.expr.shape == (1, 1) and len(b.equations) > 1:
-                    for i, eq in enumerate(b.equations):
-                        direction = ca.SX.zeros(len(b.equations), 1)
-                        direction[i] = t.expr
-                        out.append((eq, t, direction))
+                    out += [(eq, t, t.expr) for eq in b.equations]     # one weight per equation
                 else:
                     out.append(("+".join(b.equations), t, t.expr))
         keys = [t.key for _, t, _ in out]

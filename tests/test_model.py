@@ -50,6 +50,14 @@ def test_direction_term_shares_one_weight():
     assert m.weight_names == ["w_drag", "w_x_bias", "w_v_bias"]
     aug = augment(m)
     assert aug.names[2:] == ["w_drag", "w_x_bias", "w_v_bias"]
+    m.unknown([v, x], [term("x", x)])              # a scalar term: its own weight in each equation, any order
+    aug = augment(m)
+    assert aug.names[5:] == ["w_v_x", "w_x_x"]
+    rate = ca.Function("rate", [aug.z, aug.u], [ca.jacobian(aug.f[:2], aug.z)])   # ∂(x, v)[k+1]/∂z
+    J = np.array(rate(np.r_[1.0, 0, 0, 0, 0, 0, 0], 0.0))      # at x = 1, v = 0, u = 0, dt = 0.1
+    for k, (row, dt_share) in {3: (0, 1.0), 4: (1, 1.0), 5: (1, 1.0), 6: (0, 1.0)}.items():
+        assert J[row, k] == pytest.approx(0.1 * dt_share, rel=0.01), aug.names[k]   # each in its own equation
+    assert J[1, 6] == 0 and J[1, 3] == 0 and J[0, 5] > 0      # ẋ's don't reach v; v̇'s reach x through v
 
 
 @pytest.mark.parametrize("mutate, message", [
