@@ -285,6 +285,9 @@ class Model:
                 raise ModelError(f"unknown term on equation '{eq}', which is not a declared state "
                                  f"(states: {', '.join(self.state_names)})")
         for t in basis:
+            if not (isinstance(t.key, str) and t.key.isidentifier() and t.key.isascii()):
+                raise ModelError(f"basis term '{t.name}' has key {t.key!r}; a key must be an identifier (ASCII "
+                                 f"letters, digits, _): it names the weight's C symbols and result columns")
             if t.expr.shape not in ((1, 1), (len(equations), 1)):
                 raise ModelError(f"basis term '{t.name}' has shape {t.expr.shape}; expected a scalar "
                                  f"or a column of {len(equations)} (one per equation)")
@@ -364,8 +367,8 @@ class Model:
         for wname, eq, t, _ in self.weights():
             _check_symbols(t.expr, known, f"basis term '{t.name}'")
             if wname in names:
-                raise ModelError(f"weight '{wname}' appears twice (basis term '{t.name}' repeated "
-                                 f"on equation '{eq}')")
+                raise ModelError(f"basis term '{t.name}' (key '{t.key}') is declared twice on equation '{eq}': "
+                                 f"each term enters an equation once")
             names.add(wname)
         clash = set(names) & set(self.names)
         if clash:

@@ -70,6 +70,10 @@ def test_direction_term_shares_one_weight():
     (lambda m, x, v, u: m.input("status"), "input name 'status' is reserved: a result column"),
     (lambda m, x, v, u: m.state("double"), "state name 'double' is reserved: a C keyword"),
     (lambda m, x, v, u: m.unknown(v, [term("b", ca.vertcat(1, 2))]), "basis term 'b' has shape (2, 1)"),
+    (lambda m, x, v, u: (m.unknown(v, [term("1", 1, key="one")]), m.unknown(v, [term("1", 1, key="one")])),
+     "basis term '1' (key 'one') is declared twice on equation 'v'"),
+    (lambda m, x, v, u: m.unknown(v, [term("x cubed", x ** 3, key="x cubed")]),
+     "basis term 'x cubed' has key 'x cubed'; a key must be an identifier"),
     (lambda m, x, v, u: m.unknown(v, [term("b", 1)], prior_variance=[1, 2]), "2 entries for 1 weights"),
     (lambda m, x, v, u: m.unknown(v, [term("b", 1)], prior_variance=-1), "prior_variance must be positive"),
 ])
