@@ -31,6 +31,7 @@ from pathlib import Path
 from time import perf_counter
 
 import numpy as np
+from scipy import stats
 
 from .derive import DerivedFilter, step_inputs
 from .emit.c import Status
@@ -226,6 +227,24 @@ class RunSummary:
         floored = s <= opts.s_min * (1 + 1e-9) if opts.ard == "gradient" else np.zeros(len(s), bool)
         return (r >= self.KEEP * r.max()) & ~floored
 
+    def verdict(self) -> str:
+        """The mean NIS against its two-sided 99 % band: a consistent filter's summed NIS is χ² with
+        as many degrees of freedom as readings used (white innovations, each of unit variance)."""
+        dof = self.expected_sum
+        lo, hi = (stats.chi2.ppf(q, dof) / dof for q in (0.005, 0.995))
+        mean = self.nis_sum / self.expected_sum
+        band = f"the 99 % band for {dof:.0f} readings is {lo:.3g}–{hi:.3g} times the expected"
+        if mean > hi:
+            gated = self.events[Status.OUTLIER_REJECTED]
+            return (f"inconsistent: the innovations are {mean:.3g} times their predicted variance ({band}): the "
+                    f"model or its declared noise does not explain the recording, and the ± 2σ above are too "
+                    f"small" + (f"; the {gated} gated readings may be that mismatch, not outliers" if gated else "")
+                    + ". `skigen diagnose` says where and what is missing; `skigen fit` calibrates the noise")
+        if mean < lo:
+            return (f"conservative: the innovations are {mean:.3g} times their predicted variance ({band}): the "
+                    f"declared noise is larger than the recording shows, and the ± 2σ above are wide")
+        return f"consistent: the innovations are {mean:.3g} times their predicted variance ({band})"
+
     def lines(self) -> list[str]:
         aug, out = self.filter.aug, []
         if self.holes:
@@ -262,6 +281,7 @@ class RunSummary:
             out.append(f"mean NIS {self.nis_sum / self.nis_count:.3f} (expected {expected:.3f}: the "
                        f"{len(aug.model.output_names)} output(s) used {expected:.3g} at a time on average, "
                        f"{self.with_measurement} of {self.samples} samples measured)")
+            out.append(self.verdict())
         else:
             out.append("no sample was measured: no NIS")
         names = aug.model.output_names

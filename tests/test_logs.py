@@ -431,6 +431,25 @@ def test_nis_expectation_counts_the_outputs_measured():
     assert "xm 490 of 500, vm 500 of 500 used" in next(line for line in lines if line.startswith("measured per output"))
 
 
+@pytest.mark.parametrize("noise, verdict", [
+    (0.1, "consistent: the innovations are 1.01 times their predicted variance (the 99 % band for 2000 readings is 0.92–1.08"),
+    (0.3, "inconsistent: the innovations are 5.68 times their predicted variance (the 99 % band for 1804 readings is 0.916–1.09"),
+    (0.03, "conservative: the innovations are 0.0912 times their predicted variance (the 99 % band for 2000 readings")])
+def test_the_summary_judges_the_nis_against_its_band(noise, verdict):
+    """Readings whose noise is the declared 0.1, three times it (9× the variance; those beyond the
+    5σ gate are not used: 5.68), a third of it: the summary's verdict on the mean NIS against its
+    99 % χ² band, which narrows with the readings used."""
+    m = skigen.Model("still", dt=0.02)
+    x = m.state("x", std=1e-3, process_std=1e-6)
+    m.dynamics({x: 0 * x})
+    m.output("xm", x, noise_std=0.1)
+    df = pd.DataFrame({"t": np.arange(2000) * 0.02, "xm": np.random.default_rng(1).normal(0, noise, 2000)})
+    lines = skigen.run(m, df, filter="ekf").summary().lines()
+    said = lines[lines.index(next(line for line in lines if line.startswith("mean NIS"))) + 1]
+    assert said.startswith(verdict), said
+    assert ("196 gated readings may be that mismatch" in said and "`skigen diagnose`" in said) == (noise == 0.3)
+
+
 # ------------------------------------------------------------------ ULog
 
 def write_ulog(path, topics):
