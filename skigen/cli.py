@@ -61,6 +61,26 @@ def _read_options(args) -> dict:
     return dict(time=args.time, time_unit=args.time_unit, columns=columns or None, max_gap=args.max_gap)
 
 
+def _filter_options(args):
+    """FilterOptions from --alpha and --second-order."""
+    from .derive import FilterOptions
+    if not (0 < args.alpha <= 1):
+        raise CliError(f"--alpha must be in (0, 1], got {args.alpha}")
+    if args.second_order and args.filter != "ekf":
+        raise CliError(f"--second-order is the EKF's (its prediction's second-order terms); --filter is {args.filter}")
+    return FilterOptions(alpha=args.alpha, second_order=args.second_order)
+
+
+def _add_filter_options(p) -> None:
+    p.add_argument("--alpha", type=float, default=1.0,
+                   help="sigma-point spread of the UKF kinds: the points sit at alpha·sqrt(n) standard deviations "
+                        "of the n augmented states (default 1); smaller keeps a cubic or exponential term's "
+                        "evaluations near the mean")
+    p.add_argument("--second-order", action="store_true",
+                   help="EKF: predict with the transition's second-order terms (honest error bars on a "
+                        "strongly nonlinear term, where the first-order EKF is overconfident)")
+
+
 def _run(args) -> int:
     """``skigen run``. A CSV file is streamed: read a block at a time (pyarrow's streaming reader),
     laid on the grid, filtered and written before the next is read, so that memory does not grow
@@ -80,7 +100,7 @@ def _run(args) -> int:
     out, filt = Path(args.out), None
     if is_csv(args.data):
         grid = stream_recording(args.data, model, real=args.real, **options)
-        filt = derive(model, args.filter)
+        filt = derive(model, args.filter, _filter_options(args))
         summary = RunSummary(filt)
         try:
             with TableWriter(out, background=True) as w:
@@ -101,7 +121,7 @@ def _run(args) -> int:
         raise
     for line in rec.notes:
         print(line)
-    filt = filt or derive(model, args.filter)
+    filt = filt or derive(model, args.filter, _filter_options(args))
     summary = RunSummary(filt)
     with TableWriter(out, background=True) as w:
         for part in iter_run(filt, rec, backend=args.backend, real=args.real):
@@ -126,7 +146,7 @@ def _generate(args) -> int:
     try:
         if args.prefix is not None:
             check_prefix(args.prefix)                # before the derivation, which may take a while
-        filt = derive(model, args.filter)
+        filt = derive(model, args.filter, _filter_options(args))
         style = choose_style(filt, args.style)
         files = emit_c(filt, args.out, real=args.real, style=style, prefix=args.prefix)
     except ValueError as exc:
@@ -282,6 +302,7 @@ def _parser() -> argparse.ArgumentParser:
                         "gate, stuck-sensor test and restarts (raw innovations)")
     r.add_argument("--real", choices=["double", "float"], default="double", help="C backend precision")
     r.add_argument("--out", required=True, help="result CSV")
+    _add_filter_options(r)
     _add_data_options(r)
     r.set_defaults(func=_run)
     g = sub.add_parser("generate", help="emit the C library of a filter")
@@ -295,6 +316,7 @@ def _parser() -> argparse.ArgumentParser:
     g.add_argument("--prefix", help="C prefix of every symbol and file (default <model>_<filter>): "
                                     "builds under different prefixes link into one binary")
     g.add_argument("--out", required=True, help="output directory")
+    _add_filter_options(g)
     g.set_defaults(func=_generate)
     d = sub.add_parser("diagnose", help="find, name and correct what the model misses in a recording")
     d.add_argument("model", help="model file (.py exposing `model`) or package.module:attribute")

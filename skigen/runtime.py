@@ -227,6 +227,22 @@ class RunSummary:
         floored = s <= opts.s_min * (1 + 1e-9) if opts.ard == "gradient" else np.zeros(len(s), bool)
         return (r >= self.KEEP * r.max()) & ~floored
 
+    def sigma_spread(self) -> str | None:
+        """Where a sigma-point filter evaluates the model, and how to bring it nearer (None for
+        the EKF): a wide prior through a cubic or exponential term overflows the step there, and
+        a restart (at reinit_scale times the declared variance) widens it again."""
+        filt = self.filter
+        if filt.kind == "ekf":
+            return None
+        o = filt.options
+        n = len(filt.partition.nonlinear) if filt.partition is not None else len(filt.aug.names)
+        gamma = o.alpha * np.sqrt(n + o.kappa)
+        return (f"the {filt.kind} evaluates the model at ±{gamma:.3g} standard deviations of each of its {n} "
+                f"sigma-point states and weights (alpha = {o.alpha:g}): a cubic or exponential term there can "
+                f"overflow the step, and each restart widens them again. A smaller alpha (--alpha 0.3, "
+                f"FilterOptions(alpha=0.3): ±{0.3 * np.sqrt(n + o.kappa):.3g}) or smaller prior variances of "
+                f"the weights bring them nearer")
+
     def verdict(self) -> str:
         """The mean NIS against its two-sided 99 % band: a consistent filter's summed NIS is χ² with
         as many degrees of freedom as readings used (white innovations, each of unit variance)."""
@@ -268,6 +284,8 @@ class RunSummary:
             trouble = self.events[Status.NUMERICAL_FAILURE] or self.events[Status.REINITIALISED]
             if trouble and (why := aug.model.unstable_step()):
                 out.append(f"why steps may fail: {why}")
+            if self.events[Status.NUMERICAL_FAILURE] and (spread := self.sigma_spread()):
+                out.append(f"why steps may fail: {spread}")
         elif self.gate:
             out.append("events: none (no outlier, stuck reading, bad input, rejection or restart)")
         if not self.gate:

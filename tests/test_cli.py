@@ -63,6 +63,23 @@ def test_run_with_the_casadi_backend(recording, tmp_path):
             np.testing.assert_allclose(num(b, j), num(a, j), rtol=1e-9, atol=1e-12, err_msg=name)
 
 
+def test_run_takes_the_filter_options(recording, tmp_path):
+    """--alpha and --second-order reach the filter (the table differs from the default's); out of
+    range or on the wrong filter, a one-line error."""
+    tables = {}
+    for extra in ((), ("--alpha", "0.5"), ("--filter", "ekf"), ("--filter", "ekf", "--second-order")):
+        out = tmp_path / f"{len(tables)}.csv"
+        r = skigen("run", MODEL, str(recording), "--out", str(out), *extra)
+        assert r.returncode == 0, r.stderr
+        tables[extra] = np.genfromtxt(out, delimiter=",", skip_header=1, usecols=range(17))
+    for a, b in (((), ("--alpha", "0.5")), (("--filter", "ekf"), ("--filter", "ekf", "--second-order"))):
+        assert np.nanmax(np.abs(tables[a] - tables[b])) > 1e-6, (a, b)
+    for extra, said in ((("--alpha", "0"), "--alpha must be in (0, 1], got 0.0"),
+                        (("--second-order",), "--second-order is the EKF's (its prediction's second-order terms); --filter is ski")):
+        r = skigen("run", MODEL, str(recording), "--out", str(tmp_path / "x.csv"), *extra)
+        assert r.returncode != 0 and said in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
 @pytest.mark.parametrize("content, expected", [
     ("t,delta,phi\n0,0,0\n0.02,abc,0.1\n", ["row 3", "column 'delta'", "'abc' is not a number"]),
     ("t,delta,phi\n0,0,0\n0.02,0\n", ["row 3", "fields"]),
