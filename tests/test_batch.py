@@ -157,6 +157,46 @@ def test_fit_each_log_gives_parameters_with_std(fleet, client, tmp_path):
         assert float(line[f"rmse_{o}"]) == pytest.approx(e, rel=1e-6)
 
 
+def test_a_diagnosis_row_gives_the_nis_per_measured_sample_as_a_run_row():
+    """A log read at half the model's rate: the run's summary and the diagnosis's consistency, as
+    the batch writes them, give the same mean NIS and expectation (the diagnosis's were per grid
+    sample: half)."""
+    from skigen.batch.task import per_measured
+    from skigen.diagnose.detect import consistency
+    from skigen.runtime import RunSummary
+    m = skigen.Model("still", dt=0.01)
+    x = m.state("x", std=1e-3, process_std=1e-6)
+    m.dynamics({x: 0 * x})
+    m.output("a", x, noise_std=0.1)
+    m.output("b", x, noise_std=0.1)
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(0, 0.1, 1000), rng.normal(0, 0.1, 1000)
+    a[1::2] = b[1::2] = np.nan
+    res = skigen.run(m, pd.DataFrame({"t": np.arange(1000) * 0.01, "a": a, "b": b}), filter="ekf")
+    run = RunSummary(skigen.derive(m, "ekf")).add(res)
+    c = consistency(res, m.output_names).asdict()
+    assert c["measured_samples"] == 500 and c["nis_expected"] == pytest.approx(1.0, abs=0.002)   # per grid sample
+    mean, expected = per_measured(c)
+    assert expected == pytest.approx(run.expected_sum / run.nis_count) == pytest.approx(2.0)
+    assert mean == pytest.approx(run.nis_sum / run.nis_count, rel=1e-9)
+
+
+def test_the_terminal_says_when_the_fits_call_their_error_bars_optimistic(tmp_path):
+    """A fleet fit by output error under a disturbance: its moves rest on error bars its notes call
+    optimistic (a user's healthy flight moved at z = 3.7); the terminal says so beside them."""
+    from skigen.batch import BatchResult
+    from skigen.fit import OPTIMISTIC
+    rows = [dict(log=f"f{k}", status="ok", notes=[f"{OPTIMISTIC} (phi 2.1× its std): …"] if k != 1 else [])
+            for k in range(3)]
+    moved = [dict(quantity="Lp", log="f2", before=-5.5, after=-2.6, z=8.8, threshold=2.39)]
+    res = BatchResult(tmp_path, rows, moved, "file name", tmp_path / "summary.csv", None, 0, 1.0, 1, {"ok": 3})
+    lines = res.lines()
+    assert lines[1].startswith("  moved: Lp at f2") and lines[2].startswith(
+        "  note: the fits of f0, f2 say their error bars are optimistic") and "--method filter-error" in lines[2]
+    assert not any("note:" in line for line in BatchResult(tmp_path, rows[1:2], moved, "file name", tmp_path,
+                                                          None, 0, 1.0, 1, {"ok": 1}).lines())
+
+
 def test_a_step_is_a_move_and_a_slow_drift_is_not():
     rows = []
     for k in range(100):
@@ -218,6 +258,9 @@ def test_diagnose_each_log_lists_its_findings(client, tmp_path):
     report = json.loads((tmp_path / "out" / "cart_coulomb" / "report.json").read_text())
     assert report["corrected_model"] == str(tmp_path / "out" / "cart_coulomb" / "corrected_model.py")
     assert Path(report["corrected_model"]).exists() and res.counts["ok"] == 2
+    assert rows["cart_coulomb"]["remains"] == "False" and rows["cart_clean"]["remains"] == "False"
+    said = [line for line in res.lines() if line.startswith("  mismatch: ")]     # the terminal names the log
+    assert said == [f"  mismatch: cart_coulomb: {rows['cart_coulomb']['findings']}"], res.lines()
 
 
 def test_diagnose_puts_the_calibrated_constants_in_the_summary(client, tmp_path):

@@ -27,6 +27,7 @@ import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..fit import OPTIMISTIC
 from ..modelfile import canonical_spec
 from ..progress import progress
 from ..sources import printable
@@ -67,9 +68,22 @@ class BatchResult:
         for m in self.moved:
             out.append(f"  moved: {m['quantity']} at {m['log']}: {m['before']:.4g} -> {m['after']:.4g} "
                        f"(z = {m['z']:.1f} > {m['threshold']:.2f})")
+        optimistic = [r["log"] for r in self.rows if any(str(n).startswith(OPTIMISTIC) for n in r.get("notes") or [])]
+        if optimistic:
+            out.append(f"  note: the fits of {_few(optimistic)} say their error bars are optimistic (output error, its "
+                       f"free-run residuals beyond the declared sensor noise: a disturbance it does not model), so "
+                       f"moves between them may be false; --method filter-error models the disturbance")
+        for r in self.rows:
+            if r.get("mismatch") and r["status"] == "ok":
+                out.append(f"  mismatch: {r['log']}: " + ("; ".join(r.get("findings") or []) or "nothing named")
+                           + ("; a mismatch remains" if r.get("remains") else ""))
         if self.figure:
             out.append(f"figure: {self.figure} (logs ordered by {self.order})")
         return out
+
+
+def _few(names: list[str], most: int = 5) -> str:
+    return ", ".join(names[:most]) + (f" and {len(names) - most} more" if len(names) > most else "")
 
 
 def expand_logs(patterns, outside: Path | None = None) -> list[Path]:

@@ -84,13 +84,14 @@ def _cell(x) -> str:
 def write_summary(path, rows: list[dict], moved: list[dict], mode: str = "run") -> Path:
     """``summary.csv``: the fixed columns, the NIS (a run, a diagnosis) or each output's
     ``rmse_`` (a fit), each quantity and its ``std_``, then ``moved`` (the quantities that moved
-    at this log), and for a diagnosis ``mismatch`` and ``findings``."""
+    at this log), and for a diagnosis ``mismatch`` (detected in the nominal), ``findings`` and
+    ``remains`` (a mismatch remains after the correction)."""
     qs = quantities(rows)
     diag = mode == "diagnose"
     outputs = list(dict.fromkeys(o for r in rows for o in r.get("rmse") or {}))
     own = [f"rmse_{o}" for o in outputs] if mode == "fit" else NIS
     header = (FIXED + own + [c for q in qs for c in (q, f"std_{q}")] + ["moved"]
-              + (["mismatch", "findings"] if diag else []))
+              + (["mismatch", "findings", "remains"] if diag else []))
     at = {}
     for m in moved:
         at.setdefault(m["log"], []).append(m["quantity"])
@@ -105,7 +106,7 @@ def write_summary(path, rows: list[dict], moved: list[dict], mode: str = "run") 
                 vals += list((r.get("quantities") or {}).get(q, [None, None]))
             vals.append(at.get(r["log"], []))
             if diag:
-                vals += [r.get("mismatch"), r.get("findings") or []]
+                vals += [r.get("mismatch"), r.get("findings") or [], r.get("remains")]
             w.writerow([_cell(v) for v in vals])
     return path
 

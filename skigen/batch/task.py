@@ -137,6 +137,13 @@ def _fit(spec, digest, path, tmp: Path, opt: dict, row: dict) -> None:
                    for j, o in enumerate(model.output_names)}
 
 
+def per_measured(c: dict) -> tuple:
+    """(mean NIS, its expectation) per sample measured, as a run's rows give them, from a diagnosis's
+    ``consistency`` (per grid sample: a log at half the model's rate read half of a run's)."""
+    per = c["samples"] / c["measured_samples"] if c.get("measured_samples") else np.nan
+    return _num(c["nis_mean"] * per), _num(c["nis_expected"] * per)
+
+
 def _diagnose(spec, digest, path, tmp: Path, final: Path, opt: dict, row: dict) -> None:
     from ..diagnose import diagnose
     from ..diagnose.report import where
@@ -153,9 +160,9 @@ def _diagnose(spec, digest, path, tmp: Path, final: Path, opt: dict, row: dict) 
     span = d["diagnosed"]                      # the longest stretch between input holes
     row.update(samples=span["samples"], duration_s=_num(span["end"] - span["start"]), start=_num(span["start"]))
     row["notes"] = d["notes"] + [f"consistent only with {c}" for c in d["remaining"].get("noise_covers", [])]
-    row["mean_nis"] = d["consistency"]["nis_mean"]
-    row["nis_expected"] = d["consistency"]["nis_expected"]
+    row["mean_nis"], row["nis_expected"] = per_measured(d["consistency"])
     row["mismatch"] = bool(d["mismatch_detected"])
+    row["remains"] = bool(d["remaining"].get("mismatch"))
     row["findings"] = [f"{where(f)} ({f['coefficient']:.4g}"
                        + (f" ± {f['std']:.2g})" if f.get("std") is not None and np.isfinite(f["std"]) else ")")
                        + "".join(f", or {where(a)} ({a['coefficient']:.4g})" for a in f.get("as_good", []))

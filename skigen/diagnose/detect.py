@@ -48,13 +48,14 @@ class Consistency:
     note: str = ""
     independence_pvalue: float | None = None   # innovations against the past (judge only)
     regressors: int = 0
+    measured: int = 0                          # samples with at least one reading used
 
     def asdict(self) -> dict:
         """The ``consistency`` object of report.json."""
         return {"nis_mean": self.nis_mean, "nis_expected": self.nis_expected,
                 "whiteness_pvalue": self.whiteness_pvalue,
                 "nis_bounds": list(self.nis_bounds), "nis_pvalue": self.nis_pvalue,
-                "alpha": self.alpha, "lags": self.lags, "samples": self.samples,
+                "alpha": self.alpha, "lags": self.lags, "samples": self.samples, "measured_samples": self.measured,
                 "outputs": self.outputs, "note": self.note,
                 **({"independence_pvalue": self.independence_pvalue, "regressors": self.regressors}
                    if self.independence_pvalue is not None else {})}
@@ -137,7 +138,8 @@ def consistency(res: RunResult, output_names, alpha: float = 0.01) -> Consistenc
     if too_small and not mismatch:
         note = ("NIS below its lower bound: the model states more noise than the data show "
                 "(a noise-tuning issue, not missing physics)")
-    return Consistency(nis_sum / N, dof / N, (lo / N, hi / N), p_nis, p_white, lags, alpha, N, mismatch, per, note)
+    return Consistency(nis_sum / N, dof / N, (lo / N, hi / N), p_nis, p_white, lags, alpha, N, mismatch, per, note,
+                       measured=int(valid.any(axis=1).sum()))
 
 
 TESTS = 3     # whiteness, independence of the past, slowly varying disturbance: α/3 each

@@ -558,6 +558,9 @@ def _capped(V, model: Model, caps: dict) -> list[tuple[int, float]]:
             for n, cap in caps.items() if f"Q_scale_{n}" in V.names and q[n] > 0]
 
 
+OPTIMISTIC = "output error: the free-run residuals exceed the declared sensor noise"   # a note's opening
+
+
 def _unexplained_residuals(model: Model, recs, predictions, params, alpha: float = 0.01) -> list[str]:
     """Output error: a note when the free-run residuals exceed what the declared sensor noise can
     explain (their summed squares over its variance above the 1 − α quantile of χ² with one degree
@@ -575,7 +578,7 @@ def _unexplained_residuals(model: Model, recs, predictions, params, alpha: float
             out.append(f"{name} {np.sqrt(np.mean(ej ** 2) / r2[j]):.3g}×")
     if not out:
         return []
-    return [f"output error: the free-run residuals exceed the declared sensor noise ({', '.join(out)} its std): "
+    return [f"{OPTIMISTIC} ({', '.join(out)} its std): "
             f"a disturbance or a model error the free run does not follow, under which the error bars of "
             f"{', '.join(params)} are optimistic (2–7× too narrow in the coverage checks measured, the coloured "
             f"residuals' covariance notwithstanding); filter error (--method filter-error, a process_std "
