@@ -219,8 +219,10 @@ def test_clear_errors(fleet, tmp_path):
         batch(load_model(MODEL), str(fleet / "flight_00.csv"), tmp_path)
     with pytest.raises(BatchError, match="model file 'nope.py' not found"):
         batch("nope.py", str(fleet / "flight_00.csv"), tmp_path)
-    with pytest.raises(BatchError, match="SKI needs basis weights"):
+    with pytest.raises(BatchError, match=r"SKI needs basis weights \(model.unknown\(...\)\); the EKF or UKF runs"):
         batch("models/cart.py", str(fleet / "flight_00.csv"), tmp_path, filter="ski")
+    with pytest.raises(BatchError, match=r"no log file matches '.*nothing_\*\.csv'"):   # the logs first
+        batch("models/cart.py", str(fleet / "nothing_*.csv"), tmp_path, filter="ski")
 
 
 def test_cli_batch_on_its_own_two_workers(fleet, tmp_path):

@@ -199,6 +199,8 @@ def batch(model, logs, out_dir, *, mode: str = "run", filter: str = "ski", backe
         if name not in m.state_names:
             raise BatchError(f"--track '{name}': not a state of model '{m.name}' (states: "
                              f"{', '.join(m.state_names)})")
+    out = Path(out_dir).resolve()
+    paths = expand_logs(logs, outside=out)          # what to read, before what to run on it
     filt = None
     if mode == "run":
         from ..derive import derive
@@ -207,8 +209,6 @@ def batch(model, logs, out_dir, *, mode: str = "run", filter: str = "ski", backe
         except ValueError as exc:
             raise BatchError(str(exc)) from None
         quantity_names(filt, track)
-    out = Path(out_dir).resolve()
-    paths = expand_logs(logs, outside=out)
     names = log_names(paths)
     out.mkdir(parents=True, exist_ok=True)
     for stale in out.glob(".*.tmp-*"):          # left by a batch that was stopped

@@ -175,7 +175,9 @@ def derive(model: Model | Augmented, kind: str, options: FilterOptions | None = 
     opts = options or FilterOptions()
     d = aug.shapes
     if kind in SKI_KINDS and d["nw"] == 0:
-        raise ValueError(f"model '{aug.model.name}' declares no unknown term: SKI needs basis weights")
+        raise ValueError(f"model '{aug.model.name}' declares no unknown term: SKI needs basis weights "
+                         f"(model.unknown(...)); the EKF or UKF runs the model as declared, and estimates its "
+                         f"parameters online with estimate=")
     part = partition(aug, linear) if kind in MUKF_KINDS else None
     return DerivedFilter(kind, aug, opts, part)
 
