@@ -140,8 +140,15 @@ def test_c_backend_is_compiled_once_and_gives_the_python_numbers(first, fleet, c
 def test_fit_each_log_gives_parameters_with_std(fleet, client, tmp_path):
     from skigen.fit import fit
     logs = [str(fleet / f"flight_1{i}.csv") for i in range(3)]
-    res = batch(MODEL, logs, tmp_path, mode="fit", client=client, show_progress=False, figures=False)
-    assert res.counts["ok"] == 3
+    holed = pd.read_csv(logs[2])
+    holed.loc[(holed.t > 1.0) & (holed.t < 2.3), "phi"] = np.nan        # a 1.3 s output hole: said, as a run does
+    holed.to_csv(tmp_path / "flight_holed.csv", index=False)
+    res = batch(MODEL, logs + [str(tmp_path / "flight_holed.csv")], tmp_path / "out", mode="fit", client=client,
+                show_progress=False, figures=False)
+    assert res.counts["ok"] == 4
+    holes = {r["log"]: [n for n in r["notes"] if "hole" in n] for r in res.rows}
+    assert holes.pop("flight_holed") == ["1 hole(s): 1–2.3 s (1.3 s) without phi"] and not any(holes.values())
+    tmp_path = tmp_path / "out"
     model = load_model(MODEL)
     alone = fit(model, [skigen.recording.load_recording(logs[1], model)], show_progress=False)
     row = next(r for r in res.rows if r["log"] == "flight_11")
