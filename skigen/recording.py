@@ -237,8 +237,8 @@ def read_recording(path, input_names, output_names, *, dt: float | None = None, 
     same = np.diff(g.t) <= 0
     if same.any():
         i = int(np.argmax(same)) + 1
-        fail(i, samples.time_column, f"time must be strictly increasing: {g.t[i]:.17g} follows "
-                                     f"{g.t[i - 1]:.17g} (row above)")
+        fail(i, samples.time_column, f"time must be strictly increasing: {float(g.t[i])!r} follows "
+                                     f"{float(g.t[i - 1])!r} (row above)")
     if len(g.t) < min_samples:
         raise RecordingError(f"{src}: {len(g.t)} data row(s), at least {min_samples} needed")
     if time_unit not in UNITS:

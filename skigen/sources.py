@@ -145,7 +145,7 @@ def check_group(g: Group, columns: dict, time_col: str, real: str, fail) -> None
     back = np.diff(g.t) < 0
     if back.any():
         i = int(np.argmax(back)) + 1
-        fail(i, time_col, f"time goes backwards: {g.t[i]:.17g} follows {g.t[i - 1]:.17g} (the sample before)")
+        fail(i, time_col, f"time goes backwards: {float(g.t[i])!r} follows {float(g.t[i - 1])!r} (the sample before)")
     for name, v in g.values.items():
         inf = np.isinf(v)
         if inf.any():

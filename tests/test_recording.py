@@ -87,6 +87,9 @@ def _error(path, ins=INS, outs=OUTS, **kw):
     ("t,delta,p,phi\n0,1,2,3\n0.1,0x10,2,3\n", 3, "delta", "'0x10' is not a number"),
     ("t,delta,p,phi\n0,1,2,3\n0.5,1,2,3\n0.5,1,2,3\n", 4, "t", "0.5 follows 0.5"),
     ("t,delta,p,phi\n0,1,2,3\n0.5,1,2,3\n0.25,1,2,3\n", 4, "t", "0.25 follows 0.5"),
+    ("t,delta,p,phi\n0,1,2,3\n0.39,1,2,3\n0.1,1,2,3\n", 4, "t", "time goes backwards: 0.1 follows 0.39 (the"),
+    ("t,delta,p,phi\n0,1,2,3\n0.1,1,2,3\n0.10000000000000002,1,2,3\n0.10000000000000001,1,2,3\n", 5, "t",
+     "0.1 follows 0.10000000000000002"),                     # the shortest digits that tell them apart
     ("t,delta,p,phi\n0,1,2,3\n1e308,1,2,3\n0.25,1,2,3\n", 4, "t", "backwards"),
     ("t,delta,p,phi\n0,1,2,3\n0.1,1,2\n", 3, None, "found 3"),
     ("t,delta,p,phi\n0,1,2,3\n0.1,1,2,3,4\n", 3, None, "found 5"),
