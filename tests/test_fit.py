@@ -732,6 +732,15 @@ def test_an_input_hole_cuts_the_recording_into_parts_fitted_apart():
     assert held["rmse"]["angle"] > 10 * max(r["rmse"]["angle"] for r in res.recordings), held
 
 
+def test_several_dataframes_are_told_apart_by_place():
+    """Two pendulum flights given as DataFrames: each recording of the result is named by its
+    place (both were 'DataFrame'); a file given once keeps its name."""
+    model = pendulum(PENDULUM_START)
+    res = fit(model, [_pendulum_frame(np.random.default_rng(k), N=300) for k in (10, 11)], show_progress=False)
+    assert [r["file"] for r in res.recordings] == ["DataFrame #1", "DataFrame #2"]
+    assert [str(r.path) for r in res.fitted_recordings] == ["DataFrame #1", "DataFrame #2"]
+
+
 def test_validation_leaves_out_a_stuck_sensor_and_cuts_at_input_holes():
     """A held-out recording is read as the fit reads its own: the readings of a sensor stuck for
     2 s are left out of the RMSE (counted, the frozen angle scores 0.477 rad against 0.0104 without

@@ -14,7 +14,7 @@ import copy
 import functools
 import math
 import os
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from time import perf_counter
 
 import casadi as ca
@@ -238,6 +238,8 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
         recordings = [recordings]
     read = dict(time=time, time_unit=time_unit, columns=columns, max_gap=max_gap)
     recs = [r if isinstance(r, Recording) else load_recording(r, model, **read) for r in recordings]
+    names = [str(r.path) for r in recs]          # several DataFrames (or one file twice): told apart by place
+    recs = [replace(r, path=f"{n} #{k + 1}") if names.count(n) > 1 else r for k, (r, n) in enumerate(zip(recs, names))]
     if not recs:
         raise FitError("no recording to fit")
     for rec in recs:
