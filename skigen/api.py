@@ -12,7 +12,7 @@ __all__ = ["run"]
 
 def run(model: Model, data, *, filter: str = "ukf", backend: str = "python", columns=None, time=None,
         time_unit: str = "s", max_gap: float = 1.0, real: str = "double",
-        show_progress: bool = False, guard=None) -> RunResult:
+        show_progress: bool = True, guard=None) -> RunResult:
     """Run ``model``'s ``filter`` over ``data`` on the model's grid.
 
     data: a CSV, Parquet or PX4 ULog path, or a pandas DataFrame (a time column, or a numeric or
@@ -21,6 +21,8 @@ def run(model: Model, data, *, filter: str = "ukf", backend: str = "python", col
     reported as a hole (``result.holes``). backend: python, c (``real`` double or float) or casadi
     (no guard policy: see :mod:`skigen.runtime`).
     guard: outlier gate and recovery settings (a :class:`skigen.guard.Guard`; default its defaults).
+    show_progress: a progress line on stderr, where progress is shown (a terminal, or
+    ``SKIGEN_PROGRESS=1``), as :func:`skigen.fit.fit` and the commands.
     Returns a :class:`~skigen.runtime.RunResult`; ``.to_frame()`` gives a DataFrame.
     """
     rec = load_recording(data, model.check(), time=time, time_unit=time_unit, columns=columns,

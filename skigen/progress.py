@@ -24,9 +24,10 @@ def note(text: str, stream=None) -> None:
         print(text, file=stream, flush=True)
 
 
-def progress(iterable, total, label, stream=None, min_seconds=1.0):
+def progress(iterable, total, label, stream=None, min_seconds=1.0, measure=None, unit=""):
     """Yield from ``iterable``, showing ``label: 45% (6750/15000) 1.2 s, eta 1.5 s`` on ``stream``
-    (default sys.stderr).
+    (default sys.stderr). ``measure``: how much of ``total`` is done (in ``unit``; none: a share),
+    where that is not the items yielded (a streamed file: the share of its time span laid out).
 
     On a terminal the line is redrawn in place, at most ~10 times per second, and finished with a
     newline. Forced onto a pipe or file (``SKIGEN_PROGRESS=1``) it is written as lines, at most one
@@ -47,8 +48,10 @@ def progress(iterable, total, label, stream=None, min_seconds=1.0):
         nonlocal width, drawn
         el = now - t0
         if total:
-            eta = f"{el * (total - done) / done:.1f} s" if done else "?"
-            text = f"{label}: {100 * done / total:3.0f}% ({done}/{total}) {el:.1f} s, eta {eta}"
+            part = measure() if measure else done
+            eta = f"{el * (total - part) / part:.1f} s" if part else "?"
+            amount = (f" ({part:.3g}/{total:.3g}{unit})" if unit else "") if measure else f" ({done}/{total})"
+            text = f"{label}: {100 * part / total:3.0f}%{amount} {el:.1f} s, eta {eta}"
         else:
             text = f"{label}: {done} {el:.1f} s"
         stream.write("\r" + text.ljust(width) if tty else text + "\n")

@@ -1097,8 +1097,28 @@ def iter_run_stream(filt: DerivedFilter, grid, *, backend: str = "python", real:
     label = label or f"{model.name} {filt.kind} ({backend})"
     pieces = _stream_pieces(grid, model.input_hold == "foh", chunk)
     if show_progress:
-        pieces = progress(pieces, None, f"{label}, parts of a streamed file")
+        pieces = _streamed(pieces, grid, f"{label}, streamed")
     yield from _steps(filt, stepper, backend, pieces, grid.restarts, gate=_gate(backend, guard))
+
+
+def _streamed(pieces, grid, label: str):
+    """``pieces`` with a progress line: the share of the file's time span (its first and last stamps,
+    read first) that the pieces have reached; without those stamps, the pieces counted."""
+    stamps = grid.stream.stamps() if hasattr(grid.stream, "stamps") else None
+    if stamps is None:
+        return progress(pieces, None, label)
+    reached = [0.0]
+
+    def share() -> float:              # the pieces' times are the file's, in seconds
+        if grid.scale is None:
+            return 0.0
+        return float(np.clip((reached[0] - stamps[0] * grid.scale) / ((stamps[1] - stamps[0]) * grid.scale), 0, 1))
+
+    def walk():
+        for piece in pieces:
+            reached[0] = float(piece[1][-1]) if len(piece[1]) else reached[0]
+            yield piece
+    return progress(walk(), 1.0, label, measure=share)
 
 
 def _gate(backend: str, guard: Guard | None) -> float:

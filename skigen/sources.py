@@ -16,6 +16,7 @@ import contextlib
 import csv
 import io
 import itertools
+import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -342,6 +343,20 @@ class CsvStream:
     rows: int | None = None              # re-cut the blocks into pieces of at most this many rows (tests)
     notes: list[str] = field(default_factory=list)
     iso: bool = False                    # the time column holds ISO-8601 stamps (read as seconds since 1970)
+    def stamps(self) -> tuple[float, float] | None:
+        """The file's first and last time stamps as written (their unit: the file's), read from its
+        first and last rows; None where they do not read as numbers (ISO stamps, a ragged end)."""
+        j = self.header.index(self.time_column)
+        try:
+            with open(self.source, "rb") as f:
+                head = f.read(1 << 16).decode("utf-8", "replace").splitlines()
+                f.seek(max(os.path.getsize(self.source) - (1 << 16), 0))
+                tail = f.read().decode("utf-8", "replace").splitlines()
+            rows = [next(csv.reader([line])) for line in (head[1:2] + [x for x in tail if x.strip()][-1:])]
+            first, last = (float(r[j]) for r in rows)
+        except (OSError, ValueError, IndexError, StopIteration):
+            return None
+        return (first, last) if np.isfinite([first, last]).all() and last > first else None
 
     def __iter__(self):
         import pyarrow as pa

@@ -168,6 +168,32 @@ def test_epoch_stamps_and_an_input_that_stops_before_the_end(tmp_path, hold):
     assert rec.holes[-1].inputs and rec.holes[-1].columns[0] == "u" and rec.holes[-1].t1 >= rec.t[-1] - model.dt
 
 
+@pytest.mark.parametrize("unit, scale, offset", [("s", 1.0, 0.0), ("ms", 1e3, 1.7e12)])
+def test_a_streamed_run_shows_the_share_of_the_file_done(tmp_path, monkeypatch, unit, scale, offset):
+    """The progress of a streamed run is the share of the file's time span its parts have reached
+    (its first and last stamps read first; stamps in ms since 1970 as in s from 0): rising to 1,
+    through the middle (it counted parts before, with no total)."""
+    from skigen import runtime
+    df = awkward_log(seed=2, seconds=10)
+    df["t"] = df["t"] * scale + offset
+    path = tmp_path / "log.csv"
+    df.to_csv(path, index=False, float_format="%.17g")
+    model = small_model()
+    grid = stream_recording(path, model, time_unit=unit)
+    assert grid.stream.stamps() == (df.t.iloc[0], df.t.iloc[-1])
+    seen = []
+
+    def recorder(items, total, label, measure=None, **kw):
+        assert total == 1.0 and label.endswith(", streamed")
+        for item in items:
+            yield item
+            seen.append(measure())
+    monkeypatch.setattr(runtime, "progress", recorder)
+    list(runtime.iter_run_stream(skigen.derive(model, "ekf"), grid, chunk=25))
+    assert len(seen) > 10 and seen == sorted(seen) and seen[-1] == pytest.approx(1.0, abs=0.01)
+    assert any(0.4 < x < 0.6 for x in seen), seen
+
+
 def run_cli(tmp_path, data, name, *args):
     out = tmp_path / name
     assert main(["run", *args, str(data), "--out", str(out)]) == 0
