@@ -739,6 +739,20 @@ def test_several_dataframes_are_told_apart_by_place():
     res = fit(model, [_pendulum_frame(np.random.default_rng(k), N=300) for k in (10, 11)], show_progress=False)
     assert [r["file"] for r in res.recordings] == ["DataFrame #1", "DataFrame #2"]
     assert [str(r.path) for r in res.fitted_recordings] == ["DataFrame #1", "DataFrame #2"]
+    assert not any("residuals on angle differ" in n for n in res.notes)
+
+
+def test_a_joint_fit_says_when_the_recordings_residuals_differ():
+    """Two pendulum flights, the second read with 4× more noise: one sensor noise serves both,
+    and the fit says so, naming the two (said of none when they are alike, above)."""
+    model = pendulum(PENDULUM_START)
+    a, b = (_pendulum_frame(np.random.default_rng(k), N=300) for k in (10, 11))
+    b["angle"] += np.random.default_rng(3).normal(0, 0.04, len(b))          # the declared 0.01, and 0.041
+    res = fit(model, [a, b], show_progress=False)
+    rmse = [r["rmse"]["angle"] for r in res.recordings]
+    said = [n for n in res.notes if "residuals on angle differ" in n]
+    assert rmse[1] > 2 * rmse[0] and len(said) == 1, (rmse, res.notes)
+    assert f"RMSE {rmse[0]:.3g} (DataFrame #1) to {rmse[1]:.3g} (DataFrame #2)" in said[0]
 
 
 def test_validation_leaves_out_a_stuck_sensor_and_cuts_at_input_holes():
