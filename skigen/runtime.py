@@ -263,6 +263,8 @@ class RunSummary:
 
     def lines(self) -> list[str]:
         aug, out = self.filter.aug, []
+        if self.filter.partition is not None:           # which states the MUKF marginalises
+            out += [f"{self.filter.kind}: {line.strip()}" for line in self.filter.partition.describe().splitlines()[:2]]
         if self.holes:
             out.append(f"{len(self.holes)} hole(s) longer than the maximum gap:")
             out += [f"  {h}" for h in self.holes]

@@ -72,6 +72,14 @@ def test_partition_of_the_tutorial_quadrotor():
     assert partition(augment(quad.build("exact_position"))).linear_names == ["x", "y", "z", "theta", "phi"]
 
 
+def test_a_run_summary_says_what_the_mukf_marginalises():
+    """The summary of an MUKF run opens with its split: the sigma-point states and the exact ones."""
+    from skigen.runtime import RunSummary
+    lines = RunSummary(derive(quad.build("euler"), "mukf")).lines()
+    assert lines[:2] == ["mukf: z_n (sigma points, 7): v_x, v_y, v_z",
+                         "mukf: z_l (exact, conditionally linear): x, y, z, theta, phi"]
+
+
 def test_rk4_breaks_conditional_linearity():
     part = partition(augment(quad.build("rk4")))
     assert part.linear_names == ["x", "y", "z"]
