@@ -366,7 +366,8 @@ def _parser() -> argparse.ArgumentParser:
     a.add_argument("--real", choices=["double", "float"], default="double", help="C backend precision")
     a.add_argument("--track", action="append", default=[], metavar="STATE",
                    help="a state whose final value ± std joins the summary, e.g. a mass carried as a "
-                        "random-walk state (repeatable; weights and --estimate parameters always do)")
+                        "random-walk state (repeatable; weights and --estimate parameters always do); meant for "
+                        "a state constant over a flight: one that moves within it moves between logs too")
     a.add_argument("--estimate", action="append", default=[], metavar="NAME",
                    help="a parameter to estimate (filter: augmented online; --fit: default all) (repeatable)")
     a.add_argument("--method", choices=["output-error", "filter-error"], default="output-error",
