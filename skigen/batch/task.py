@@ -168,7 +168,7 @@ def _diagnose(spec, digest, path, tmp: Path, final: Path, opt: dict, row: dict) 
                        + (f" ± {f['std']:.2g})" if f.get("std") is not None and np.isfinite(f["std"]) else ")")
                        + "".join(f", or {where(a)} ({a['coefficient']:.4g})" for a in f.get("as_good", []))
                        for f in d["findings"]]
-    row["quantities"] = {f"{f['effect']}@{f.get('output') or f['equation']}" + (f"@{f['through']}" if f.get("through") else ""): [_num(f["coefficient"]),
+    row["quantities"] = {f"{f['effect']}@{f.get('output') or (f['input'] if f['effect'] == 'constant' else f['equation'])}" + (f"@{f['through']}" if f.get("through") else ""): [_num(f["coefficient"]),
                                                             _num(f["std"]) if f.get("std") is not None else None]
                          for f in d["findings"]}
     row["quantities"].update({name: [_num(p["calibrated"]), _num(p["std"])]    # the declared constants, calibrated

@@ -227,7 +227,8 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
                + C.channel_candidates(calibrated, rate_eqs, scale, loc.states, np.asarray(rec.inputs)))
     additive = beyond_parameters(declared, rec, loc.states, catalog) + user_cands
     structural = (C.structural_candidates(calibrated, rate_eqs, np.asarray(rec.inputs))
-                  + C.output_candidates(calibrated, loc.outputs or nominal.output_names, np.asarray(rec.outputs)))
+                  + C.output_candidates(calibrated, loc.outputs or nominal.output_names, np.asarray(rec.outputs))
+                  + C.constant_candidates(calibrated, rate_eqs, loc.outputs))
     # the size of what is missing per equation: the slow disturbance located, or what the calibrated
     # process noise had to absorb (a fast effect a random walk cannot follow), whichever is larger
     q = np.sqrt(np.diag(calibrated.process_noise())) / (nominal.dt if nominal.discretization != "discrete" else 1)
@@ -572,12 +573,12 @@ def _not_needed(unneeded: list[dict], terms: list, full: dict, fewer: dict, alph
                         f"constants take over what it explained; {_kept_as(f, fewer)}") for f, c in zip(unneeded, terms)]
 
 
-NO_EFFECT = {"sensor_gain": 1.0, "sensor_offset": 0.0}   # a structural change's value that changes nothing
+NO_EFFECT = {"sensor_gain": 1.0, "sensor_offset": 0.0, "constant": 1.0}   # a structural value that changes nothing
 
 
 def _no_effect(f: dict) -> str:
     """The value at which a finding changes nothing: zero, or a sensor gain's 1."""
-    return "1" if f.get("kind") == "structural" and NO_EFFECT.get(f["effect"]) == 1.0 else "zero"
+    return "1" if f.get("kind") == "structural" and NO_EFFECT.get(f["effect"]) == 1.0 else "zero"   # a factor
 
 
 def _item(c, f: dict, note: str) -> dict:
@@ -719,6 +720,8 @@ def _findings(nominal: Model, corr: Correction, ev: dict, shapes: dict, worth: d
             f["reads"] = reads
         if s.side:
             f["side"] = s.side
+        if s.effect == "constant":
+            f["written_in"] = list(s.equations)
         out.append(f)
     return sorted(out, key=lambda f: (-f["free_run_without"], -f["evidence"]))
 
@@ -754,6 +757,8 @@ def _acted_on(nominal: Model, s) -> list[str]:
     if s.output:
         expr = next(v.sym for v in nominal.outputs if v.name == s.output)
         return [v.name for v in nominal.states if ca.depends_on(expr, v.sym)]
+    if s.equations:                                    # a constant: where it is written
+        return [e for e in s.equations if e in nominal.state_names]
     return [e for e in nominal.state_names
             if any(v.name == s.input and ca.depends_on(nominal.rhs[e], v.sym) for v in nominal.inputs)]
 

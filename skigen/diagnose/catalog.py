@@ -59,6 +59,8 @@ READINGS = {
     "sensor_gain": "a sensor that reads the quantity times a constant (a scale-factor or calibration error)",
     "sensor_saturation": "a sensor whose range ends at a bound: it reads the bound while the quantity "
                          "itself goes on",
+    "constant": "a number of the model is off (a mass, a damper, a gain from a datasheet): every place it is "
+                "written takes the same factor",
 }
 EFFECTS = tuple(READINGS)
 
@@ -155,6 +157,7 @@ class Structural:
                               # (an offset, a lag, a width, a delay; not a limit or sensor range, whose
                               # grid ends at the recorded extremes)
     least: float = 0.0        # the grid does not go below this (a lag's time constant: the integration step)
+    equations: tuple = ()     # a constant: the equations it is written in (its outputs in ``output``)
 
     @property
     def target(self) -> str:
@@ -489,6 +492,33 @@ def _describe_fraction(u: str, samples: float, dt: float) -> str:
     a = float(_num(samples - n))
     now = f"{u}[k-{n}]" if n else f"{u}[k]"
     return f"{_num(1 - a)}·{now} + {_num(a)}·{u}[k-{n + 1}] ({_num(samples * dt)} s)"
+
+
+CONSTANT_FACTORS = (0.5, 0.67, 0.8, 0.9, 0.95, 0.98, 1.02, 1.05, 1.1, 1.25, 1.5, 2.0)
+
+
+def constant_candidates(model: Model, equations, outputs) -> list[Structural]:
+    """Per number written in a listed equation's right-hand side or a listed output's formula (not
+    0 or ±1, nor a power's exponent; a number and its negative are one), that number off by a
+    factor (CONSTANT_FACTORS, log scale, on past an end while it is best) wherever it is written in
+    the model: a damper's 1200 acting on two masses and read by an accelerometer is one number.
+    Declared parameters are the calibration's, not candidates."""
+    where = [("rhs", e, model.rhs[e]) for e in equations] + [
+        ("out", v.name, v.sym) for v in model.outputs if v.name in outputs]
+    values = sorted({abs(c) for _, _, e in where for c in T.literals(e) if abs(c) not in (0.0, 1.0)})
+    out = []
+    for c in values:
+        eqs = tuple(e for e in model.state_names if any(np.isclose(abs(x), c, rtol=1e-12, atol=0)
+                                                        for x in T.literals(model.rhs[e])))
+        outs = tuple(v.name for v in model.outputs if any(np.isclose(abs(x), c, rtol=1e-12, atol=0)
+                                                         for x in T.literals(v.sym)))
+        text = _num(c) if float(_num(c)) == c else f"{c:.6g}"
+        out.append(Structural(
+            "constant", text, "factor", "", CONSTANT_FACTORS, False, True,
+            lambda m, f, c=c: T.scale_constant(m, c, f),
+            lambda f, c=c, text=text: f"{text} × {_num(f)} = {c * f:.4g}", READINGS["constant"],
+            beyond=2.0, equations=eqs + tuple(f"output {o}" for o in outs)))
+    return out
 
 
 def output_candidates(model: Model, outputs, recorded: np.ndarray) -> list[Structural]:

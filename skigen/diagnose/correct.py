@@ -12,6 +12,7 @@ EKF is emitted beside it.
 from __future__ import annotations
 
 import datetime
+import re
 from pathlib import Path
 
 import casadi as ca
@@ -121,6 +122,7 @@ def write_model_file(path, final: Model, added: dict, *, header: list[str]) -> M
 
 
 def _unique_name(model: Model, name: str) -> str:
+    name = re.sub(r"\W", "_", name)                # a constant's 0.002: constant_0_002
     taken = set(model.names) | set(model.parameter_names)
     out, i = name, 2
     while out in taken:
@@ -179,9 +181,29 @@ def liftable(nominal: Model, corr: Correction, equations) -> list[tuple[str, str
         terms += [("viscous_damping", eq, f"-{eq}")]
         terms += [("input_gain", u, u) for u in nominal.input_names]
         for effect, var, formula in terms:
-            if (effect, eq) not in found and ca.depends_on(rhs, syms[var]):
+            if (effect, eq) not in found and ca.depends_on(rhs, syms[var]) and not _constant_covers(
+                    nominal, corr, eq, T.formula(nominal, formula)):
                 out.append((effect, eq, formula))
     return out
+
+
+def _constant_covers(nominal: Model, corr: Correction, eq: str, term: ca.SX) -> bool:
+    """Whether a constant found off already moves ``eq`` along ``term`` (its rate's derivative in
+    the constant's factor proportional to it, at random states and inputs): a viscous damping
+    lifted beside a damping constant found off makes the two one number the refit cannot split."""
+    x = ca.vertcat(*T.symbols(nominal).values())
+    points = np.random.default_rng(0).normal(size=(8, x.shape[0]))
+    for s, _, _ in corr.structural:
+        if s.effect != "constant" or eq not in s.equations:
+            continue
+        f = ca.SX.sym("f")
+        d = ca.jacobian(s.build(nominal, f).rhs[eq], f)
+        g = ca.Function("g", [x, f], [d, term])
+        pairs = np.array([[float(v) for v in g(p, 1.0)] for p in points])
+        ratio = pairs[:, 0] / np.where(pairs[:, 1] != 0, pairs[:, 1], np.nan)
+        if np.all(np.isfinite(ratio)) and np.ptp(ratio) <= 1e-9 * np.max(np.abs(ratio)):
+            return True
+    return False
 
 
 def refit_jointly(nominal: Model, calibrated: Model, corr: Correction, rec, equations,

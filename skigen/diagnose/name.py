@@ -749,6 +749,8 @@ def best_cv_loglik(noises, corr: Correction, rec: Recording, folds: Folds, rms: 
 
 
 def _label(s: Structural) -> str:
+    if s.effect == "constant":
+        return f"the constant {s.target}"
     return f"{s.effect} of {s.target}" + (f" ({s.side})" if s.side else "")
 
 

@@ -19,7 +19,7 @@ from ..model import Model, Variable
 
 __all__ = ["copy_model", "constants", "symbols", "formula", "rate", "add_term", "add_state", "replace_input", "read",
            "input_delay", "fractional_delay", "actuator_lag", "input_saturation", "dead_zone", "smooth_dead_zone",
-           "backlash", "output_offset", "output_gain", "output_saturation",
+           "backlash", "output_offset", "output_gain", "output_saturation", "literals", "scale_constant",
            "with_disturbance", "memory_values", "load_model_file"]
 
 
@@ -263,6 +263,57 @@ def read(model: Model, y: str, reading) -> Model:
 
 def _unit(model: Model, u: str) -> str:
     return next(v.unit for v in model.inputs if v.name == u)
+
+
+EXPONENTS = (ca.OP_POW, ca.OP_CONSTPOW)        # their second operand is a power, not a constant of the plant
+
+
+def _replay(expr: ca.SX, swap) -> ca.SX:
+    """``expr`` rebuilt operation by operation, each literal constant c replaced by ``swap(c)``
+    (the same constant where that returns None): the constants CasADi keeps as they were written."""
+    expr = ca.SX(expr)
+    syms = ca.symvar(expr)
+    f = ca.Function("f", syms, [expr])
+    work: dict = {}
+    writer, powers = {}, set()                     # the instruction that last wrote each work register
+    for k in range(f.n_instructions()):
+        if f.instruction_id(k) in EXPONENTS:
+            powers.add(writer.get(f.instruction_input(k)[1]))
+        for r in f.instruction_output(k)[:1]:
+            writer[r] = k
+    for k in range(f.n_instructions()):
+        op, ins, outs = f.instruction_id(k), f.instruction_input(k), f.instruction_output(k)
+        if op == ca.OP_CONST:
+            c = f.instruction_constant(k)
+            new = None if k in powers else swap(c)
+            work[outs[0]] = ca.SX(c) if new is None else ca.SX(new)
+        elif op == ca.OP_INPUT:
+            work[outs[0]] = syms[ins[0]]
+        elif op == ca.OP_OUTPUT:
+            return work[ins[0]]
+        elif len(ins) == 2 and ins[1] >= 0:
+            work[outs[0]] = ca.SX.binary(op, work[ins[0]], work[ins[1]])
+        else:
+            work[outs[0]] = ca.SX.unary(op, work[ins[0]])
+    return expr                                     # a constant expression: no instruction reads it
+
+
+def literals(expr) -> list[float]:
+    """The literal constants of ``expr`` (not a power's exponent), as written."""
+    seen = []
+    _replay(expr, lambda c: seen.append(c))
+    return seen
+
+
+def scale_constant(model: Model, value: float, factor) -> Model:
+    """A copy in which every literal constant of magnitude ``value`` in the dynamics and the outputs
+    (a damper's 1200 in two equations and an accelerometer's formula, whichever its sign) is
+    ``factor`` times itself: one number of the model off."""
+    m = copy_model(model)
+    same = lambda c: c * _number(factor) if np.isclose(abs(c), abs(value), rtol=1e-12, atol=0) else None
+    m.rhs = {k: _replay(e, same) for k, e in m.rhs.items()}
+    m.outputs = [dataclasses.replace(v, sym=_replay(v.sym, same)) for v in m.outputs]
+    return m
 
 
 def with_disturbance(model: Model, equations, process_std, std) -> tuple[Model, list[str]]:
