@@ -46,6 +46,8 @@ EFFECTS = {   # name: (default parameter, what it means)
     "pump_limit": (5.0, "the pump delivers at most this command L (V): the plant sees min(u, L)"),
     "float_valve": (4e-5, "mains inflow q_v (m³/s) into the lower tank while a float valve is open: it "
                           "opens when h₂ < 0.08 m and closes when h₂ > 0.11 m; not in the catalog"),
+    "orifice": (1.2, "the upper orifice is this many times the declared a₁: one number of the model, written "
+                     "in both levels' equations (what drains the upper tank fills the lower)"),
 }
 VALVE_LEVELS = (0.08, 0.11)        # m: float valve opens below the first, closes above the second
 
@@ -140,6 +142,9 @@ def simulate(pump, *, effect: str | None = None, parameter=None, seed: int = 0, 
             r[0] = min(r[0], 0.0)                     # at the rim the inflow spills over
         if valve_open:
             r[1] += par / A2
+        if effect == "orifice":
+            extra = (par - 1.0) * a1 * np.sqrt(2 * G * max(x[0], 0.0))
+            r += (-extra / A1, extra / A2)
         return r
 
     x = np.array(INITIAL, float)

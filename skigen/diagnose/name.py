@@ -718,6 +718,7 @@ def added(before: Correction, after: Correction) -> list[dict]:
     terms = [{k: v for k, v in term_item(c, coef, std, "").items() if k != "note"}
              for c, coef, std in after.found[len(before.found):]]
     return terms + [{"effect": s.effect, **({"output": s.output} if s.output else {"input": s.input}),
+                     **({"written_in": list(s.equations)} if s.equations else {}),
                      "expression": s.describe(value), "coefficient": value, "std": std}
                     for s, value, std in after.structural[len(before.structural):]]
 

@@ -34,7 +34,7 @@ def where(f: dict) -> str:
     """'effect on equation' (or on the input a structural item acts on; 'effect of output (reads
     state)' for a sensor), and the input it acts through (report.json's finding or term item)."""
     if f["effect"] == "constant":
-        places = f.get("written_in") or [f["equation"]] * bool(f.get("equation"))
+        places = f.get("written_in") or ([f["equation"]] if f.get("equation") else [])
         return f"the constant {f['input']}" + (f" (in {', '.join(places)})" if places else "")
     if f.get("output"):
         reads = f.get("reads") or f.get("equation")

@@ -1,0 +1,67 @@
+"""A number of the model off: one literal constant, wherever it is written, scaled by one factor.
+
+The catalog's terms act on one equation each; a constant written in several (what drains the
+upper tank fills the lower one; a damper acts on two masses and an accelerometer reads it) is one
+number. Before, a tank's orifice 20 % larger than declared was named an input gain on h1, tied with
+a bias; a quarter-car's damper (1600 for a declared 1200) an accelerometer gain, a mismatch left.
+"""
+import json
+
+import casadi as ca
+import numpy as np
+import pandas as pd
+import pytest
+
+from models import two_tanks as tanks
+from skigen import Model
+from skigen.diagnose import diagnose
+from skigen.diagnose import catalog as C
+from skigen.diagnose import transform as T
+
+
+def quarter_car() -> Model:
+    m = Model("quarter_car", dt=0.001)
+    zs, vs, zu, vu = (m.state(n) for n in ("zs", "vs", "zu", "vu"))
+    fa = m.input("Fa")
+    body = (-20000 * (zs - zu) - 1200 * (vs - vu) + fa) / 300
+    m.dynamics({zs: vs, vs: body, zu: vu, vu: (20000 * (zs - zu) + 1200 * (vs - vu) - 150000 * zu - fa) / 40})
+    m.output("acc_body", body, noise_std=0.1)
+    m.output("defl", zs - zu + 0.5 * zs ** 2.5, noise_std=1e-3)
+    return m
+
+
+def test_a_constant_is_scaled_wherever_it_is_written_whatever_its_sign():
+    """literals: the numbers as written (not 0 or 1 — CasADi keeps −20000 as one number — nor a
+    power's exponent); scale_constant: the damper's 1200 in both equations and the
+    accelerometer's formula, by a number or a symbol, nothing else touched."""
+    m = quarter_car()
+    assert T.literals(m.rhs["vs"]) == [-20000.0, 1200.0, 300.0]
+    assert T.literals(m.outputs[1].sym) == [0.5]                       # 2.5 is an exponent
+    scaled = T.scale_constant(m, 1200, 4 / 3)
+    x = ca.vertcat(*T.symbols(m).values())
+    point = [0.01, 0.3, -0.02, -0.4, 50.0]
+    rates = lambda model: ca.Function("f", [x], [ca.vertcat(*model.rhs.values(), *[v.sym for v in model.outputs])])(point)
+    change = np.array(rates(scaled) - rates(m)).ravel()
+    dv = 0.3 - (-0.4)                                                  # vs − vu
+    np.testing.assert_allclose(change, [0, -400 * dv / 300, 0, 400 * dv / 40, -400 * dv / 300, 0], rtol=1e-12)
+    f = ca.SX.sym("f")
+    assert ca.depends_on(T.scale_constant(m, 1200, f).outputs[0].sym, f)
+    assert not ca.depends_on(T.scale_constant(m, 2.5, f).outputs[1].sym, f)
+    cands = C.constant_candidates(m, ["vs", "vu"], ["acc_body"])
+    assert [c.target for c in cands] == ["40", "300", "1200", "20000", "150000"]
+    assert next(c for c in cands if c.target == "1200").equations == ("vs", "vu", "output acc_body")
+
+
+def test_an_orifice_off_in_both_levels_is_named_as_its_constant(tmp_path):
+    """Two tanks whose upper orifice drains 1.2× what the model declares (400 s, 4000 samples):
+    the constant a₁·√(2g), in h1 and h2, is named with its factor (measured 1.2005 ± 0.0057) and
+    nothing remains."""
+    run = tanks.simulate(tanks.pump_steps(400.0, seed=1), effect="orifice", seed=1)
+    frame = pd.DataFrame({"t": run.t, "u": run.u, "h1_meas": run.h1_meas, "h2_meas": run.h2_meas})
+    diagnose("models/two_tanks.py", frame, tmp_path, figures=False, emit=False, show_progress=False)
+    d = json.loads((tmp_path / "report.json").read_text())
+    (f,) = d["findings"]
+    assert f["effect"] == "constant" and f["written_in"] == ["h1", "h2"] and f["equation"] == "h1+h2"
+    assert float(f["input"]) == pytest.approx(tanks.a1 * np.sqrt(2 * tanks.G), rel=1e-5)
+    assert abs(f["coefficient"] - 1.2) < min(4 * f["std"], 0.03 * 1.2), f
+    assert not d["remaining"]["mismatch"]
