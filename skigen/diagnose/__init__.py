@@ -228,7 +228,8 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     additive = beyond_parameters(declared, rec, loc.states, catalog) + user_cands
     structural = (C.structural_candidates(calibrated, rate_eqs, np.asarray(rec.inputs))
                   + C.output_candidates(calibrated, loc.outputs or nominal.output_names, np.asarray(rec.outputs))
-                  + C.constant_candidates(calibrated, rate_eqs, loc.outputs))
+                  + C.constant_candidates(declared, rate_eqs, loc.outputs))    # the user's numbers, not
+                                                                                # the parameters' calibrated values
     # the size of what is missing per equation: the slow disturbance located, or what the calibrated
     # process noise had to absorb (a fast effect a random walk cannot follow), whichever is larger
     q = np.sqrt(np.diag(calibrated.process_noise())) / (nominal.dt if nominal.discretization != "discrete" else 1)

@@ -498,27 +498,40 @@ CONSTANT_FACTORS = (0.5, 0.67, 0.8, 0.9, 0.95, 0.98, 1.02, 1.05, 1.1, 1.25, 1.5,
 
 
 def constant_candidates(model: Model, equations, outputs) -> list[Structural]:
-    """Per number written in a listed equation's right-hand side or a listed output's formula (not
-    0 or ±1, nor a power's exponent; a number and its negative are one), that number off by a
-    factor (CONSTANT_FACTORS, log scale, on past an end while it is best) wherever it is written in
-    the model: a damper's 1200 acting on two masses and read by an accelerometer is one number.
-    Declared parameters are the calibration's, not candidates."""
-    where = [("rhs", e, model.rhs[e]) for e in equations] + [
-        ("out", v.name, v.sym) for v in model.outputs if v.name in outputs]
-    values = sorted({abs(c) for _, _, e in where for c in T.literals(e) if abs(c) not in (0.0, 1.0)})
+    """Per number written in a listed equation's right-hand side or a listed output's formula,
+    beside the same thing in at least two of the model's equations and outputs (a damper's
+    1200·(vs − vu) acting on two masses and read by an accelerometer), that number off by a
+    factor (CONSTANT_FACTORS, log scale, on past an end while it is best) wherever it is written
+    so. Not 0 or ±1, nor a power's exponent; a number and its negative are one; the same number
+    beside something else is another (a pendulum's length 0.5 and its cart's damping 0.5). Written
+    once, a catalog term on that equation stands in for it. Declared parameters are the
+    calibration's, not candidates."""
+    places = {("", e): T.literals(model.rhs[e]) for e in model.state_names}
+    places |= {("output ", v.name): T.literals(v.sym) for v in model.outputs}
+    wanted = {("", e) for e in equations} | {("output ", y) for y in outputs}
+    keys = sorted({(abs(c), where) for place in wanted for c, where in places[place] if abs(c) not in (0.0, 1.0)})
     out = []
-    for c in values:
-        eqs = tuple(e for e in model.state_names if any(np.isclose(abs(x), c, rtol=1e-12, atol=0)
-                                                        for x in T.literals(model.rhs[e])))
-        outs = tuple(v.name for v in model.outputs if any(np.isclose(abs(x), c, rtol=1e-12, atol=0)
-                                                         for x in T.literals(v.sym)))
+    for c, where in keys:
+        written = tuple(kind + name for (kind, name), lits in places.items()
+                        if any(np.isclose(abs(x), c, rtol=1e-12, atol=0) and w == where for x, w in lits))
+        if len(written) < 2:
+            continue
         text = _num(c) if float(_num(c)) == c else f"{c:.6g}"
         out.append(Structural(
-            "constant", text, "factor", "", CONSTANT_FACTORS, False, True,
-            lambda m, f, c=c: T.scale_constant(m, c, f),
+            "constant", _written(text, where), "factor", "", CONSTANT_FACTORS, False, True,
+            lambda m, f, c=c, where=where: T.scale_constant(m, c, f, where),
             lambda f, c=c, text=text: f"{text} × {_num(f)} = {c * f:.4g}", READINGS["constant"],
-            beyond=2.0, equations=eqs + tuple(f"output {o}" for o in outs)))
+            beyond=2.0, equations=written))
     return out
+
+
+def _written(text: str, where: str, most: int = 24) -> str:
+    """How a constant reads where it is written: '1200·(vs-vu)', '(…)/300', '0.5 + x'."""
+    op, _, rest = where.split(" ")[0].partition("(")
+    other = rest[:-1]
+    other = other if len(other) <= most else "(…)"
+    return {"*": f"{text}·{other}", "+": f"{other} ± {text}", "4.1": f"{other}/{text}",
+            "4.0": f"{text}/{other}"}.get(op, text)
 
 
 def output_candidates(model: Model, outputs, recorded: np.ndarray) -> list[Structural]:

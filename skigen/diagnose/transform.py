@@ -269,48 +269,74 @@ EXPONENTS = (ca.OP_POW, ca.OP_CONSTPOW)        # their second operand is a power
 
 
 def _replay(expr: ca.SX, swap) -> ca.SX:
-    """``expr`` rebuilt operation by operation, each literal constant c replaced by ``swap(c)``
-    (the same constant where that returns None): the constants CasADi keeps as they were written."""
+    """``expr`` rebuilt operation by operation, each literal constant c replaced by
+    ``swap(c, context)`` (kept where that returns None); ``context``: what the constant multiplies,
+    divides or is added to (:func:`_context`). The constants are those CasADi keeps as written;
+    a power's exponent is none of them."""
     expr = ca.SX(expr)
     syms = ca.symvar(expr)
     f = ca.Function("f", syms, [expr])
-    work: dict = {}
-    writer, powers = {}, set()                     # the instruction that last wrote each work register
-    for k in range(f.n_instructions()):
-        if f.instruction_id(k) in EXPONENTS:
-            powers.add(writer.get(f.instruction_input(k)[1]))
-        for r in f.instruction_output(k)[:1]:
-            writer[r] = k
-    for k in range(f.n_instructions()):
-        op, ins, outs = f.instruction_id(k), f.instruction_input(k), f.instruction_output(k)
-        if op == ca.OP_CONST:
-            c = f.instruction_constant(k)
-            new = None if k in powers else swap(c)
-            work[outs[0]] = ca.SX(c) if new is None else ca.SX(new)
-        elif op == ca.OP_INPUT:
-            work[outs[0]] = syms[ins[0]]
-        elif op == ca.OP_OUTPUT:
-            return work[ins[0]]
-        elif len(ins) == 2 and ins[1] >= 0:
-            work[outs[0]] = ca.SX.binary(op, work[ins[0]], work[ins[1]])
-        else:
-            work[outs[0]] = ca.SX.unary(op, work[ins[0]])
-    return expr                                     # a constant expression: no instruction reads it
+    n = f.n_instructions()
+    ops, ins, outs = ([g(k) for k in range(n)] for g in (f.instruction_id, f.instruction_input, f.instruction_output))
+
+    def run(change):
+        work, made, last = {}, {}, {}                # register → value; instruction → value; register → writer
+        for k in range(n):
+            op, a, b = ops[k], ins[k], outs[k]
+            if op == ca.OP_CONST:
+                c = f.instruction_constant(k)
+                new = change(k, c)
+                work[b[0]] = ca.SX(c) if new is None else ca.SX(new)
+            elif op == ca.OP_INPUT:
+                work[b[0]] = syms[a[0]]
+            elif op == ca.OP_OUTPUT:
+                return work[a[0]], made, last
+            elif len(a) == 2 and a[1] >= 0:
+                for slot, r in enumerate(a[:2]):     # who reads each constant, and beside what
+                    if ops[last[r]] == ca.OP_CONST:
+                        users.setdefault(last[r], []).append((op, slot, work[a[1 - slot]]))
+                work[b[0]] = ca.SX.binary(op, work[a[0]], work[a[1]])
+            else:
+                work[b[0]] = ca.SX.unary(op, work[a[0]])
+            made[k] = work[b[0]]
+            last[b[0]] = k
+        return expr, made, last
+    users: dict = {}
+    run(lambda k, c: None)
+    contexts = {k: _context(u) for k, u in users.items()}
+    return run(lambda k, c: None if contexts.get(k) is None else swap(c, contexts[k]))[0]
 
 
-def literals(expr) -> list[float]:
-    """The literal constants of ``expr`` (not a power's exponent), as written."""
+def _context(uses) -> str | None:
+    """What a constant stands beside in its uses, as text ('*(vs-vu)', '/(h1)'); None where it is
+    a power's exponent."""
+    out = set()
+    for op, slot, other in uses:
+        if op in EXPONENTS and slot == 1:
+            return None
+        sign = {ca.OP_MUL: "*", ca.OP_ADD: "+", ca.OP_SUB: "+"}.get(op) or f"{op}.{slot}"   # commuting: no slot
+        out.add(f"{sign}({other})")
+    return " ".join(sorted(out))
+
+
+def literals(expr) -> list[tuple[float, str]]:
+    """The literal constants of ``expr`` as written, each with what it stands beside (not a
+    power's exponent)."""
     seen = []
-    _replay(expr, lambda c: seen.append(c))
+    _replay(expr, lambda c, where: seen.append((c, where)))
     return seen
 
 
-def scale_constant(model: Model, value: float, factor) -> Model:
-    """A copy in which every literal constant of magnitude ``value`` in the dynamics and the outputs
-    (a damper's 1200 in two equations and an accelerometer's formula, whichever its sign) is
-    ``factor`` times itself: one number of the model off."""
+def scale_constant(model: Model, value: float, factor, context: str | None = None) -> Model:
+    """A copy in which every literal constant of magnitude ``value`` (standing beside ``context``,
+    when given, as :func:`literals` says: a damper's 1200·(vs − vu), not a spring's 1200·(zs − zu))
+    in the dynamics and the outputs (in two equations and an accelerometer's formula, whichever
+    its sign) is ``factor`` times itself: one number of the model off."""
     m = copy_model(model)
-    same = lambda c: c * _number(factor) if np.isclose(abs(c), abs(value), rtol=1e-12, atol=0) else None
+
+    def same(c, where):
+        hit = np.isclose(abs(c), abs(value), rtol=1e-12, atol=0) and context in (None, where)
+        return c * _number(factor) if hit else None
     m.rhs = {k: _replay(e, same) for k, e in m.rhs.items()}
     m.outputs = [dataclasses.replace(v, sym=_replay(v.sym, same)) for v in m.outputs]
     return m
