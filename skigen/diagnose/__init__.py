@@ -740,8 +740,10 @@ def _as_good(findings: list[dict], history) -> None:
     for p in history:
         adopted = {_signal(a) for a in p.adopted}
         for f in findings:
-            if p.as_good and _signal(f) in adopted:
-                f["as_good"] = p.as_good
+            if p.as_good and _signal(f) in adopted:          # a tie said of the finding it would replace
+                ties = [a for a in p.as_good if "instead_of" not in a or list(_signal(f)) in a["instead_of"]]
+                if ties:
+                    f["as_good"] = ties
 
 
 def _reads(nominal: Model, output: str) -> str | None:

@@ -334,17 +334,24 @@ def _ties(current: Correction, new: Correction, score, tried: list, alpha: float
     well as ``new`` with no more terms (cross-validated log-likelihood within what a finding must
     add), as report items with how far behind they are: a roll-damping change scored a quadratic
     drag 0.24 ahead of the true viscous damping, and was named without a word of it."""
-    same = {_said(a) for a in added(current, new)}
-    out, seen = [], set(same)
+    mine = added(current, new)
+    out, seen = [], {_said(a) for a in mine}
     for trial, trial_score in sorted(tried, key=lambda t: -np.sum(t[1])):
         behind = float(np.sum(score) - np.sum(trial_score))
         if len(trial.additive) > len(new.additive) or not 0 <= behind < evidence_threshold(alpha):
             continue
-        for item in added(current, trial):
+        theirs = added(current, trial)
+        instead = [list(_acts(a)) for a in mine if _said(a) not in {_said(b) for b in theirs}]
+        for item in theirs:
             if _said(item) not in seen:
                 seen.add(_said(item))
-                out.append(item | {"cv_loglik_behind": behind})
+                out.append(item | {"cv_loglik_behind": behind, "instead_of": instead})
     return out
+
+
+def _acts(item: dict) -> tuple:
+    """What a report item acts on: (effect, its output, input or equation, what it acts through)."""
+    return item["effect"], item.get("output") or item.get("input") or item["equation"], item.get("through", "")
 
 
 def _said(item: dict) -> tuple:
