@@ -157,7 +157,7 @@ class Structural:
                               # (an offset, a lag, a width, a delay; not a limit or sensor range, whose
                               # grid ends at the recorded extremes)
     least: float = 0.0        # the grid does not go below this (a lag's time constant: the integration step)
-    equations: tuple = ()     # a constant: the equations it is written in (its outputs in ``output``)
+    equations: tuple = ()     # a constant: where it is written (states' equations; 'output y' for an output)
 
     @property
     def target(self) -> str:
