@@ -69,3 +69,21 @@ def test_an_orifice_off_in_both_levels_is_named_as_its_constant(tmp_path):
     assert f["input"] == "0.000221472·sqrt(h1)"                       # a₁·√(2g), as Python folded it
     assert abs(f["coefficient"] - 1.2) < min(4 * f["std"], 0.03 * 1.2), f
     assert not d["remaining"]["mismatch"]
+
+
+def test_the_corrected_model_carries_a_constant_beside_a_term_through_an_input():
+    """A constant found off and a term added to the input written beside it (a vehicle's 80000 on
+    (δ − …) and a damping through δ): the corrected model's constant is a parameter its
+    expressions use. (Applied after the input was rewritten, the constant no longer stood beside
+    what it was found beside, and the file declared a parameter nothing used: a user's refit
+    then failed, 'no effect on the likelihood'.)"""
+    from skigen.diagnose.catalog import Additive
+    from skigen.diagnose.correct import parametrised
+    from skigen.diagnose.name import Correction
+    m = quarter_car()
+    (damper,) = [c for c in C.constant_candidates(m, ["vs", "vu"], ["acc_body"]) if c.target == "1200·(vs-vu)"]
+    through = Additive("viscous_damping", "vs", "-vs", "damping", through="Fa")
+    fitted, names, _ = parametrised(m, Correction([(through, 5.0, 0.1)], [(damper, 1.3, 0.01)]))
+    assert set(names) == {"viscous_damping_vs_Fa", "constant_1200_vs_vu"}
+    p = next(q.sym for q in fitted.parameters if q.name == "constant_1200_vs_vu")
+    assert all(ca.depends_on(fitted.rhs[e], p) for e in ("vs", "vu")) and ca.depends_on(fitted.outputs[0].sym, p)

@@ -520,7 +520,7 @@ def constant_candidates(model: Model, equations, outputs) -> list[Structural]:
         out.append(Structural(
             "constant", _written(text, where), "factor", "", CONSTANT_FACTORS, False, True,
             lambda m, f, c=c, where=where: T.scale_constant(m, c, f, where),
-            lambda f, c=c, text=text: f"{text} × {_num(f)} = {c * f:.4g}", READINGS["constant"],
+            lambda f, c=c, text=text: f"{text} × {f:.4g} = {c * f:.4g}", READINGS["constant"],
             beyond=2.0, equations=written))
     return out
 

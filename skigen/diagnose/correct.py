@@ -122,7 +122,7 @@ def write_model_file(path, final: Model, added: dict, *, header: list[str]) -> M
 
 
 def _unique_name(model: Model, name: str) -> str:
-    name = re.sub(r"\W", "_", name)                # a constant's 0.002: constant_0_002
+    name = re.sub(r"\W+", "_", name).strip("_")    # a constant's 0.002·v: constant_0_002_v
     taken = set(model.names) | set(model.parameter_names)
     out, i = name, 2
     while out in taken:
@@ -138,6 +138,9 @@ def parametrised(base: Model, corr: Correction, lift: list[tuple[str, str, str]]
     {parameter: finding candidate or None}, {equation: [comment per added term]})."""
     m = T.copy_model(base, unknowns=False)
     names, notes, added = {}, {}, {}
+    first = [s for s in corr.structural if s[0].effect == "constant"]   # a number as written, before an
+    for s, value, _ in first:                                           # input is rewritten around it
+        m = s.build(m, _structural_parameter(m, s, value, names))
     for c, coef, std in corr.additive:
         name = _unique_name(m, "_".join(filter(None, (c.effect, c.equation, c.through))))
         p = m.parameter(name, float(coef), bounds=(0.0, np.inf) if c.sign > 0 and coef >= 0 else None)
@@ -157,13 +160,19 @@ def parametrised(base: Model, corr: Correction, lift: list[tuple[str, str, str]]
         names[name] = None
         notes.setdefault(eq, []).append(f"correction of the nominal {effect.replace('_', ' ')}: {name} × ({formula})")
     for s, value, _ in corr.structural:
-        if s.refit:
-            name = _unique_name(m, "_".join(filter(None, (s.effect, s.target, s.side))))
-            value = m.parameter(name, float(value), unit=s.unit,      # searched on a log scale: positive
-                                bounds=(0.0, np.inf) if s.log else None)
-            names[name] = s
-        m = s.build(m, value)
+        if s.effect != "constant":
+            m = s.build(m, _structural_parameter(m, s, value, names))
     return m, names, notes
+
+
+def _structural_parameter(m: Model, s, value: float, names: dict):
+    """A structural change's value: a declared parameter of ``m`` where it is refitted (``names``
+    records it), else the number."""
+    if not s.refit:
+        return value
+    name = _unique_name(m, "_".join(filter(None, (s.effect, s.target, s.side))))
+    names[name] = s
+    return m.parameter(name, float(value), unit=s.unit, bounds=(0.0, np.inf) if s.log else None)   # log: positive
 
 
 def liftable(nominal: Model, corr: Correction, equations) -> list[tuple[str, str, str]]:
