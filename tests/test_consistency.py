@@ -44,8 +44,8 @@ def test_second_order_ekf_as_consistent_as_the_ukf():
 
 def test_on_a_cubic_term_the_first_order_ekf_is_overconfident_and_second_order_is_not():
     """A Duffing oscillator's cubic stiffness (−1.5) on a 10-term library, σ = 0.02, seeds 0–3: the
-    first-order EKF's error on w_x3 is 9.9 of its std (RMS; 13.5 over seeds 0–11), the
-    second-order EKF's 0.93 (0.92) — what README's --second-order promises."""
+    first-order EKF's error on w_x3 is 9.9 of its std (RMS), the second-order EKF's 0.93 — what
+    README's --second-order says."""
     from skigen.runtime import run
     from tests.test_guard import _duffing
     z = {False: [], True: []}
