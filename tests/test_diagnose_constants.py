@@ -87,3 +87,39 @@ def test_the_corrected_model_carries_a_constant_beside_a_term_through_an_input()
     assert set(names) == {"viscous_damping_vs_Fa", "constant_1200_vs_vu"}
     p = next(q.sym for q in fitted.parameters if q.name == "constant_1200_vs_vu")
     assert all(ca.depends_on(fitted.rhs[e], p) for e in ("vs", "vu")) and ca.depends_on(fitted.outputs[0].sym, p)
+
+
+def test_an_accelerometer_whose_formula_repeats_the_dynamics_reads_what_is_found_there(tmp_path):
+    """A mass on a spring and damper riding a shaker, its accelerometer's formula written as the
+    rate's (a user's model): a Coulomb friction found on the rate is read by that sensor as well
+    (catalog.rate_readers). Before, the sensor's formula did not follow, and its 8·zd was named
+    off by 1.78 with a negative damping beside the friction. Named: the friction alone."""
+    from skigen import Model
+    rng = np.random.default_rng(7)
+    dt, n = 0.002, 5000
+    t = np.arange(n) * dt
+    s = sum(np.sin(2 * np.pi * f * t + p) for f, p in zip((1.1, 1.9, 2.7, 3.3, 4.1, 5.3, 7.7, 9.1, 12.3, 14.9),
+                                                           rng.uniform(0, 2 * np.pi, 10)))
+    ab = 6.0 * s / np.max(np.abs(s))
+    acc = lambda x: (-800 * x[0] - 8 * x[1] - 1.0 * np.tanh(x[1] / 0.001)) / 2
+    x, X, h = np.zeros(2), np.zeros((n, 2)), dt / 20
+    for k in range(n):
+        X[k] = x
+        f = lambda x: np.array([x[1], acc(x) - ab[k]])
+        for _ in range(20):
+            k1 = f(x); k2 = f(x + h / 2 * k1); k3 = f(x + h / 2 * k2); k4 = f(x + h * k3)
+            x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        x = x + rng.normal(0, [1e-7, 1e-4])
+    frame = pd.DataFrame({"t": t, "ab": ab, "z_lvdt": X[:, 0] + rng.normal(0, 1e-4, n),
+                          "a_acc": np.array([acc(r) for r in X]) + rng.normal(0, 0.05, n)})
+    m = Model("base", dt=dt, discretization="rk4")
+    z = m.state("z", unit="m", role="position", std=1e-3, process_std=1e-7)
+    zd = m.state("zd", unit="m/s", role="velocity", std=1e-2, process_std=1e-4)
+    a = m.input("ab", unit="m/s^2")
+    m.dynamics({z: zd, zd: (-800 * z - 8 * zd) / 2 - a})
+    m.output("z_lvdt", z, unit="m", noise_std=1e-4)
+    m.output("a_acc", (-800 * z - 8 * zd) / 2, unit="m/s^2", noise_std=0.05)
+    assert C.rate_readers(m) == {"zd": [("a_acc", 1.0)]}
+    d = diagnose(m, frame, tmp_path, figures=False, emit=False, show_progress=False).data
+    (f,) = d["findings"]
+    assert (f["effect"], f["equation"]) == ("coulomb_friction", "zd") and abs(f["coefficient"] - 0.5) < 0.03, f

@@ -119,6 +119,33 @@ def feedthrough(model: Model, u: str) -> dict[str, ca.SX]:
     return {v.name: ca.jacobian(v.sym, sym) for v in model.outputs if ca.depends_on(v.sym, sym)}
 
 
+def rate_readers(model: Model) -> dict[str, list[tuple[str, float]]]:
+    """{equation: [(output, k)]}: the outputs written as k times that equation's rate plus inputs
+    and constants (an accelerometer's formula repeating the dynamics): what is found missing in
+    the rate, the sensor reads as well. Judged on the states' Jacobians at random points."""
+    if model.discretization == "discrete" or not model.outputs:
+        return {}
+    x = ca.vertcat(*[v.sym for v in model.states])
+    u = ca.vertcat(*[v.sym for v in model.inputs]) if model.inputs else ca.SX(0, 1)
+    J = ca.Function("J", [x, u], [ca.jacobian(ca.vertcat(*[model.rhs[e] for e in model.state_names]), x),
+                                  ca.jacobian(ca.vertcat(*[v.sym for v in model.outputs]), x)])
+    rng = np.random.default_rng(0)
+    pairs = [[np.array(a) for a in J(rng.normal(size=x.shape[0]), rng.normal(size=u.shape[0]))] for _ in range(4)]
+    out = {}
+    for i, e in enumerate(model.state_names):
+        for j, v in enumerate(model.outputs):
+            if ca.SX(v.sym).is_symbolic():            # a state read as it is, not a formula of the rate
+                continue
+            f, h = np.concatenate([p[0][i] for p in pairs]), np.concatenate([p[1][j] for p in pairs])
+            big = np.argmax(np.abs(f))
+            if not np.all(np.isfinite(f + h)) or f[big] == 0:
+                continue
+            k = h[big] / f[big]
+            if k != 0 and np.allclose(h, k * f, rtol=1e-9, atol=1e-12 * np.max(np.abs(h))):
+                out.setdefault(e, []).append((v.name, float(k)))
+    return out
+
+
 def channel(model: Model, u: str) -> dict[str, ca.SX]:
     """∂(rate)/∂u of every state equation input ``u`` enters (rate units per unit of u)."""
     sym = T.symbols(model)[u]

@@ -137,7 +137,7 @@ def parametrised(base: Model, corr: Correction, lift: list[tuple[str, str, str]]
     limit, a width, a time constant, a sensor's bound) with that value a parameter. Returns (model,
     {parameter: finding candidate or None}, {equation: [comment per added term]})."""
     m = T.copy_model(base, unknowns=False)
-    names, notes, added = {}, {}, {}
+    names, notes, added, readers = {}, {}, {}, C.rate_readers(base)
     first = [s for s in corr.structural if s[0].effect == "constant"]   # a number as written, before an
     for s, value, _ in first:                                           # input is rewritten around it
         m = s.build(m, _structural_parameter(m, s, value, names))
@@ -150,6 +150,8 @@ def parametrised(base: Model, corr: Correction, lift: list[tuple[str, str, str]]
         else:
             m.rhs[c.equation] = m.rhs[c.equation] + T.rate(m, p * c.sx(m))
             notes.setdefault(c.equation, []).append(f"{c.effect}: {name} × ({c.formula})")
+            for y, k in readers.get(c.equation, []):            # a sensor of that rate reads it too
+                m = T.read(m, y, lambda h, k=k, p=p, c=c: h + k * p * c.sx(m))
         names[name] = c
     for u, extra in added.items():
         m = T.replace_input(m, u, T.symbols(m)[u] + extra)

@@ -56,7 +56,7 @@ from ..model import Model
 from ..recording import Recording
 from ..runtime import parallel
 from . import transform as T
-from .catalog import Additive, Structural, feedthrough
+from .catalog import Additive, Structural, feedthrough, rate_readers
 from .cv import Folds, ekf_priors, ekf_run, fit_without, fits_without, fold_loglik, loglik
 from .errors import DiagnosisError
 from .plausible import compensating, significant, term_item
@@ -85,9 +85,12 @@ class Correction:
         """The nominal with these terms; ``unknown`` terms left for a filter to estimate, each
         regressor divided by its ``scales`` entry (its weight's prior variance multiplied by its square)."""
         m = T.copy_model(nominal, name, unknowns=False)
+        readers = rate_readers(nominal)
         for c, coef, _ in self.additive:            # through an input: its direction at the nominal
             for eq, e in c.contributions(nominal).items():
                 m = T.add_term(m, eq, coef, e)
+                for y, k in readers.get(eq, []) if not c.through else ():     # a sensor of that rate
+                    m = T.read(m, y, lambda h, e=e, k=k: h + k * coef * e)
             for y, g in (feedthrough(nominal, c.through) if c.through else {}).items():
                 m = T.read(m, y, lambda h, g=g: h + coef * c.sx(nominal) * g)
         if unknown:                                 # one block per candidate: weights in their order
