@@ -126,11 +126,12 @@ def rate_readers(model: Model) -> dict[str, list[tuple[str, float]]]:
     if model.discretization == "discrete" or not model.outputs:
         return {}
     x = ca.vertcat(*[v.sym for v in model.states])
-    u = ca.vertcat(*[v.sym for v in model.inputs]) if model.inputs else ca.SX(0, 1)
-    J = ca.Function("J", [x, u], [ca.jacobian(ca.vertcat(*[model.rhs[e] for e in model.state_names]), x),
-                                  ca.jacobian(ca.vertcat(*[v.sym for v in model.outputs]), x)])
+    f = ca.vertcat(*[model.rhs[e] for e in model.state_names])
+    h = ca.vertcat(*[v.sym for v in model.outputs])
+    z = ca.vertcat(*ca.symvar(ca.vertcat(f, h, x)))         # states, inputs, parameters, history
+    J = ca.Function("J", [z], [ca.jacobian(f, x), ca.jacobian(h, x)])
     rng = np.random.default_rng(0)
-    pairs = [[np.array(a) for a in J(rng.normal(size=x.shape[0]), rng.normal(size=u.shape[0]))] for _ in range(4)]
+    pairs = [[np.array(a) for a in J(rng.normal(size=z.shape[0]))] for _ in range(4)]
     out = {}
     for i, e in enumerate(model.state_names):
         for j, v in enumerate(model.outputs):
