@@ -280,7 +280,7 @@ def _replay(expr: ca.SX, swap) -> ca.SX:
     ops, ins, outs = ([g(k) for k in range(n)] for g in (f.instruction_id, f.instruction_input, f.instruction_output))
 
     def run(change):
-        work, made, last = {}, {}, {}                # register → value; instruction → value; register → writer
+        work, last = {}, {}                          # register → its value, and the instruction that wrote it
         for k in range(n):
             op, a, b = ops[k], ins[k], outs[k]
             if op == ca.OP_CONST:
@@ -290,7 +290,7 @@ def _replay(expr: ca.SX, swap) -> ca.SX:
             elif op == ca.OP_INPUT:
                 work[b[0]] = syms[a[0]]
             elif op == ca.OP_OUTPUT:
-                return work[a[0]], made, last
+                return work[a[0]]
             elif len(a) == 2 and a[1] >= 0:
                 for slot, r in enumerate(a[:2]):     # who reads each constant, and beside what
                     if ops[last[r]] == ca.OP_CONST:
@@ -298,18 +298,18 @@ def _replay(expr: ca.SX, swap) -> ca.SX:
                 work[b[0]] = ca.SX.binary(op, work[a[0]], work[a[1]])
             else:
                 work[b[0]] = ca.SX.unary(op, work[a[0]])
-            made[k] = work[b[0]]
             last[b[0]] = k
-        return expr, made, last
+        return expr                                  # a constant expression: nothing to replay
     users: dict = {}
     run(lambda k, c: None)
     contexts = {k: _context(u) for k, u in users.items()}
-    return run(lambda k, c: None if contexts.get(k) is None else swap(c, contexts[k]))[0]
+    return run(lambda k, c: None if contexts.get(k) is None else swap(c, contexts[k]))
 
 
 def _context(uses) -> str | None:
-    """What a constant stands beside in its uses, as text ('*(vs-vu)', '/(h1)'); None where it is
-    a power's exponent."""
+    """What a constant stands beside in its uses, as text ('*((vs-vu))'; a sum's '+(…)'; another
+    operation's code and the constant's operand slot, '4.1(…)' for a divisor); None where it is a
+    power's exponent."""
     out = set()
     for op, slot, other in uses:
         if op in EXPONENTS and slot == 1:
