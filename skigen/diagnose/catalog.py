@@ -119,31 +119,36 @@ def feedthrough(model: Model, u: str) -> dict[str, ca.SX]:
     return {v.name: ca.jacobian(v.sym, sym) for v in model.outputs if ca.depends_on(v.sym, sym)}
 
 
+def proportion(a, b, points: int = 4) -> float | None:
+    """The constant k ≠ 0 with a = k·b (SX of one shape) at ``points`` random values of every
+    symbol either holds, or None: an identity judged numerically."""
+    a, b = ca.SX(a), ca.SX(b)
+    z = ca.vertcat(*ca.symvar(ca.vertcat(ca.vec(a), ca.vec(b))))
+    g = ca.Function("g", [z], [ca.vec(a), ca.vec(b)])
+    rng = np.random.default_rng(0)
+    pairs = [g(rng.normal(size=z.shape[0])) for _ in range(points)]
+    a, b = (np.concatenate([np.array(p[i]).ravel() for p in pairs]) for i in (0, 1))
+    big = np.argmax(np.abs(b))
+    if not np.all(np.isfinite(a + b)) or b[big] == 0:
+        return None
+    k = a[big] / b[big]
+    return float(k) if k != 0 and np.allclose(a, k * b, rtol=1e-9, atol=1e-12 * np.max(np.abs(a))) else None
+
+
 def rate_readers(model: Model) -> dict[str, list[tuple[str, float]]]:
     """{equation: [(output, k)]}: the outputs written as k times that equation's rate plus inputs
     and constants (an accelerometer's formula repeating the dynamics): what is found missing in
-    the rate, the sensor reads as well. Judged on the states' Jacobians at random points."""
-    if model.discretization == "discrete" or not model.outputs:
+    the rate, the sensor reads as well. Judged on the Jacobians in the states (:func:`proportion`)."""
+    if model.discretization == "discrete":
         return {}
     x = ca.vertcat(*[v.sym for v in model.states])
-    f = ca.vertcat(*[model.rhs[e] for e in model.state_names])
-    h = ca.vertcat(*[v.sym for v in model.outputs])
-    z = ca.vertcat(*ca.symvar(ca.vertcat(f, h, x)))         # states, inputs, parameters, history
-    J = ca.Function("J", [z], [ca.jacobian(f, x), ca.jacobian(h, x)])
-    rng = np.random.default_rng(0)
-    pairs = [[np.array(a) for a in J(rng.normal(size=z.shape[0]))] for _ in range(4)]
     out = {}
-    for i, e in enumerate(model.state_names):
-        for j, v in enumerate(model.outputs):
+    for e in model.state_names:
+        for v in model.outputs:
             if ca.SX(v.sym).is_symbolic():            # a state read as it is, not a formula of the rate
                 continue
-            f, h = np.concatenate([p[0][i] for p in pairs]), np.concatenate([p[1][j] for p in pairs])
-            big = np.argmax(np.abs(f))
-            if not np.all(np.isfinite(f + h)) or f[big] == 0:
-                continue
-            k = h[big] / f[big]
-            if k != 0 and np.allclose(h, k * f, rtol=1e-9, atol=1e-12 * np.max(np.abs(h))):
-                out.setdefault(e, []).append((v.name, float(k)))
+            if k := proportion(ca.jacobian(v.sym, x), ca.jacobian(model.rhs[e], x)):
+                out.setdefault(e, []).append((v.name, k))
     return out
 
 
@@ -558,8 +563,8 @@ def _written(text: str, where: str, most: int = 24) -> str:
     op, _, rest = where.split(" ")[0].partition("(")
     other = rest[:-1]
     other = other if len(other) <= most else "(…)"
-    return {"*": f"{text}·{other}", "+": f"{other} ± {text}", "4.1": f"{other}/{text}",
-            "4.0": f"{text}/{other}"}.get(op, text)
+    return {"*": f"{text}·{other}", "+": f"{other} ± {text}", f"{ca.OP_DIV}.1": f"{other}/{text}",
+            f"{ca.OP_DIV}.0": f"{text}/{other}"}.get(op, text)
 
 
 def output_candidates(model: Model, outputs, recorded: np.ndarray) -> list[Structural]:

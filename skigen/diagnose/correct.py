@@ -202,19 +202,9 @@ def _constant_covers(nominal: Model, corr: Correction, eq: str, term: ca.SX) -> 
     """Whether a constant found off already moves ``eq`` along ``term`` (its rate's derivative in
     the constant's factor proportional to it, at random states and inputs): a viscous damping
     lifted beside a damping constant found off makes the two one number the refit cannot split."""
-    x = ca.vertcat(*T.symbols(nominal).values())
-    points = np.random.default_rng(0).normal(size=(8, x.shape[0]))
-    for s, _, _ in corr.structural:
-        if s.effect != "constant" or eq not in s.equations:
-            continue
-        f = ca.SX.sym("f")
-        d = ca.jacobian(s.build(nominal, f).rhs[eq], f)
-        g = ca.Function("g", [x, f], [d, term])
-        pairs = np.array([[float(v) for v in g(p, 1.0)] for p in points])
-        ratio = pairs[:, 0] / np.where(pairs[:, 1] != 0, pairs[:, 1], np.nan)
-        if np.all(np.isfinite(ratio)) and np.ptp(ratio) <= 1e-9 * np.max(np.abs(ratio)):
-            return True
-    return False
+    f = ca.SX.sym("f")
+    return any(C.proportion(ca.substitute(ca.jacobian(s.build(nominal, f).rhs[eq], f), f, 1.0), term) is not None
+               for s, _, _ in corr.structural if s.effect == "constant" and eq in s.equations)
 
 
 def refit_jointly(nominal: Model, calibrated: Model, corr: Correction, rec, equations,
