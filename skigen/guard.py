@@ -9,15 +9,16 @@ Per sample, around the derived step (``<prefix>_step`` in ``filter.c.in``, and
    skipped would leave the state a sample behind the vehicle from then on.
 2. **Stuck sensor.** A finite reading equal, bit for bit, to the previous one of that
    output for ``stuck_limit`` samples in a row is not used (0: never).
-3. **Recovery.** When a measurement is present and either ``gap_limit`` samples have
-   passed without one being used, or one of the present outputs had its last
-   ``reject_limit`` readings rejected (gate or numerical failure; each output counts its
-   own run, which its next used reading ends), the physical states restart: their mean
-   at the declared initial value, their covariance the declared one times
-   ``reinit_scale`` and uncorrelated with the rest; the weights and estimated
-   parameters keep their mean and covariance. That sample then updates without the
-   gate; the widened covariance lets the next readings through it while the states
-   settle. So an output the others outvote (a heading 200° off while the gyro is used)
+3. **Recovery.** When one of the present outputs had its last ``reject_limit`` readings
+   rejected (gate or numerical failure; each output counts its own run, which its next
+   used reading ends), or when ``gap_limit`` samples have passed without a measurement
+   used and the gate would reject one of the present readings (or the step fails), the
+   physical states restart: their mean at the declared initial value, their covariance
+   the declared one times ``reinit_scale`` and uncorrelated with the rest; the weights
+   and estimated parameters keep their mean and covariance. That sample then updates
+   without the gate; the widened covariance lets the next readings through it while the
+   states settle. A reading the prediction still explains after a gap is simply used (a
+   position fix every 1000 samples is not a dropout). So an output the others outvote (a heading 200° off while the gyro is used)
    restarts the states at its next reading, and a sensor that stays faulty restarts
    them every ``reject_limit`` of its readings: raise ``reject_limit`` to trust the others.
 4. **Gate.** Otherwise a measurement whose innovation is more than ``gate`` standard
@@ -44,7 +45,7 @@ class Guard:
 
     gate: innovation gate in standard deviations per output (0: off).
     reject_limit: readings of one output rejected in a row before a restart at its next one (0: never).
-    gap_limit: samples without a used measurement before the next one restarts (0: never).
+    gap_limit: samples without a used measurement after which a reading the gate rejects restarts (0: never).
     stuck_limit: identical readings in a row from which an output counts as stuck (0: off).
     reinit_scale: variance multiple of the declared initial covariance at a restart.
     std_scale: bound on each prior std, as a multiple of its declared initial std (inf: none).

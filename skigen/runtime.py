@@ -1,11 +1,12 @@
 """Run a derived filter over a recording: in Python, through the generated C, or chained by CasADi.
 
 The ``python`` and ``c`` backends step with the same guards and recovery policy
-(those of the generated C, :mod:`skigen.guard`): a non-finite input skips the
-sample (state unchanged), a non-finite or stuck measurement skips its update, an
-outlier fails the innovation gate and is not used, a step whose result is not
-finite is rejected (prior kept), and after a run of rejections or a long gap the
-physical states restart from the measurement. A run never stops on bad data:
+(those of the generated C, :mod:`skigen.guard`): a non-finite input is held at its
+last finite value and that sample's readings are not used, a non-finite or stuck
+measurement skips its update, an outlier fails the innovation gate and is not used,
+a step whose result is not finite is rejected (prior kept), and after a run of
+rejections, or at a reading rejected after a long gap, the physical states restart
+from the measurement. A run never stops on bad data:
 its summary reports these events.
 
 The ``casadi`` backend (:class:`CasadiStepper`) chains the same derived step over
@@ -389,22 +390,25 @@ class PythonStepper:
         self.u_held = u = np.where(np.isfinite(u), u, self.u_held)
         valid, code = self._present(np.full_like(y, np.nan) if held else y)   # held: predicted only
         seen, present = valid.copy(), valid.any()
-        stale = seen & (0 < g.reject_limit <= self.reject_run)  # outputs refused reject_limit times in a row
-        recover = present and (0 < g.gap_limit <= self.since_update or stale.any())
+        after_gap = present and 0 < g.gap_limit <= self.since_update
+        recover = present and (seen & (0 < g.reject_limit <= self.reject_run)).any()  # refused reject_limit times
         if recover:
-            st = self.filt.initial()
-            self.z, self.C = reinit(self.z, self.C, aug.shapes["nx"], st["z"], st["C"], g.reinit_scale,
-                                    self.filt.square_root)
+            self._restart()
         out, ok = self._run(u, y, valid)
+        gated = np.zeros_like(valid)
         if not recover and g.gate > 0:
             v = np.diag(np.reshape(out["Pyy"], (len(y), len(y))))
             with np.errstate(invalid="ignore", over="ignore"):
                 gated = valid & ~(np.abs(out["e"].ravel()) <= g.gate * np.sqrt(np.where(v > 0, v, 0)))
-            if gated.any():
-                self.rejected += gated
-                valid = valid & ~gated
-                out, ok = self._run(u, y, valid)
-                code = Status.OUTLIER_REJECTED
+        if after_gap and not recover and (gated.any() or not ok):     # the prediction lost the vehicle
+            recover = True
+            self._restart()
+            out, ok = self._run(u, y, valid)
+        elif gated.any():
+            self.rejected += gated
+            valid = valid & ~gated
+            out, ok = self._run(u, y, valid)
+            code = Status.OUTLIER_REJECTED
         used = valid & ok
         self.reject_run = np.where(used, 0, self.reject_run + seen)
         self.since_update = 0 if used.any() else self.since_update + 1
@@ -420,6 +424,12 @@ class PythonStepper:
         if self.filt.has_ard:
             self.s = out["s_next"].ravel()
         return Status.REINITIALISED if recover else Status.BAD_INPUT if held else code
+
+    def _restart(self):
+        """The physical states at their declared mean, reinit_scale times their declared covariance."""
+        st = self.filt.initial()
+        self.z, self.C = reinit(self.z, self.C, self.filt.aug.shapes["nx"], st["z"], st["C"],
+                                self.guard.reinit_scale, self.filt.square_root)
 
     def std(self) -> np.ndarray:
         """Posterior standard deviations."""

@@ -56,17 +56,24 @@ def _reference_run(d, u, y, guard, std_max):
     for k in range(len(u)):
         valid = np.isfinite(y[k])
         code = Status.OK if valid.all() else Status.MEASUREMENT_SKIPPED
-        recover = valid.any() and (gap >= guard.gap_limit or (valid & (run_ >= guard.reject_limit)).any())
-        if recover:
+        after_gap = valid.any() and gap >= guard.gap_limit
+        recover = valid.any() and (valid & (run_ >= guard.reject_limit)).any()
+
+        def restart():
             P = st["C"] @ st["C"].T if sr else st["C"]
             st["z"], P = ref.restart(st["z"], P, nx, z0, P0, guard.reinit_scale)
             st["C"] = np.linalg.cholesky(P) if sr else P
+        if recover:
+            restart()
         q = _ref_step(d.kind, d, st, u[k], y[k], valid)
-        if not recover:
-            out = ref.gate_mask(q["e"], q["Pyy"], valid, guard.gate)
-            if out.any():
-                valid = valid & ~out
-                q, code = _ref_step(d.kind, d, st, u[k], y[k], valid), Status.OUTLIER_REJECTED
+        out = np.zeros_like(valid) if recover else ref.gate_mask(q["e"], q["Pyy"], valid, guard.gate)
+        if after_gap and not recover and out.any():            # the prediction lost the vehicle
+            recover = True
+            restart()
+            q = _ref_step(d.kind, d, st, u[k], y[k], valid)
+        elif out.any():
+            valid = valid & ~out
+            q, code = _ref_step(d.kind, d, st, u[k], y[k], valid), Status.OUTLIER_REJECTED
         gap = 0 if valid.any() else gap + 1
         run_ = np.where(valid, 0, run_ + np.isfinite(y[k]))      # per output: its readings refused in a row
         C = q["S"] if sr else q["P"]
@@ -81,17 +88,20 @@ def _reference_run(d, u, y, guard, std_max):
 @pytest.mark.parametrize("kind", ["ekf", "ukf", "ski"])
 def test_gate_restart_and_bound_match_the_reference(kind, sim):
     """Single absurd readings, a 3-degree offset for longer than reject_limit (a restart onto it,
-    gated readings after it, a restart back), a gap longer than gap_limit and an active std bound
-    on p."""
+    gated readings after it, a restart back), a gap longer than gap_limit whose first reading the
+    prediction explains (used, no restart), one after which it does not (the input logged as 0
+    through it: a restart) and an active std bound on p."""
     d = derive(build(), kind)
     guard = Guard(gap_limit=80)
     std_max = guard.std_max(d.aug.P0)
     std_max[1] = 2.0                                       # caps p's prior std after a restart (10)
-    n = 700
-    u, y = sim.delta[:n], sim.phi[:n].copy()
+    n = 800
+    u, y = sim.delta[:n].copy(), sim.phi[:n].copy()
     y[[60, 61, 140]] = [1e4 * NOISE_STD, -1e6 * NOISE_STD, 1e3 * NOISE_STD]
     y[250:290] += 3.0                                      # 40 readings off by 30 noise stds
     y[400:500] = np.nan                                    # 100 samples without a reading
+    y[560:660] = np.nan                                    # and 100 more, the input lost too
+    u[560:660] = 0.0
     cf = load_c(d)
     cf.configure(guard, std_max=std_max)
     out = cf.run_many(u[:, None], y[:, None])
@@ -101,12 +111,15 @@ def test_gate_restart_and_bound_match_the_reference(kind, sim):
     code = out["code"]
     gated = [60, 61, 140, *range(250, 275), *range(290, 315)]
     np.testing.assert_array_equal(np.flatnonzero(code == Status.OUTLIER_REJECTED), gated)
-    np.testing.assert_array_equal(np.flatnonzero(code == Status.REINITIALISED), [275, 315, 500])
+    np.testing.assert_array_equal(np.flatnonzero(code == Status.REINITIALISED), [275, 315, 660])
     assert cf.reinits == 3 and cf.rejected[0] == len(gated)
     assert out["std"][275, 1] == pytest.approx(10.0, rel=1e-6)       # restarted: 10 x its declared std
     assert out["std"][276, 1] <= 2.0                                  # the bound acted on the prior
-    # After the last restart the roll angle is back on the truth within 5 noise stds.
-    assert np.abs(out["z_post"][560:, 0] - sim.theta[560:n]).max() < 5 * NOISE_STD
+    # The reading after the first gap is used, with the weights' knowledge: the roll angle is on
+    # the truth within 5 noise stds from then until the second gap, and 60 samples after its restart.
+    assert code[500] == Status.OK
+    assert np.abs(out["z_post"][500:560, 0] - sim.theta[500:560]).max() < 5 * NOISE_STD
+    assert np.abs(out["z_post"][720:, 0] - sim.theta[720:n]).max() < 5 * NOISE_STD
 
 
 @pytest.mark.parametrize("kind,style", [("ekf", "unrolled"), ("ski", "unrolled"), ("ski", "loops")])

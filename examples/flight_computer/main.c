@@ -161,7 +161,7 @@ int main(int argc, char** argv)
             started = 1;
         } else if (started) {
             /* Samples missing from the recording: predict through them with this row's input, up
-             * to gap_limit of them (after those the next reading restarts the states anyway). */
+             * to gap_limit of them (after a longer hole a reading the gate rejects restarts the states). */
             double missing = floor((t - t_last) / WINGROCK_SKI_DT + 0.5) - 1;
             long k;
             for (k = 0; k < missing && k < st.settings.gap_limit; ++k) step(&st, u, gap, row);

@@ -321,8 +321,8 @@ static int run_kernel(quadrotor_spiral_ski_state* st, const real* u, const real*
 int quadrotor_spiral_ski_step(quadrotor_spiral_ski_state* st, const real* u, const real* y)
 {
     real yv[3], valid[3];
-    int seen[3];
-    int i, failed, present = 0, used = 0, gated = 0, held = 0, recover, code = SKIGEN_OK;
+    int seen[3], out[3];
+    int i, failed, present = 0, used = 0, gated = 0, held = 0, recover = 0, after_gap, code = SKIGEN_OK;
 
     if (quadrotor_spiral_ski_settings_check(&st->settings)) return SKIGEN_BAD_SETTINGS;
     for (i = 0; i < QUADROTOR_SPIRAL_SKI_NU; ++i) {          /* a non-finite input: its last finite value */
@@ -345,28 +345,35 @@ int quadrotor_spiral_ski_step(quadrotor_spiral_ski_state* st, const real* u, con
         yv[i] = ok ? y[i] : 0;
         valid[i] = ok ? 1 : 0;
         seen[i] = ok;
+        out[i] = 0;
         present += ok;
     }
-    recover = present && st->settings.gap_limit > 0 && st->since_update >= st->settings.gap_limit;
+    after_gap = present && st->settings.gap_limit > 0 && st->since_update >= st->settings.gap_limit;
     for (i = 0; i < QUADROTOR_SPIRAL_SKI_NY; ++i)          /* an output refused reject_limit times in a row */
         if (seen[i] && st->settings.reject_limit > 0 && st->reject_run[i] >= st->settings.reject_limit) recover = 1;
     if (recover) reinit(st);
     failed = run_kernel(st, st->u_held, yv, valid);
-    if (!recover && st->settings.gate > 0) {
+    if (!recover && st->settings.gate > 0)
         for (i = 0; i < QUADROTOR_SPIRAL_SKI_NY; ++i) {
             real sd = st->Pyy[i + i * QUADROTOR_SPIRAL_SKI_NY];
             sd = sd > 0 ? sqrtf(sd) : 0;
-            if (valid[i] != 0 && !(fabsf(st->e[i]) <= st->settings.gate * sd)) {
-                valid[i] = 0;
-                yv[i] = 0;
-                count(&st->rejected[i]);
-                gated = 1;
-            }
+            out[i] = valid[i] != 0 && !(fabsf(st->e[i]) <= st->settings.gate * sd);
+            gated |= out[i];
         }
-        if (gated) {
-            failed = run_kernel(st, st->u_held, yv, valid);
-            code = SKIGEN_OUTLIER_REJECTED;
+    if (after_gap && !recover && (gated || failed)) {   /* the prediction lost the vehicle: restart */
+        recover = 1;
+        gated = 0;
+        reinit(st);
+        failed = run_kernel(st, st->u_held, yv, valid);
+    } else if (gated) {
+        for (i = 0; i < QUADROTOR_SPIRAL_SKI_NY; ++i) {
+            if (!out[i]) continue;
+            valid[i] = 0;
+            yv[i] = 0;
+            count(&st->rejected[i]);
         }
+        failed = run_kernel(st, st->u_held, yv, valid);
+        code = SKIGEN_OUTLIER_REJECTED;
     }
     for (i = 0; i < QUADROTOR_SPIRAL_SKI_NY; ++i) {
         if (!failed && valid[i] != 0) {

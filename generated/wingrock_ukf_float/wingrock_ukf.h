@@ -37,8 +37,9 @@ enum skigen_status {
     SKIGEN_SENSOR_STUCK = 5,        /* a y[i] repeated bit for bit stuck_limit times or more: it was
                                        not used (counted in stuck[i]) */
     SKIGEN_REINITIALISED = 6,       /* recovery at a reading of an output whose last reject_limit
-                                       readings were rejected (reject_run[i]), or after a gap of
-                                       gap_limit samples: the physical states restarted
+                                       readings were rejected (reject_run[i]), or at a reading the
+                                       gate rejects (or a failed step) after a gap of gap_limit
+                                       samples: the physical states restarted
                                        at their declared mean and reinit_scale times their
                                        declared covariance, weights kept, then updated with y */
     SKIGEN_BAD_SETTINGS = 7         /* st->settings cannot give a valid step (<prefix>_settings_check
@@ -85,7 +86,7 @@ typedef struct {
     wingrock_ukf_real reinit_scale; /* variance multiple of the declared initial covariance at a restart */
     wingrock_ukf_real std_max[8]; /* bound on each prior standard deviation (INFINITY: none) */
     long reject_limit; /* readings of an output rejected in a row before its next one restarts the states (0: never) */
-    long gap_limit; /* samples without a used measurement before the next one restarts (0: never) */
+    long gap_limit; /* samples without a used measurement after which a reading the gate rejects restarts (0: never) */
     long stuck_limit; /* identical readings in a row from which an output is stuck (0: off) */
 } wingrock_ukf_settings;
 

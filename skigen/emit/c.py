@@ -134,7 +134,7 @@ def _settings(filt: DerivedFilter) -> list[tuple[str, str, tuple, str]]:
             ("reinit_scale", "real", (), "variance multiple of the declared initial covariance at a restart"),
             ("std_max", "real", (n,), "bound on each prior standard deviation (INFINITY: none)"),
             ("reject_limit", "long", (), "readings of an output rejected in a row before its next one restarts the states (0: never)"),
-            ("gap_limit", "long", (), "samples without a used measurement before the next one restarts (0: never)"),
+            ("gap_limit", "long", (), "samples without a used measurement after which a reading the gate rejects restarts (0: never)"),
             ("stuck_limit", "long", (), "identical readings in a row from which an output is stuck (0: off)")]
 
 
