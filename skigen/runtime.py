@@ -24,6 +24,7 @@ other backends.
 """
 from __future__ import annotations
 
+import copy
 import hashlib
 import os
 import threading
@@ -35,6 +36,7 @@ import numpy as np
 from scipy import stats
 
 from .derive import DerivedFilter, step_inputs
+from .failure import explain, sigma_reach
 from .emit.c import Status
 from .grid import clock, first_known
 from .guard import Guard, bound_std, reinit
@@ -102,6 +104,7 @@ class RunResult:
     trace: Trace | None = None   # with run(..., trace=True)
     next_prior: tuple | None = None   # (z, C): the prior for the sample after the last (C as in Trace)
     gate: float = Guard.gate  # the innovation gate the run had, in std (0: none, as on the casadi backend)
+    failure: str | None = None   # where the model is not finite at the first failed step (failure.explain)
 
     def __post_init__(self):
         if self.measured is None:
@@ -154,7 +157,7 @@ class RunResult:
                    cat("nis"), cat("loglik"), cat("prior_var"), cat("code"), last.final_cov, cat("measured"),
                    first.holes, first.notes,
                    Trace.concat([p.trace for p in parts]) if first.trace is not None else None, last.next_prior,
-                   first.gate)
+                   first.gate, next((p.failure for p in parts if p.failure), None))
 
 
 EVENT_WORDS = {Status.OUTLIER_REJECTED: "gated (outlier not used)", Status.SENSOR_STUCK: "stuck reading",
@@ -178,11 +181,14 @@ class RunSummary:
         self.first = {c: None for c in EVENTS}       # the time of each event's first sample (s)
         self.per_output = np.zeros(len(filt.aug.model.output_names), int)   # samples where each reading was used
         self.gate, self.beyond, self.first_beyond = Guard.gate, 0, None   # ungated: readings used beyond Guard.gate
+        self.present, self.failure = 0, None     # samples with a reading; why the first failed step failed
 
     def add(self, part: RunResult) -> "RunSummary":
         ok, used = np.isfinite(part.nis), np.isfinite(part.innovation)     # a reading gated or stuck is not used
         self.samples += len(part.t)
         self.with_measurement += int(used.any(axis=1).sum()) if used.size else 0
+        self.present += int(part.measured.any(axis=1).sum()) if part.measured.size else 0
+        self.failure = self.failure or part.failure
         if used.size:
             self.per_output += used.sum(axis=0).astype(int)
         self.nis_sum += float(part.nis[ok].sum())
@@ -236,8 +242,7 @@ class RunSummary:
         if filt.kind == "ekf":
             return None
         o = filt.options
-        n = len(filt.partition.nonlinear) if filt.partition is not None else len(filt.aug.names)
-        gamma = o.alpha * np.sqrt(n + o.kappa)
+        gamma, n = sigma_reach(filt)
         return (f"the {filt.kind} evaluates the model at ±{gamma:.3g} standard deviations of each of its {n} "
                 f"sigma-point states and weights (alpha = {o.alpha:g}): a cubic or exponential term there can "
                 f"overflow the step, and each restart widens them again. A smaller alpha (--alpha 0.3, "
@@ -287,8 +292,11 @@ class RunSummary:
             trouble = self.events[Status.NUMERICAL_FAILURE] or self.events[Status.REINITIALISED]
             if trouble and (why := aug.model.unstable_step()):
                 out.append(f"why steps may fail: {why}")
-            if self.events[Status.NUMERICAL_FAILURE] and (spread := self.sigma_spread()):
-                out.append(f"why steps may fail: {spread}")
+            if self.events[Status.NUMERICAL_FAILURE]:
+                if self.failure:
+                    out.append(f"why the first failed: {self.failure}")
+                if "--alpha" not in (self.failure or "") and (spread := self.sigma_spread()):
+                    out.append(f"why steps may fail: {spread}")
         elif self.gate:
             out.append("events: none (no outlier, stuck reading, bad input, rejection or restart)")
         if not self.gate:
@@ -303,6 +311,9 @@ class RunSummary:
                        f"{len(aug.model.output_names)} output(s) used {expected:.3g} at a time on average, "
                        f"{self.with_measurement} of {self.samples} samples measured)")
             out.append(self.verdict())
+        elif self.present:
+            out.append(f"no reading was used ({self.present} samples had one: each failed, was gated or "
+                       f"stuck): no NIS")
         else:
             out.append("no sample was measured: no NIS")
         names = aug.model.output_names
@@ -424,6 +435,13 @@ class PythonStepper:
         if self.filt.has_ard:
             self.s = out["s_next"].ravel()
         return Status.REINITIALISED if recover else Status.BAD_INPUT if held else code
+
+    def snapshot(self) -> dict:
+        """The filter's state and the policy's counters, for :meth:`restore`."""
+        return copy.deepcopy({k: v for k, v in vars(self).items() if k != "filt"})
+
+    def restore(self, snapshot: dict) -> None:
+        vars(self).update(copy.deepcopy(snapshot))
 
     def _restart(self):
         """The physical states at their declared mean, reinit_scale times their declared covariance."""
@@ -943,10 +961,12 @@ def _steps(filt, stepper, backend, pieces, again, holes=(), notes=(), strict=Fal
     """Step over ``pieces`` (grid index of the first sample, t, step inputs, outputs), restarting the
     states before a piece whose first index is in ``again`` (that sample's code: REINITIALISED, as
     the policy's restart, unless the step failed); a RunResult per piece, ``gate`` its gate."""
+    explained = False
     for a, t, u, y in pieces:
         restart = a in again and a > 0
         if restart:
             forget_states(stepper, filt)
+        start = stepper.snapshot() if not explained and hasattr(stepper, "snapshot") else None
         raw = _step_python(stepper, u, y, trace) if backend == "python" else stepper.run_many(u, y)
         if restart and raw["code"][0] != Status.NUMERICAL_FAILURE:
             raw["code"][0] = Status.REINITIALISED
@@ -955,10 +975,37 @@ def _steps(filt, stepper, backend, pieces, again, holes=(), notes=(), strict=Fal
                                      f"numbers at t = {clock(t[np.argmax(raw['code'] == Status.NUMERICAL_FAILURE)])} s")
         part = _part(filt, t, y, raw, holes, notes)
         part.gate = gate
+        if start is not None and (failed := np.flatnonzero(part.code == Status.NUMERICAL_FAILURE)).size:
+            part.failure, explained = _explain(filt, stepper, backend, start, failed[0], u, y), True
         C = np.asarray(stepper.C_post, float)
         part.final_cov = C @ C.T if filt.square_root else C
         part.next_prior = np.array(stepper.z, float).ravel(), np.array(stepper.C, float)
         yield part
+
+
+def _explain(filt: DerivedFilter, stepper, backend: str, start, k: int, u, y) -> str | None:
+    """:func:`failure.explain` for sample ``k`` of a part that began at state ``start`` (a
+    snapshot): the part is stepped again up to it, for the prior, the input history and the held
+    input the failed step had; the stepper is left as it was."""
+    end = stepper.snapshot()
+    stepper.restore(start)
+    if k:
+        _step_python(stepper, u[:k], y[:k]) if backend == "python" else stepper.run_many(u[:k], y[:k])
+    uk = np.array(u[k], float).ravel()
+    held = np.ravel(stepper.u_held)
+    uk[:len(held)] = np.where(np.isfinite(uk[:len(held)]), uk[:len(held)], held)
+    uk = np.nan_to_num(uk)
+    py = stepper if backend == "python" else PythonStepper(filt)
+    for name in ("z", "C", "mem", "s"):
+        if hasattr(stepper, name) and hasattr(py, name):
+            setattr(py, name, np.array(getattr(stepper, name), float))
+    prior = (py.z.ravel(), py.C)
+    out, _ = py._run(uk, np.nan_to_num(y[k]), np.isfinite(y[k]))       # the posterior it predicted from
+    post = out["z_post"].ravel(), out["C_post"]
+    finite = all(np.all(np.isfinite(a)) for a in post)
+    why = explain(filt, prior, post if finite else None, uk, np.ravel(py.mem))
+    stepper.restore(end)
+    return why
 
 
 RESTART_SCALE = Guard.reinit_scale   # after an input hole: this times the declared covariance, as a recovery

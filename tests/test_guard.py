@@ -9,6 +9,7 @@ import re
 import subprocess
 from pathlib import Path
 
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -22,7 +23,7 @@ from skigen.emit.c import DEFAULT_FLAGS, load_c
 from skigen.guard import Guard
 from skigen.recording import Recording
 from skigen.reference import guard as ref
-from skigen.runtime import PythonStepper, run
+from skigen.runtime import PythonStepper, RunResult, iter_run, run
 from tests.test_derive_vs_reference import _ref_step
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "flight_computer"
@@ -517,10 +518,63 @@ def test_a_sigma_point_filter_that_overflows_says_where_it_evaluates_and_alpha_h
     m, rec = _duffing(0.2)
     wide = run(derive(m, "ski"), rec, show_progress=False).summary()
     assert wide.events[Status.NUMERICAL_FAILURE] > 1000
+    lines = wide.lines()
+    assert any(line.startswith("why the first failed: the rk4 step of v is not finite at the prior mean") for line in lines)
     assert any(line.startswith("why steps may fail: the ski evaluates the model at ±3.46 standard deviations of "
-                               "each of its 12") and "--alpha 0.3" in line for line in wide.lines())
+                               "each of its 12") and "--alpha 0.3" in line for line in lines)
     near = run(derive(m, "ski", FilterOptions(alpha=0.3)), rec, show_progress=False)
     summary = near.summary()
     assert not summary.events[Status.NUMERICAL_FAILURE] and not any("why steps" in line for line in summary.lines())
     i = near.names.index("w_x3")
     assert abs(near.mean[-1, i] + 1.5) < 2 * near.std[-1, i] < 0.22
+
+
+def _falling_tank(n: int = 400, dt: float = 0.05):
+    """A tank draining through an orifice, ḣ = −0.5·√h (m, s), read by a level sensor (σ 2 mm):
+    it empties at t = 8 s and sits at 0 for the rest of the recording."""
+    t = np.arange(n) * dt
+    h = np.maximum(np.sqrt(4.0) - 0.25 * t, 0.0) ** 2
+    y = h + np.random.default_rng(0).normal(0, 2e-3, n)
+    m = Model("tank", dt=dt, discretization="rk4")
+    level = m.state("h", unit="m", initial=4.0, std=0.1, process_std=1e-4)
+    m.dynamics({level: -0.5 * ca.sqrt(level)})
+    m.output("level", level, unit="m", noise_std=2e-3)
+    return m, Recording("tank", t, np.zeros((n, 0)), y[:, None], (), ("level",))
+
+
+@pytest.mark.parametrize("backend", ["python", "c"])
+def test_a_failed_step_names_the_equation_and_the_sigma_point(backend):
+    """A square root of a state the sigma points take below zero (a tank at empty): the summary
+    names the step of h and the point where it is not finite, from either backend, and the
+    estimates before the failure are unchanged by the explanation (a snapshot, not a rerun)."""
+    m, rec = _falling_tank()
+    res = run(derive(m, "ukf"), rec, backend=backend, show_progress=False)
+    first = np.flatnonzero(res.code == Status.NUMERICAL_FAILURE)[0]
+    assert 7.0 < res.t[first] < 8.5                          # as the level reaches 0
+    why = [line for line in res.summary().lines() if line.startswith("why the first failed: ")]
+    assert len(why) == 1 and why[0].startswith("why the first failed: the rk4 step of h is not finite at the prior "
+                                               "mean (h = ")
+    assert 0 < float(why[0].split("(h = ")[1].split(")")[0]) < 1e-3 and "sqrt(fmax(x, 0))" in why[0]
+    parts = list(iter_run(derive(m, "ukf"), rec, backend=backend, show_progress=False, chunk=first - 5))
+    np.testing.assert_array_equal(RunResult.concat(parts).mean, res.mean)    # explained mid-part: same run
+    assert parts[1].failure == res.failure
+
+
+def test_an_ekf_linearised_where_the_model_has_no_derivative_says_so():
+    """An airspeed sqrt(vx² + vz²) measured on a glider at rest: the EKF's Jacobian is NaN there
+    and every step fails; the summary names the derivative and the point, and that no reading
+    was used (not that none was measured)."""
+    n, dt = 200, 0.02
+    m = Model("glider", dt=dt, discretization="rk4")
+    vx, vz = m.state("vx", std=0.3, process_std=1e-2), m.state("vz", std=0.3, process_std=1e-2)
+    ax = m.input("ax")
+    m.dynamics({vx: ax - 0.1 * vx, vz: -0.1 * vz})
+    m.output("airspeed", ca.sqrt(vx ** 2 + vz ** 2), noise_std=0.05)
+    t = np.arange(n) * dt
+    rec = Recording("glider", t, np.zeros((n, 1)), np.abs(np.random.default_rng(0).normal(0, 0.05, (n, 1))),
+                    ("ax",), ("airspeed",))
+    lines = run(derive(m, "ekf"), rec, show_progress=False).summary().lines()
+    assert f"events: {n} rejected (non-finite), first at t = 0 s" in lines
+    assert any(line.startswith("why the first failed: the EKF's derivative of output airspeed with respect to vx "
+                               "is not finite at the prior mean (vx = 0, vz = 0)") for line in lines)
+    assert f"no reading was used ({n} samples had one: each failed, was gated or stuck): no NIS" in lines

@@ -585,6 +585,13 @@ class CFilter:
             return self.get(name)
         raise AttributeError(name)
 
+    def snapshot(self) -> bytes:
+        """The whole state, settings and counters, for :meth:`restore`."""
+        return self._buf.raw
+
+    def restore(self, snapshot: bytes) -> None:
+        ctypes.memmove(self._buf, snapshot, len(snapshot))
+
     def run_many(self, inputs, outputs) -> dict[str, np.ndarray]:
         """Step over rows of ``inputs`` and ``outputs`` in one C call (libraries from :func:`load_c`):
         per sample the posterior mean ``z_post`` and ``std``, innovation ``e``, diagonal of ``Pyy``,
