@@ -245,7 +245,8 @@ def _fit(args) -> int:
     print(f"{model.name} fitted by {args.method}: {result.status.replace('_', ' ').lower()} in "
           f"{result.iterations} iterations ({result.seconds:.1f} s)")
     for name, p in {**result.parameters, **result.weights}.items():
-        print(f"  {name:>12} = {plus_minus(p['value'], p['std'])}" + (f" {p['unit']}" if p.get("unit") else ""))
+        print(f"  {name:>12} = {plus_minus(p['value'], p['std'])}" + (f" {p['unit']}" if p.get("unit") else "")
+              + (f" (flat {p['flat']} it: see the note)" if p.get("flat") else ""))
     for r in result.recordings + checks:
         kind = "validation" if r in checks else "fit"
         what = "one-step prediction RMSE" if kind == "fit" and args.method == "filter-error" else "free-run RMSE"

@@ -1221,3 +1221,53 @@ def test_output_error_s_prior_note_counts_the_coloured_residuals():
     assert "the recordings alone put it near 5.18" in coloured[1] and "± 1.2e-06." in coloured[1], coloured
     (white,) = _prior_notes(m, {"a2": dict(value=4.963e-5, std=sigma, initial=4e-5)}, {"a2": sigma})
     assert f"(± {np.sqrt(1e-12 - sigma ** 2):.2g})" in white and "± 2e-07." in white, white
+
+
+def _rudder_spec(path, start: float):
+    path.write_text("import casadi as ca\nfrom skigen import Model\n"
+                    "model = Model('rudder', dt=0.1, discretization='rk4')\n"
+                    "r = model.state('r', std=0.1, process_std=0.0)\n"
+                    "d = model.input('d')\n"
+                    "K, T = model.parameter('K', 0.2, bounds=(0, 10)), model.parameter('T', 3.0, bounds=(0.1, 100))\n"
+                    f"dmax = model.parameter('dmax', {start}, bounds=(1, 90))\n"
+                    "model.dynamics({r: (K * ca.fmin(ca.fmax(d, -dmax), dmax) - r) / T})\n"
+                    "model.output('r_meas', r, noise_std=0.01)\n")
+    return path
+
+
+@pytest.mark.parametrize("start", [9.0, 9.9])
+def test_a_limit_the_inputs_never_reach_is_not_given_a_two_sided_error_bar(tmp_path, capsys, start):
+    """A rudder limit (truth 30) started inside the commands (±9.97 at most), which never reach
+    it. From 9.0 the fit stops at the largest command, 9.969 ± 0.038 from the one block it clips:
+    the likelihood is flat above, and the fit says the data bound it from below only. From 9.9 it
+    stops above every command, where nothing is seen: its std is infinite (the pseudo-inverse
+    gave 0, and the CLI crashed writing −inf correlations), null in fit.json, with a note. The
+    other estimates keep their error bars, which cover the truth, and no side of theirs is flat."""
+    from skigen.cli import main
+    from skigen.modelfile import load_model
+    spec = _rudder_spec(tmp_path / "rudder.py", start)
+    plant = load_model(spec).set_parameters(dict(K=0.1, T=2.0, dmax=30.0))
+    rng = np.random.default_rng(3)
+    N = 600
+    U = np.repeat(rng.uniform(-10, 10, N // 20), 20)
+    _, Y = free_run(plant, U[:, None])
+    data = tmp_path / "rudder.csv"
+    write_recording(data, np.arange(N) * 0.1, {"d": U}, {"r_meas": Y[:, 0] + 0.01 * rng.normal(size=N)})
+    out = tmp_path / "out"
+    assert main(["fit", str(spec), str(data), "--out", str(out), "--no-figures"]) == 0
+    fitted = json.loads((out / "fit.json").read_text())
+    p = fitted["parameters"]
+    for name, truth in (("K", 0.1), ("T", 2.0)):
+        assert 0 < p[name]["std"] and abs(p[name]["value"] - truth) < 3 * p[name]["std"], (name, p[name])
+        assert "flat" not in p[name]
+    printed = capsys.readouterr().out
+    if start == 9.0:
+        assert p["dmax"]["value"] == pytest.approx(np.abs(U).max(), abs=0.005) and p["dmax"]["flat"] == "above"
+        assert "(flat above it: see the note)" in printed
+        assert re.search(r"dmax = 9\.96\d+ ± 0\.038 is bounded from below only", printed)
+    else:
+        assert p["dmax"]["std"] is None and p["dmax"]["value"] > np.abs(U).max()
+        row = fitted["correlation"]["names"].index("dmax")
+        assert all(c is None for c in fitted["correlation"]["matrix"][row])
+        assert "(no error bar)" in printed and "'dmax' has no effect on the likelihood at its fitted value" in printed
+        assert "± inf" not in printed

@@ -346,6 +346,8 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     Y = np.asarray(prob.predict(xi, p)).T
     result = _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_at,
                      nll, Y, stats, status, perf_counter() - t0, float(sol["f"]), info, robust)
+    for i, side in _flat_sides(prob, xi, inputs, std / scale, fitted_at).items():
+        ({**result.parameters, **result.weights})[V.names[i]]["flat"] = side
     if method == "filter-error":
         result.initial_states = [{} if rs is None or rs.consistent else
                                  {n: dict(value=float(v), std=float(s)) for n, v, s in zip(rs.names, rs.mean, rs.std)}
@@ -354,7 +356,8 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
             if rs is not None and not rs.consistent:    # the head, where the filter learns the start, left out
                 e = rec.outputs[rs.head:] - Yr[rs.head:]
                 report.update(rmse={o: rms(e[:, j]) for j, o in enumerate(model.output_names)}, rmse_from=rs.head)
-    result.notes = (notes + _bound_notes(result.parameters) + _prior_notes(model, result.parameters, fisher_std)
+    result.notes = (notes + _unseen_notes(result) + _bound_notes(result.parameters)
+                    + _prior_notes(model, result.parameters, fisher_std)
                     + _correlated(result.correlation, {*result.parameters, *result.weights})
                     + _unequal_residuals(result.recordings, model.output_names))
     driven = [n for n, q in zip(model.state_names, np.diag(model.process_noise())) if q > 0]
@@ -405,10 +408,13 @@ COLOURED = 1.5         # output error: a reported std this many times the white 
 
 
 def _bound_notes(parameters: dict) -> list[str]:
-    """A note per parameter that sits on a bound, or whose 2σ interval is wider than its bounds."""
+    """A note per parameter that sits on a bound, or whose 2σ interval is wider than its bounds
+    (an infinite std has its own note, :func:`_unseen_notes`)."""
     notes = []
     for name, p in parameters.items():
         value, std, (lo, hi) = p["value"], p["std"], p["bounds"]
+        if not np.isfinite(std):
+            continue
         lo, hi = -np.inf if lo is None else lo, np.inf if hi is None else hi
         on = lambda b: abs(value - b) <= min(AT_BOUND * std, ON_BOUND * max(abs(value), abs(b), 1.0))
         side = "lower" if on(lo) else "upper" if on(hi) else None
@@ -427,6 +433,46 @@ def _bound_notes(parameters: dict) -> list[str]:
 
 
 CORRELATED = 0.99   # |correlation| of two estimates above which the data see mostly a combination
+
+
+FLAT = 0.1    # a side where −log L rises less than this share of what the error bar predicts is flat
+
+
+def _flat_sides(prob: Problem, xi: np.ndarray, inputs: dict, std: np.ndarray, at: list[int]) -> dict[int, str]:
+    """{variable: 'above' or 'below'} for the estimates (indices ``at``, scaled ``std``) whose
+    −log L, moved 2σ to that side within the bounds (the others held), rises less than FLAT of
+    what their information predicts: the data bound them from one side only (a limit just
+    above the largest command has ±0.04 from the few samples it clips, and nothing above)."""
+    p = inputs["p"]
+    J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(xi, p))
+    information = np.sum(J * J, axis=0) + prior.ravel()
+    f0, out = float(prob.objective(xi, p)), {}
+    for i in at:
+        if not 0 < std[i] < np.inf:
+            continue
+        for side, sign in (("above", 1.0), ("below", -1.0)):
+            moved = xi.copy()
+            moved[i] = np.clip(xi[i] + sign * 2 * std[i], inputs["lbx"][i], inputs["ubx"][i])
+            step = moved[i] - xi[i]
+            if abs(step) > 0.5 * std[i] and float(prob.objective(moved, p)) - f0 < FLAT * 0.5 * step ** 2 * information[i]:
+                out[i] = side
+    return out
+
+
+def _unseen_notes(result) -> list[str]:
+    """A note per estimate the recordings do not see at all at its fitted value (std infinite),
+    and per estimate they bound from one side only (:func:`_flat_sides`)."""
+    estimates = {**result.parameters, **result.weights}
+    return ([f"'{name}' has no effect on the likelihood at its fitted value {e['value']:.6g}: the recordings do not "
+             f"determine it there (a limit the inputs never reach, a term that vanishes), so that value is where "
+             f"the search stopped, not an estimate, and its std is infinite"
+             for name, e in estimates.items() if not np.isfinite(e["std"])]
+            + [f"{name} = {e['value']:.6g} ± {e['std']:.2g} is bounded from {'below' if e['flat'] == 'above' else 'above'} "
+               f"only: the likelihood hardly changes {e['flat']} it (moved 2σ, it rises by less than a tenth of what "
+               f"the error bar predicts), so the data say {name} {'≳' if e['flat'] == 'above' else '≲'} "
+               f"{e['value']:.4g} and the ± holds on one side (a limit the inputs barely reach, a threshold "
+               f"crossed by a few samples)"
+               for name, e in estimates.items() if e.get("flat")])
 
 
 def _correlated(correlation: dict, estimated: set) -> list[str]:
@@ -915,7 +961,7 @@ def _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_
             weights[name] = dict(value=float(value[i]), std=float(std[i]))
     if params:
         fitted.set_parameters({n: v["value"] for n, v in params.items()},
-                              std={n: v["std"] for n, v in params.items() if v["std"] > 0})
+                              std={n: v["std"] for n, v in params.items() if 0 < v["std"] < np.inf})
     init = [dict() for _ in recs]
     for i, node in enumerate(V.node):
         if node is not None and node[2] == 0:            # the state at each recording's first sample
@@ -929,6 +975,8 @@ def _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_
     corr_idx = fitted_at + [i for i, k in enumerate(V.kinds) if k == "noise"]
     sub = C[np.ix_(corr_idx, corr_idx)]
     d = np.sqrt(np.clip(np.diag(sub), 1e-300, None))
+    with np.errstate(invalid="ignore"):            # an unseen estimate: NaN, written as null
+        corr = sub / np.outer(d, d)
     reports, start, predictions = [], 0, []
     for r, (rec, n) in enumerate(zip(recs, lengths)):
         e = rec.outputs - Y[start:start + n]
@@ -943,7 +991,8 @@ def _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_
                  + "; ".join(", ".join(map(str, o)) for o in info["ar_orders"]) + ")"
                  if robust else "inverse Fisher information of the innovations' likelihood")
     return FitResult(method, fitted, params, weights, init, noise,
-                     dict(names=[V.names[i] for i in corr_idx], matrix=(sub / np.outer(d, d)).tolist()),
+                     dict(names=[V.names[i] for i in corr_idx],
+                          matrix=[[_num(c) for c in row] for row in corr]),
                      reports, True, status, int(stats["iter_count"]), seconds, objective, note_text, predictions)
 
 

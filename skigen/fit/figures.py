@@ -40,7 +40,7 @@ def recording_figure(path, title: str, rec, predicted: np.ndarray, names: list[s
 
 def correlation_figure(path, result) -> Path:
     """The correlation matrix of the fitted quantities as a heat map, values written in."""
-    names, C = result.correlation["names"], np.array(result.correlation["matrix"])
+    names, C = result.correlation["names"], np.array(result.correlation["matrix"], float)   # None: unseen
     n = len(names)
     fig, ax = plt.subplots(figsize=(1.0 + 0.7 * n, 0.8 + 0.6 * n))
     im = ax.imshow(C, vmin=-1, vmax=1, cmap="RdBu_r")
@@ -48,7 +48,7 @@ def correlation_figure(path, result) -> Path:
     ax.set_yticks(range(n), names)
     for i in range(n):
         for j in range(n):
-            ax.text(j, i, f"{C[i, j]:.2f}", ha="center", va="center", fontsize=7,
+            ax.text(j, i, f"{C[i, j]:.2f}" if np.isfinite(C[i, j]) else "–", ha="center", va="center", fontsize=7,
                     color="w" if abs(C[i, j]) > 0.6 else "k")
     fig.colorbar(im, ax=ax, shrink=0.8)
     ax.set_title(f"correlation of the estimates ({result.method})")

@@ -86,7 +86,7 @@ def write_outputs(result: FitResult, out_dir, *, model_spec: str | None = None,
     data = result.asdict()
     data["validation"] = [{k: v for k, v in d.items() if k not in ("simulated", "recording")} for d in validation]
     paths = [out / "fit.json"]
-    paths[0].write_text(json.dumps(data, indent=2, allow_nan=False, default=_json) + "\n")
+    paths[0].write_text(json.dumps(_finite(data), indent=2, allow_nan=False, default=_json) + "\n")
     if model_spec:
         paths.append(_write_model_file(out / "fitted_model.py", result, model_spec, recordings))
     if figures:
@@ -105,6 +105,17 @@ def write_outputs(result: FitResult, out_dir, *, model_spec: str | None = None,
     return paths
 
 
+def _finite(x):
+    """``x`` with every non-finite float as None (null in JSON: an infinite std, an unseen correlation)."""
+    if isinstance(x, dict):
+        return {k: _finite(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_finite(v) for v in x]
+    if isinstance(x, (float, np.floating)) and not np.isfinite(x):
+        return None
+    return x
+
+
 def _json(x):
     if isinstance(x, (np.floating, np.integer)):
         return x.item()
@@ -121,7 +132,7 @@ def _write_model_file(path: Path, result: FitResult, spec: str, recordings) -> P
                 f"DECLARED = DECLARED if DECLARED.is_file() else Path({str(Path(spec).resolve())!r})", ""]
         where = "str(DECLARED)"
     values = {n: v["value"] for n, v in result.parameters.items()}
-    std = {n: v["std"] for n, v in result.parameters.items() if v["std"] > 0}
+    std = {n: v["std"] for n, v in result.parameters.items() if 0 < v["std"] < np.inf}
     files = ", ".join(Path(r.path).name for r in recordings)
     lines = ['"""' + f"{result.model.name}: fitted by `skigen fit` ({result.method}) on {files}, "
              f"{datetime.date.today().isoformat()}.", "",
@@ -169,7 +180,7 @@ def _write_report(path: Path, result: FitResult, validation, figures) -> Path:
         lines += ["", f"Standard deviations: {r.covariance_note}.", ""]
     if r.notes:
         lines += ["## Notes", ""] + [f"- {n}." for n in r.notes] + [""]
-    names, C = r.correlation["names"], np.array(r.correlation["matrix"])
+    names, C = r.correlation["names"], np.array(r.correlation["matrix"], float)
     strong = [(names[i], names[j], C[i, j]) for i in range(len(names)) for j in range(i) if abs(C[i, j]) > 0.9]
     if strong:
         lines += ["Strongly correlated estimates (|r| > 0.9): "

@@ -27,6 +27,7 @@ from scipy.signal import lfilter
 
 __all__ = ["covariance", "autoregression", "coloured_score_covariance", "unidentified"]
 
+UNSEEN = 1e-12       # relative eigenvalue of the normalised information below which a direction has none
 SINGULAR = 1e-9      # relative eigenvalue of the normalised Fisher information below which a direction is lost
 
 
@@ -79,17 +80,28 @@ def covariance(J: np.ndarray, rho: np.ndarray | None, lengths: list[int], prior:
     the Fisher information); rho: n_rho × Σ N_r pseudo-residuals (B: their AR noise model,
     per recording); prior: prior precision per variable; G: Jacobian of the equality
     constraints (or None). Returns (C, info) with the AR orders used and the variances of A⁻¹
-    (``fisher_var``: what a white-residual model with the prior would claim).
+    (``fisher_var``: what a white-residual model with the prior would claim). A variable in a
+    direction the information does not see at all (a limit the inputs never reach) has an
+    infinite variance and no correlation (NaN): the pseudo-inverse would have given it 0.
     """
     p = J.shape[1]
     Z = null_space(G) if G is not None and G.shape[0] else np.eye(p)
     Jz = J @ Z
     A = Jz.T @ Jz + Z.T @ np.diag(prior) @ Z
     d = np.sqrt(np.clip(np.diag(A), 1e-300, None))         # invert in the normalised basis
-    Ainv = np.linalg.pinv(A / np.outer(d, d), rcond=1e-12) / np.outer(d, d)
+    lam, U = np.linalg.eigh(A / np.outer(d, d))
+    seen = lam > UNSEEN * max(lam[-1], 1e-300) if len(lam) else lam > 0
+    Ainv = (U[:, seen] / lam[seen]) @ U[:, seen].T / np.outer(d, d)
+    lost = np.abs(Z @ U[:, ~seen]).max(axis=1, initial=0.0) > 1e-6
+
+    def unseen(C):
+        C = np.array(C, float)
+        C[lost, :], C[:, lost] = np.nan, np.nan
+        C[lost, lost] = np.inf
+        return C
     fisher = Z @ Ainv @ Z.T
     if rho is None:
-        return fisher, {"ar_orders": [], "fisher_var": np.diag(fisher)}
+        return unseen(fisher), {"ar_orders": [], "fisher_var": np.diag(unseen(fisher))}
     n_rho = rho.shape[0]
     Jr = Jz.reshape(-1, n_rho, Jz.shape[1])
     B, start, info = Z.T @ np.diag(prior) @ Z, 0, {"ar_orders": [], "fisher_var": np.diag(fisher)}
@@ -98,7 +110,8 @@ def covariance(J: np.ndarray, rho: np.ndarray | None, lengths: list[int], prior:
         B += Bi
         info["ar_orders"].append(orders)
         start += n
-    return Z @ (Ainv @ B @ Ainv) @ Z.T, info
+    info["fisher_var"] = np.diag(unseen(fisher))
+    return unseen(Z @ (Ainv @ B @ Ainv) @ Z.T), info
 
 
 def unidentified(J: np.ndarray, prior: np.ndarray, names: list[str], G: np.ndarray | None = None) -> list[str]:
