@@ -12,7 +12,9 @@ hold); an output is used at its grid sample (a nearer sample of the same
 output wins; the others are counted and reported). Grid samples without one are "not measured" and
 the filter predicts through them. A column with no sample for longer than
 ``max_gap`` seconds (and MIN_GAP_SAMPLES samples of dt) is a :class:`Hole`, reported with its
-time span.
+time span; so is an input's gap longer than RATE_GAP of its own sample intervals (the median of
+its first RATE_STAMPS; :func:`gap_limit`): held through it, a 1 kHz voltage missing for 0.1 s
+would drive the model with a value it did not have.
 """
 from __future__ import annotations
 
@@ -34,6 +36,9 @@ PHASE_ALPHA = 0.01           # Rayleigh test: stamps whose phase is uniform this
 MIN_GAP_SAMPLES = 5         # a hole is longer than max_gap and than this many samples of the model's dt
 OFF_GRID = 0.25              # samples: an output stamped on average this far from where it is used is noted
 OFFSET_UNIT = 1e-6           # samples: offsets are summed as integers of this (the stream sums to the same)
+RATE_GAP = 10                # an input without a sample for this many of its own intervals has a hole
+RATE_STAMPS = 256            # the input's first stamps whose median interval is its own
+RATE_MIN = 8                 # intervals needed to know it (fewer: max_gap alone)
 
 
 def clock(t: float) -> str:
@@ -213,12 +218,24 @@ def first_known(after: float, dt: float, input_hold: str) -> float:
     return np.floor(k - 0.5) + 1 if input_hold == "zoh" else np.ceil(k - 1e-6)
 
 
-def _holes(series, names, inputs, start, end, max_gap, columns) -> list[Hole]:
+def gap_limit(head, max_gap: float, dt: float) -> float:
+    """Seconds without a sample that make a hole in an input whose first stamps are ``head``
+    (RATE_STAMPS + 1 of them, or all it has): ``max_gap`` (already at least MIN_GAP_SAMPLES of dt),
+    or RATE_GAP of its median interval where that is shorter (but not below MIN_GAP_SAMPLES of dt)."""
+    iv = np.diff(np.asarray(head, float)[:RATE_STAMPS + 1])
+    iv = iv[iv > 0]
+    if iv.size < RATE_MIN:
+        return max_gap
+    return min(max_gap, max(RATE_GAP * float(np.median(iv)), MIN_GAP_SAMPLES * dt))
+
+
+def _holes(series, names, inputs, start, end, max_gap, columns, dt) -> list[Hole]:
     spans = {}
     for name in names:
         ts = series[name][0]
+        limit = gap_limit(ts, max_gap, dt) if name in inputs else max_gap
         edges = np.concatenate([[start], ts[(ts > start) & (ts < end)], [end]])
-        gaps = np.flatnonzero(np.diff(edges) > max_gap)
+        gaps = np.flatnonzero(np.diff(edges) > limit)
         for j in gaps:
             spans.setdefault((float(edges[j]), float(edges[j + 1])), []).append(name)
     return [Hole(a, b, tuple(columns[n] for n in c), any(n in inputs for n in c)) for (a, b), c in sorted(spans.items())]
@@ -276,7 +293,7 @@ def to_grid(samples: Samples, dt: float, input_names, output_names, input_hold: 
         notes += _offset_note(name, len(used), _offset_units(ts[used], k, start, dt), dt,
                               "inputs" if input_names else "outputs")
     holes = [Hole(h.t0 + origin, h.t1 + origin, h.columns, h.inputs) for h in
-             _holes(series, input_names + output_names, input_names, start, end, max_gap, cols)]
+             _holes(series, input_names + output_names, input_names, start, end, max_gap, cols, dt)]
     return Recording(samples.source, origin + t, inputs, outputs, input_names, output_names,
                      holes=tuple(holes), notes=tuple(notes), columns=dict(cols), max_gap=max_gap)
 
@@ -304,9 +321,13 @@ class _Column:
         self.offset = 0               # the used samples' stamps minus their grid times, in OFFSET_UNIT
         self.first_repeat = None
         self.prev = None              # the last stamp looked at for holes (the grid start at first)
+        self.head = np.zeros(0)       # its first RATE_STAMPS + 1 stamps (an input's own interval)
+        self.limit = None             # seconds without a sample that make a hole, once known
 
     def add(self, t, v):
         if len(t):
+            if len(self.head) <= RATE_STAMPS:
+                self.head = np.concatenate([self.head, t[:RATE_STAMPS + 1 - len(self.head)]])
             repeated, first = _repeats(t, self.last)
             self.repeated += repeated
             self.first_repeat = first if self.first_repeat is None else self.first_repeat
@@ -380,6 +401,7 @@ class GridStream:
             self.cols[name].add(t[ok], v[ok])
             if ok.any():
                 self.end = max(self.end, float(t[ok][-1]))
+        self._limits()
         self.row_t = float(t[-1])
         if self.start is None:
             self._find_start(len(self.first) < PHASE_STAMPS)
@@ -412,10 +434,18 @@ class GridStream:
         for c in self.cols.values():
             c.prev = self.start
 
+    def _limits(self, final: bool = False):
+        """Each column's hole threshold, once known: an input's when it has RATE_STAMPS + 1 stamps
+        (or at the end of the file), as :func:`to_grid` reads it from the whole file."""
+        for name in self.names:
+            c = self.cols[name]
+            if c.limit is None and (name not in self.input_names or final or len(c.head) > RATE_STAMPS):
+                c.limit = gap_limit(c.head, self.max_gap, self.dt) if name in self.input_names else self.max_gap
+
     def _scan_holes(self):
         for name in self.names:
             c = self.cols[name]
-            if not c.new:
+            if not c.new or c.limit is None:
                 continue
             ts = np.concatenate(c.new)
             c.new = []
@@ -423,7 +453,7 @@ class GridStream:
             if not len(ts):
                 continue
             edges = np.concatenate([[c.prev], ts])
-            for j in np.flatnonzero(np.diff(edges) > self.max_gap):
+            for j in np.flatnonzero(np.diff(edges) > c.limit):
                 self._span(float(edges[j]), float(edges[j + 1]), name)
             c.prev = float(ts[-1])
 
@@ -464,6 +494,8 @@ class GridStream:
     def _frontier(self) -> int:
         """Grid samples below this are decided by the samples read so far."""
         dt, half, row = self.dt, self.dt / 2, self.row_t
+        if any(self.cols[n].limit is None for n in self.input_names):
+            return self.next_k               # an input's holes are not known yet: nothing decided
         guess = lambda T: np.floor((T - self.start) / dt) if np.isfinite(T) else 0
         k = self._check_length()                                   # grid samples that exist already
         # an input hole up to the last stamp restarts the states about there (known at the end): keep a margin
@@ -526,13 +558,14 @@ class GridStream:
             self._find_start()
         if self.start is None:
             raise NotStreamable("no grid start")
+        self._limits(final=True)
         self._scan_holes()
         self.n = self._check_length()
         if self.n < self.min_samples:
             raise NotStreamable("too few grid samples")
         for name in self.names:
             c = self.cols[name]
-            if self.end - c.prev > self.max_gap:
+            if self.end - c.prev > c.limit:
                 self._span(c.prev, self.end, name)
         yield from self._emit(self.n)
         order = {n: i for i, n in enumerate(self.names)}

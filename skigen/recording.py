@@ -45,6 +45,7 @@ class Recording:
     input_names: tuple[str, ...]
     output_names: tuple[str, ...]
     holes: tuple = ()             # grid.Hole: spans longer than max_gap without a sample of some column
+                                  # (an input's: or than 10 of its own intervals, grid.gap_limit)
     notes: tuple[str, ...] = ()   # what reading decided (time unit, samples not used)
     columns: dict = field(default_factory=dict)   # model name -> column it was read from
     max_gap: float = float("nan")  # seconds: the hole threshold used
@@ -130,8 +131,10 @@ class Recording:
 
     def hole_note(self, what: str) -> str:
         """A sentence on this recording's input holes, ending in what was done about them."""
+        from .grid import RATE_GAP
         return (f"{self.path}: the held input is not the input in its hole(s) longer than max_gap = "
-                f"{self.max_gap:g} s ({_listed(self.input_holes)}): {what}")
+                f"{self.max_gap:g} s or than {RATE_GAP} of the input's own sample intervals "
+                f"({_listed(self.input_holes)}): {what}")
 
     def input_parts(self) -> list[Recording]:
         """The stretches between this recording's input holes (an input without a sample for

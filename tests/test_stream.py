@@ -29,7 +29,9 @@ def small_model(hold="zoh"):
 def awkward_log(seed=0, seconds=30.0):
     """A log with everything that makes a grid hard: jittered stamps, inputs and outputs on their own
     rows, an output faster than the model, one slower, outputs before the inputs are known, an input
-    hole (a restart), output holes, empty cells, rows without any value at the end, duplicate stamps."""
+    hole (a restart), a shorter one that is a hole only for its rate (0.3 s of a 50 Hz input; the
+    10 Hz input's 0.5 s gap is not), output holes, empty cells, rows without any value at the end,
+    duplicate stamps."""
     rng = np.random.default_rng(seed)
     k = np.arange(int(seconds / 0.02))
     t = 0.3 + k * 0.02 + rng.uniform(-0.4, 0.4, len(k)) * 0.02
@@ -37,8 +39,10 @@ def awkward_log(seed=0, seconds=30.0):
     u = np.sin(0.3 * t) + rng.normal(0, 0.1, len(t))
     ins = pd.DataFrame({"t": t, "u": u})
     ins = ins[(ins.t < 9.0) | (ins.t > 10.7)]                          # an input hole: restart
+    ins = ins[(ins.t < 20.0) | (ins.t > 20.3)]                         # 15 of its intervals: a hole
     slow = pd.DataFrame({"t": np.arange(0.25, seconds, 0.1), "g": 1.0})
     slow.loc[::7, "g"] = 2.0
+    slow = slow[(slow.t < 22.0) | (slow.t > 22.5)]                     # 5 of its intervals: held
     tf = np.sort(rng.uniform(0.0, seconds, int(seconds * 120)))         # faster than the model
     outs = pd.DataFrame({"t": tf, "xm": np.cos(tf) + rng.normal(0, 0.1, len(tf))})
     outs = outs[(outs.t < 15) | (outs.t > 17.5)]                        # an output-only hole
@@ -96,6 +100,8 @@ def test_the_streamed_grid_is_the_whole_file_grid(log_csv, hold, rows, block):
     assert grid.holes == rec.holes and tuple(grid.notes) == rec.notes
     assert grid.restart_list == skigen.runtime.restarts(rec, model) != []
     assert len(rec.holes) >= 2 and any("faster than the model" in n for n in rec.notes)
+    later = [(h.t0, h.t1, h.columns) for h in rec.input_holes if h.t0 > 19]     # u's, not g's
+    assert len(later) == 1 and 19.96 < later[0][0] < 20.0 and 20.3 < later[0][1] < 20.34 and later[0][2] == ("u",)
 
 
 def test_blocks_of_a_few_bytes_and_mapped_columns(tmp_path):
