@@ -163,7 +163,12 @@ class Model:
         if why:
             raise ModelError(f"{what} name '{name}' is reserved: {why}; choose another")
         if name in self.names:
-            raise ModelError(f"{what} '{name}' is declared twice")
+            taken = next(kind for kind, names in (("state", self.state_names), ("input", self.input_names),
+                                                  ("output", self.output_names), ("parameter", self.parameter_names))
+                         if name in names)
+            raise ModelError(f"{what} '{name}' is declared twice" if taken == what else
+                             f"{what} '{name}': the name is already {'an' if taken[0] in 'aeiou' else 'a'} "
+                             f"{taken}'s; choose another")
         return ca.SX.sym(name)
 
     def state(self, name: str, unit: str = "", role: str | None = None, *,
@@ -360,12 +365,20 @@ class Model:
         for name, expr in self.rhs.items():
             _check_scalar(expr, f"dynamics of '{name}'")
             _check_symbols(expr, known, f"dynamics of '{name}'")
+        informative = ca.vertcat(*[v.sym for v in self.states] + [p.sym for p in self.parameters])
         for v in self.outputs:
             _check_scalar(v.sym, f"output '{v.name}'")
             _check_symbols(v.sym, known, f"output '{v.name}'")
+            if not ca.depends_on(v.sym, informative):
+                raise ModelError(f"output '{v.name}' depends on no state or parameter (it is "
+                                 f"{'a constant' if ca.SX(v.sym).is_constant() else 'a function of the inputs alone'}): "
+                                 f"its readings cannot tell the filter anything; write what the sensor reads")
         names = set()
         for wname, eq, t, _ in self.weights():
             _check_symbols(t.expr, known, f"basis term '{t.name}'")
+            if ca.SX(t.expr).is_zero():
+                raise ModelError(f"basis term '{t.name}' (key '{t.key}') on equation '{eq}' is identically 0: "
+                                 f"its weight could have no effect")
             if wname in names:
                 raise ModelError(f"basis term '{t.name}' (key '{t.key}') is declared twice on equation '{eq}': "
                                  f"each term enters an equation once")
@@ -374,6 +387,10 @@ class Model:
         if clash:
             raise ModelError(f"weight name(s) {', '.join(sorted(clash))} collide with a declared name")
         self._check_finite_at_start()
+        if self.P0 is None and (known := [n for n, s in zip(self.state_names, self.x_std) if s == 0]):
+            raise ModelError(f"state(s) {', '.join(map(repr, known))} declare std=0 (an initial value known "
+                             f"exactly): the filters factor the initial covariance and need it positive; give a "
+                             f"small std (say 1e-6 of the state's scale)")
         _check_covariance(self.process_noise(), "Q (process noise)", self.state_names, definite=False)
         _check_covariance(self.measurement_noise(), "R (measurement noise)", self.output_names)
         _check_covariance(self.initial_covariance(), "P0 (initial covariance)", self.state_names)

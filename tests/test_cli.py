@@ -241,3 +241,12 @@ def test_generate_refuses_a_prefix_casadi_cannot_use(tmp_path, prefix, why):
     assert not (tmp_path / "gen").exists()
     with pytest.raises(ValueError, match=f"prefix '{prefix}' cannot name CasADi Functions: {why}"):
         emit_c(derive(build(), "ekf"), tmp_path / "emit", prefix=prefix)
+
+
+@pytest.mark.parametrize("prefix", ["math", "stdio", "main"])
+def test_a_prefix_that_would_hide_a_standard_header_is_refused(prefix):
+    """`--prefix math` wrote math.h, which hid <math.h> from the generated code: it did not compile."""
+    from skigen.emit.c import check_prefix
+    with pytest.raises(ValueError, match=f"prefix '{prefix}' would name the generated header '{prefix}.h'"):
+        check_prefix(prefix)
+    assert check_prefix("math_ekf") == "math_ekf"

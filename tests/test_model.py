@@ -64,6 +64,10 @@ def test_direction_term_shares_one_weight():
     (lambda m, x, v, u: m.dynamics({"q": v}), "'q', which is not a declared state"),
     (lambda m, x, v, u: m.unknown("speed", [term("b", 1)]), "unknown term on equation 'speed'"),
     (lambda m, x, v, u: m.state("x"), "state 'x' is declared twice"),
+    (lambda m, x, v, u: m.input("x"), "input 'x': the name is already a state's"),
+    (lambda m, x, v, u: m.parameter("u", 1.0), "parameter 'u': the name is already an input's"),
+    (lambda m, x, v, u: m.unknown(v, [term("z", x - x, key="z")]), "basis term 'z' (key 'z') on equation 'v' is "
+                                                                 "identically 0"),
     (lambda m, x, v, u: m.state("x y"), "must be an identifier"),
     (lambda m, x, v, u: m.state("z", role="altitud"), "role must be one of"),
     (lambda m, x, v, u: m.output("w_meas", v), "output name 'w_meas' is reserved: it starts with 'w_', which names"),
@@ -94,6 +98,11 @@ def test_declaration_errors_name_the_culprit(mutate, message):
     (lambda m, x, v, u: m.covariances(R=[[0.0]]), "R (measurement noise) is not positive definite"),
     (lambda m, x, v, u: m.covariances(Q=-np.eye(2)), "Q (process noise) is not positive semi-definite"),
     (lambda m, x, v, u: m.output("acc", v), "output 'acc' has no noise_std"),
+    (lambda m, x, v, u: m.output("one", 0 * x + 1, noise_std=1), "output 'one' depends on no state or parameter "
+                                                                  "(it is a constant)"),
+    (lambda m, x, v, u: m.output("cmd", 2 * u, noise_std=1), "output 'cmd' depends on no state or parameter (it is a "
+                                                             "function of the inputs alone)"),
+    (lambda m, x, v, u: m.x_std.__setitem__(0, 0.0), "state(s) 'x' declare std=0 (an initial value known exactly)"),
 ])
 def test_check_errors_name_the_culprit(mutate, message):
     m, x, v, u = small()

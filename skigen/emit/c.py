@@ -323,11 +323,22 @@ def _single_precision(c: str) -> str:
     return _LITERAL_RE.sub(r"\1f", _MATH_RE.sub(r"\1f(", c))
 
 
+# The C standard library's headers (C99/C11): a generated <prefix>.h named like one hides it.
+STANDARD_HEADERS = frozenset("""assert complex ctype errno fenv float inttypes iso646 limits locale math setjmp
+    signal stdalign stdarg stdatomic stdbool stddef stdint stdio stdlib stdnoreturn string tgmath threads time
+    uchar wchar wctype""".split())
+
+
 def check_prefix(prefix: str) -> str:
     """``prefix``, or ValueError naming the rule it breaks: a C identifier that can begin CasADi
-    Function names (``<prefix>_kernel``)."""
+    Function names (``<prefix>_kernel``) and names no standard header (``<prefix>.h``)."""
     if not prefix.isidentifier() or not prefix.isascii():
         raise ValueError(f"prefix '{prefix}' is not a C identifier")
+    if prefix in STANDARD_HEADERS or prefix == "main":
+        raise ValueError(f"prefix '{prefix}' would name the generated header '{prefix}.h'"
+                         + (f" like the standard <{prefix}.h>, which it would hide from the generated code"
+                            if prefix != "main" else " and source like a program's entry point")
+                         + "; choose another")
     why = function_name_problem(prefix)
     if why:
         raise ValueError(f"prefix '{prefix}' cannot name CasADi Functions: {why}; CasADi's start with a "
