@@ -13,7 +13,7 @@ from models.wingrock import W_TRUE
 from models.wingrock_sim import simulate
 from skigen import derive
 from skigen.emit import Status, emit_c
-from skigen.emit.c import AUTO_LOOPS_ABOVE_OPERATIONS, choose_style, load_c, single_precision_options
+from skigen.emit.c import AUTO_LOOPS_ABOVE_OPERATIONS, DEFAULT_FLAGS, choose_style, load_c, single_precision_options
 from skigen.reference import filters as ref
 from skigen.reference.quadrotor import spiral_f, spiral_h
 from skigen.reference.wingrock import wingrock_delay_f, wingrock_h
@@ -143,3 +143,22 @@ def test_looped_float_ski_at_n50_tracks_double():
     w = filt.aug.w_index
     for result in (double, single):
         assert np.argmax(np.abs(result.mean[-1, w])) == wingrock_delay.TRUE_DELAY
+
+
+def test_model_headers_of_a_double_and_a_float_build_live_in_one_file(tmp_path):
+    """CasADi's headers defined casadi_real with #ifndef and had no include guard: a file including
+    a double and a float build's model headers gave the float functions double prototypes. They
+    now name their types and are guarded (each included twice here), under -Werror."""
+    filt = derive(wingrock_delay.model, "ukf")
+    emit_c(filt, tmp_path / "d", real="double", prefix="dbl", style="loops")
+    emit_c(filt, tmp_path / "f", real="float", prefix="flt", style="loops")
+    main = tmp_path / "main.c"
+    main.write_text('#include "dbl_model.h"\n#include "flt_model.h"\n#include "dbl_model.h"\n#include "flt_model.h"\n'
+                    '#include "dbl_kernel.h"\n#include "flt_kernel.h"\n'
+                    "int main(void) {\n  const double* ad[4] = {0}; double* rd[1] = {0};\n"
+                    "  const float* af[4] = {0}; float* rf[1] = {0};\n"
+                    "  return dbl_model_h(ad, rd, 0, 0, 0) + flt_model_h(af, rf, 0, 0, 0);\n}\n")
+    r = subprocess.run(["gcc", *DEFAULT_FLAGS, "-c", str(main), "-I", str(tmp_path / "d"), "-I", str(tmp_path / "f"),
+                        "-o", str(tmp_path / "main.o")], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    assert "define casadi_real" not in (tmp_path / "f" / "flt_model.h").read_text()

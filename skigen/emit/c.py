@@ -211,7 +211,17 @@ def _casadi_code(functions, name: str, real: str, stamp: str) -> tuple[str, str,
         c, h = (Path(tmp, name + ext).read_text() for ext in (".c", ".h"))
     sizes = {k: max(int(v) for v in re.findall(rf"#define \w+_SZ_{k.upper()} (\d+)", h))
              for k in ("arg", "res", "iw", "w")}
-    return stamp + _tidy(c, name, real), stamp + h, sizes
+    return stamp + _tidy(c, name, real), stamp + _guarded(h, name, real), sizes
+
+
+def _guarded(h: str, name: str, real: str) -> str:
+    """CasADi's header with an include guard and its types written out: its ``casadi_real`` macro
+    would leak into the includer, and a double and a float model header in one file gave the
+    second's prototypes the first's type."""
+    h = re.sub(r"#ifndef (casadi_real|casadi_int)\n#define \1 \w+\n#endif\n\n", "", h)
+    h = re.sub(r"\bcasadi_real\b", real, re.sub(r"\bcasadi_int\b", "int", h))
+    guard = f"{name.upper()}_H"
+    return f"#ifndef {guard}\n#define {guard}\n{h}#endif /* {guard} */\n"
 
 
 def _kernel(filt: DerivedFilter, prefix: str, real: str) -> tuple[dict[str, str], dict[str, int]]:
