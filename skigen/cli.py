@@ -131,7 +131,10 @@ def _run(args) -> int:
 
 
 def _ran(args, model, n, t0, t1, summary) -> int:
+    from .emit.c import float_precision
     backend = args.backend + (f", {args.real}" if args.real != "double" else "")
+    if args.real == "float" and args.backend == "c" and (why := float_precision(summary.filter)):
+        print(f"note: {why}")
     print(f"{model.name} {args.filter} ({backend}): {n} samples of dt = {model.dt:g} s, "
           f"t = {clock(t0)}–{clock(t1)} s -> {args.out}")
     print("\n".join(summary.lines()))
@@ -140,7 +143,7 @@ def _ran(args, model, n, t0, t1, summary) -> int:
 
 def _generate(args) -> int:
     from .derive import derive
-    from .emit.c import check_prefix, choose_style, emit_c
+    from .emit.c import check_prefix, choose_style, emit_c, float_precision
 
     model = load_model(args.model)
     try:
@@ -153,6 +156,8 @@ def _generate(args) -> int:
         raise CliError(str(exc)) from None
     for f in files:
         print(f)
+    if args.real == "float" and (why := float_precision(filt)):
+        print(f"note: {why}", file=sys.stderr)
     why = (f" (auto: {filt.tunable.n_instructions()} operations unrolled, looped above "
            f"{AUTO_LOOPS_ABOVE_OPERATIONS})" if args.style == "auto" and filt.kind in LOOPS_KINDS else "")
     print(f"kernel: {style}{why}", file=sys.stderr)

@@ -250,3 +250,20 @@ def test_a_prefix_that_would_hide_a_standard_header_is_refused(prefix):
     with pytest.raises(ValueError, match=f"prefix '{prefix}' would name the generated header '{prefix}.h'"):
         check_prefix(prefix)
     assert check_prefix("math_ekf") == "math_ekf"
+
+
+@pytest.mark.parametrize("origin, noted", [(5e5, True), (0.0, False)])
+def test_a_float_build_of_a_state_far_from_its_origin_is_noted(tmp_path, origin, noted):
+    """A position 500 km from its origin with a 1 m std: float rounds it to 0.03 m, and a user's
+    float UKF diverged with every step's code normal. `generate --real float` says so and how to
+    avoid it; at the origin, or in double, nothing is said."""
+    spec = tmp_path / "rail.py"
+    spec.write_text("from skigen import Model\nmodel = Model('rail', dt=0.1)\n"
+                    f"x = model.state('x', std=1.0, initial={origin!r}, process_std=0.01)\n"
+                    "v = model.state('v', std=1.0, process_std=0.01)\na = model.input('a')\n"
+                    "model.dynamics({x: v, v: a})\nmodel.output('gps', x, noise_std=0.5)\n")
+    for real in ("float", "double"):
+        r = skigen("generate", str(spec), "--filter", "ukf", "--real", real, "--out", str(tmp_path / real))
+        assert r.returncode == 0, r.stderr
+        said = "note: in float, 'x' starts more than 1000 declared std from 0 ('x' at 5e+05 with std 1)" in r.stderr
+        assert said == (noted and real == "float"), r.stderr

@@ -303,6 +303,27 @@ def _kernel_loops(filt: DerivedFilter, prefix: str, real: str) -> tuple[dict[str
 
 
 FLOAT_S_FLOOR = 1e-4   # EM's ARD floor in float builds: the correction's condition ~ m / s_floor
+FLOAT_SPAN = 1e3       # a state whose declared mean is this many declared std from 0 loses its spread in float
+
+
+def float_precision(filt: DerivedFilter) -> str | None:
+    """Why a float build of ``filt`` may drift from the double one: the augmented states whose
+    declared mean is more than FLOAT_SPAN of their declared std (float keeps ~7 digits; a position
+    500 km from its origin with a 0.3 m std lost its sigma points' spread and diverged with every
+    step's code normal); None when there is none."""
+    aug = filt.aug
+    sd = np.sqrt(np.diag(aug.P0))
+    span = np.abs(aug.z0) / np.where(sd > 0, sd, np.inf)
+    far = np.flatnonzero(span > FLOAT_SPAN)
+    if not far.size:
+        return None
+    i = far[np.argmax(span[far])]
+    return (f"in float, {', '.join(repr(aug.names[j]) for j in far)} start{'s' if len(far) == 1 else ''} more than "
+            f"{FLOAT_SPAN:g} declared std from 0 ('{aug.names[i]}' at {aug.z0[i]:.4g} with std {sd[i]:.2g}): float "
+            f"keeps about 7 significant digits, so its rounding there, {abs(aug.z0[i]) * 2.0 ** -24:.2g}, is "
+            f"{abs(aug.z0[i]) * 2.0 ** -24 / sd[i]:.2g} of the std at the start and more once the filter "
+            f"narrows it: the estimate can drift from the double build's with every step's code normal. "
+            f"Write the state relative to a nearby reference (the first fix, a local origin), or build in double")
 
 
 def single_precision_options(filt: DerivedFilter) -> DerivedFilter:
