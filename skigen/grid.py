@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .recording import Recording, RecordingError
+from .recording import Recording, RecordingError, held_run
 from .sources import Samples
 
 __all__ = ["UNITS", "Hole", "clock", "time_scale", "to_grid", "GridStream", "GridBlock"]
@@ -176,6 +176,14 @@ def _column_notes(name, column, output, count, early, dropped, repeated, first_r
     return notes
 
 
+def _held_note(name, column, run, repeats) -> str:
+    return (f"output '{name}' (column '{column}') repeats each reading about {run} times in a row, as a "
+            f"logger that holds a slower sensor's last reading writes it: only the first of each run is "
+            f"used ({repeats} repeats left out), at its own time stamp; used as readings, the repeats "
+            f"would count one measurement {run} times and narrow the error bars. Write an empty cell "
+            f"where no new reading came")
+
+
 def grid_phase(r: np.ndarray, dt: float) -> float:
     """The shift in (−dt/2, dt/2] of a grid of step ``dt`` that centres stamps ``r`` (seconds from
     its first sample) on it: the circular mean of their phase, when the Rayleigh test rejects a
@@ -285,6 +293,10 @@ def to_grid(samples: Samples, dt: float, input_names, output_names, input_hold: 
     outputs = np.full((n, len(output_names)), np.nan)
     for j, name in enumerate(output_names):
         ts, v = series[name][:2]
+        if run := held_run(v[:RATE_STAMPS + 1]):
+            fresh = np.r_[True, v[1:] != v[:-1]]
+            notes.append(_held_note(name, cols[name], run, int(np.sum(~fresh))))
+            ts, v = ts[fresh], v[fresh]
         k, used = _nearest(ts, start, dt, n)
         outputs[k, j] = v[used]
         early = int(np.sum(ts < start - dt / 2))
@@ -322,11 +334,14 @@ class _Column:
         self.first_repeat = None
         self.prev = None              # the last stamp looked at for holes (the grid start at first)
         self.head = np.zeros(0)       # its first RATE_STAMPS + 1 stamps (an input's own interval)
+        self.head_v = np.zeros(0)     # and values (an output held by the logger, :func:`held_run`)
+        self.judged = False           # whether those values were judged
         self.limit = None             # seconds without a sample that make a hole, once known
 
     def add(self, t, v):
         if len(t):
             if len(self.head) <= RATE_STAMPS:
+                self.head_v = np.concatenate([self.head_v, v[:RATE_STAMPS + 1 - len(self.head)]])
                 self.head = np.concatenate([self.head, t[:RATE_STAMPS + 1 - len(self.head)]])
             repeated, first = _repeats(t, self.last)
             self.repeated += repeated
@@ -436,9 +451,16 @@ class GridStream:
 
     def _limits(self, final: bool = False):
         """Each column's hole threshold, once known: an input's when it has RATE_STAMPS + 1 stamps
-        (or at the end of the file), as :func:`to_grid` reads it from the whole file."""
+        (or at the end of the file), as :func:`to_grid` reads it from the whole file. An output
+        held by the logger (:func:`held_run`) is left to the whole-file reader."""
+        from .sources import NotStreamable
+
         for name in self.names:
             c = self.cols[name]
+            if name in self.output_names and not c.judged and (final or len(c.head) > RATE_STAMPS):
+                c.judged = True
+                if held_run(c.head_v):
+                    raise NotStreamable(f"output '{name}' is held by the logger")
             if c.limit is None and (name not in self.input_names or final or len(c.head) > RATE_STAMPS):
                 c.limit = gap_limit(c.head, self.max_gap, self.dt) if name in self.input_names else self.max_gap
 

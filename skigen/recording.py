@@ -164,6 +164,22 @@ class Recording:
         return dataclasses.replace(self, t=self.t[s], inputs=self.inputs[s], outputs=self.outputs[s])
 
 
+def held_run(values, runs: int = 8) -> int:
+    """L ≥ 2 when ``values`` (a column's first readings, in order) repeat each reading L times in
+    a row, as a logger that holds a slower sensor's last reading writes it (a 1 Hz fix in a 10 Hz
+    log: each value 10 times); else 0. Regular runs — at least ``runs`` complete ones, nine in
+    ten longer than 1, the middle 80 % within a quarter of their median — of values that are not
+    on a quantisation grid (:func:`resolution`: an encoder at rest repeats its count)."""
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)]
+    edges = np.flatnonzero(np.r_[True, v[1:] != v[:-1], True])
+    lengths = np.diff(edges)[1:-1]                     # the first and last runs may be cut
+    if len(lengths) < runs or np.mean(lengths > 1) < 0.9 or resolution(v) > 0:
+        return 0
+    lo, mid, hi = np.percentile(lengths, [10, 50, 90])
+    return int(round(mid)) if mid >= 2 and hi - lo <= max(1.0, 0.25 * mid) else 0
+
+
 def resolution(values) -> float:
     """The step of a quantised signal (an encoder's count, an ADC's least significant bit), or 0
     when it is not quantised: the smallest gap between distinct values, when values repeat (fewer

@@ -319,3 +319,45 @@ def test_an_input_named_like_time_is_not_the_clock(tmp_path):
             np.testing.assert_allclose(rec.inputs[:, 0], thrust)
     pd.DataFrame({"T": thrust, "baro": t}, index=pd.Index(t, name="t")).to_parquet(tmp_path / "a.parquet")
     np.testing.assert_allclose(load_recording(tmp_path / "a.parquet", m).inputs[:, 0], thrust)
+
+
+def test_a_logger_s_held_readings_are_told_from_a_quantised_sensor():
+    """A 1 Hz fix written on every row of a 10 Hz log repeats each reading 10 times (9–11 with a
+    jittered logger); an encoder at rest, a quantised slow ramp, a noisy signal and a reading
+    repeated irregularly are not held readings."""
+    from skigen.recording import held_run
+    rng = np.random.default_rng(0)
+    fix = np.repeat(rng.normal(size=40), 10)
+    assert held_run(fix[3:260]) == 10
+    jittered = np.repeat(rng.normal(size=40), rng.integers(9, 12, 40))
+    assert held_run(jittered[:257]) in (9, 10, 11)
+    ramp = np.round(np.linspace(0, 3, 257) / 0.1) * 0.1              # each count ~8.6 samples, on a 0.1 grid
+    assert held_run(ramp) == 0
+    encoder = np.round(np.cumsum(rng.normal(0, 1, 257) * (rng.random(257) < 0.3))) * 0.01
+    assert held_run(encoder) == 0
+    assert held_run(rng.normal(size=257)) == 0
+    assert held_run(np.repeat(rng.normal(size=60), rng.choice([1, 1, 2, 7], 60))[:257]) == 0
+
+
+def test_held_readings_are_used_once_by_run_in_streamed_and_whole_file_reading(tmp_path):
+    """`skigen run` on a log whose 1 Hz position is forward-filled on every row (10 Hz): the note
+    says so and the result equals that of the log with empty cells, byte for byte (the streamed
+    reader hands such a file to the whole-file one)."""
+    from skigen.cli import main
+    rng = np.random.default_rng(1)
+    t = np.arange(600) * 0.1
+    pos = np.where(np.arange(600) % 10 == 0, np.sin(0.1 * t) + rng.normal(0, 0.05, 600), np.nan)
+    spec = tmp_path / "m.py"
+    spec.write_text("from skigen import Model\nmodel = Model('m', dt=0.1)\n"
+                    "x = model.state('x', std=1.0, process_std=0.01)\nv = model.state('v', std=1.0, process_std=0.01)\n"
+                    "a = model.input('a')\nmodel.dynamics({x: v, v: a})\nmodel.output('pos', x, noise_std=0.05)\n")
+    a = -0.01 * np.sin(0.1 * t)
+    write_recording(tmp_path / "gaps.csv", t, {"a": a}, {"pos": pos})
+    held = pos.copy()
+    for k in range(1, 600):
+        held[k] = held[k] if np.isfinite(held[k]) else held[k - 1]
+    write_recording(tmp_path / "held.csv", t, {"a": a}, {"pos": held})
+    for name in ("gaps", "held"):
+        assert main(["run", str(spec), str(tmp_path / f"{name}.csv"), "--filter", "ukf", "--out",
+                     str(tmp_path / f"{name}_out.csv")]) == 0
+    assert (tmp_path / "gaps_out.csv").read_text() == (tmp_path / "held_out.csv").read_text()
