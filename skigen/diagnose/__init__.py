@@ -49,7 +49,7 @@ from .name import (DELAYS, Correction, basis_rms, beyond_parameters, focus_windo
                    redelayed, shape_search)
 from .plausible import screen, significant, term_item
 from .name import refit as refit_terms
-from .report import where, write_json, write_markdown
+from .report import behind, where, write_json, write_markdown
 
 __all__ = ["diagnose", "detect", "Report", "DiagnosisError", "MIN_SAMPLES"]
 
@@ -263,8 +263,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
                          f"gain {p.gain:+.1f}" + "".join(f"; {where(a)} set aside as compensating"
                                                           for a in p.set_aside)
                           + (f"; {p.note}" if p.note else "")
-                          + "".join(f"; as good: {where(a)} (`{a['expression']}`), {a['cv_loglik_behind']:.1f} behind"
-                                  for a in p.as_good)
+                          + "".join(f"; as good: {where(a)} (`{a['expression']}`), {behind(a)}" for a in p.as_good)
                           for i, p in enumerate(history)]
     stage("weighing the findings (drop-one free runs)")
     free_all, worth = simulation_worth(calibrated, corr, rec, window)

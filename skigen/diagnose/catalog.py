@@ -570,7 +570,8 @@ def _written(text: str, where: str, most: int = 24) -> str:
 def output_candidates(model: Model, outputs, recorded: np.ndarray) -> list[Structural]:
     """Per listed output, what its sensor may do: read an offset (searched over ± SENSOR_OFFSETS ×
     the recorded output's RMS, and on by threes past the largest while that is best: a speed
-    hovering about 0 has an RMS below its sensor's offset), a gain (SENSOR_GAINS, on a log scale), or saturate, upper and lower
+    hovering about 0 has an RMS below its sensor's offset), a gain (SENSOR_GAINS, on a log scale, on
+    past an end that is best by its largest factor: a motor 20 % weak read as an encoder's 0.8), or saturate, upper and lower
     (the bound over the recorded output's quantiles SENSOR_QUANTILES, its extremes included).
     ``recorded``: (N, ny)."""
     out = []
@@ -590,7 +591,7 @@ def output_candidates(model: Model, outputs, recorded: np.ndarray) -> list[Struc
         out.append(Structural(
             "sensor_gain", "", "gain", "", SENSOR_GAINS, False, True,
             lambda m, g, y=y: T.output_gain(m, y, g), lambda g, y=y: f"{_num(g)}·{y}",
-            READINGS["sensor_gain"], output=y))
+            READINGS["sensor_gain"], output=y, beyond=SENSOR_GAINS[-1]))
         for side, qs in (("upper", SENSOR_QUANTILES), ("lower", [1 - a for a in SENSOR_QUANTILES])):
             grid = tuple(sorted({float(_num(v)) for v in np.quantile(x, qs)}))
             out.append(Structural(

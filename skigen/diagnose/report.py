@@ -8,7 +8,14 @@ from pathlib import Path
 from ..fit import plus_minus as _pm
 from ..simulate import AMPLIFICATION
 
-__all__ = ["write_json", "write_markdown", "finding_line"]
+__all__ = ["write_json", "write_markdown", "finding_line", "behind"]
+
+
+def behind(tie: dict) -> str:
+    """How far a tie is behind the finding: cross-validated, or in-sample with as many numbers."""
+    if tie.get("in_sample"):
+        return f"log-likelihood {tie['loglik_behind']:.1f} behind on the whole recording, with as many numbers"
+    return f"cross-validated log-likelihood {tie['cv_loglik_behind']:.1f} behind"
 
 
 def _clean(x):
@@ -196,8 +203,8 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
                 for a in f.get("as_good", []):
                     L.append(f"  **Not told apart** from {where(a)} (`{a['expression']}`, "
                              f"{_pm(a['coefficient'], a['std'])}): it explains the recording "
-                             f"as well (cross-validated log-likelihood {a['cv_loglik_behind']:.1f} behind, less than "
-                             f"a finding must add); another recording, or a measurement of one of them, decides.")
+                             f"as well ({behind(a)}, less than a finding must add); another recording, or a "
+                             f"measurement of one of them, decides.")
             L.append("")
         else:
             L += ["No catalog or user candidate explains the mismatch significantly.", ""]
