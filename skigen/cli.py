@@ -210,8 +210,9 @@ def _diagnose(args) -> int:
                 f", free-run RMSE{span} " + ", ".join(f"{k} {b['free_run_rmse'][k]:.4g} -> {a['free_run_rmse'][k]:.4g}"
                                                       for k in both) if both else ""))
         rem = d["remaining"]
-        print("what remains: " + ("a mismatch remains" + (f"; it follows {rem['explained_by']}: try --candidate "
-                                                          f"'{rem['suggested_candidate']}'" if rem.get("explained_by") else "")
+        print("what remains: " + ("a mismatch remains" + (f"; {rem['tried']}" if rem.get("tried") else "")
+                                  + (f"; it follows {rem['explained_by']}{' outside those' if rem.get('tried') else ''}: "
+                                     f"try --candidate '{rem['suggested_candidate']}'" if rem.get("explained_by") else "")
                                   if rem["mismatch"] else "the corrected model is consistent"))
     if (d["remaining"] or {}).get("noise_covers"):
         print(f"consistent only with {noise_covers_sentence(d['remaining']['noise_covers'])}")

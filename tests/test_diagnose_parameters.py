@@ -392,3 +392,31 @@ def test_what_remains_is_suggested_in_the_user_s_names_with_three_periods_at_lea
     monkeypatch.setattr(suggest, "features", lambda model, rec, states: {"th": (th, None), "i_act": (i_act, None)})
     assert suggest.explain(None, None, loc)["explained_by"] == "i_act"
     assert suggest.explain(None, None, loc, names={"th", "om", "i"})["explained_by"] == "th"
+
+
+def test_what_remains_is_not_suggested_in_the_shape_of_a_candidate_already_tried(monkeypatch):
+    """What remains of a cylinder against its end stops followed x best: the suggestion
+    'remaining:v:x', run, was judged as the catalog's linear stiffness and came back. A shape a
+    tried candidate has along the trajectory is now said as tried, and the suggestion is the best
+    shape outside them."""
+    import types
+    from skigen.diagnose import suggest
+    rng = np.random.default_rng(1)
+    x = rng.uniform(-1, 1, 300)
+    d = 2.0 * x + 0.8 * x * np.abs(x) + rng.normal(0, 0.05, 300)
+    loc = types.SimpleNamespace(equations=["v"], disturbance={"v": (d, np.full(300, 0.1))}, states=None)
+    monkeypatch.setattr(suggest, "features", lambda model, rec, states: {"x": (x, None)})
+    assert suggest.explain(None, None, loc)["suggested_candidate"] == "remaining:v:x"
+    monkeypatch.setattr(suggest, "_tried", lambda model, rec, states, eq, tried: [("linear_stiffness", -x)])
+    out = suggest.explain(None, None, loc, tried=["stiffness"])
+    assert out["suggested_candidate"] == "remaining:v:x*abs(x)"
+    assert out["tried"] == ("what remains in v follows x best (R² 1), the shape of the linear_stiffness the "
+                            "diagnosis tried there and did not adopt")
+
+
+def test_a_proposal_no_fold_can_score_gains_nothing():
+    """A fold whose filter diverges under the current correction and the proposal (−inf − −inf)
+    printed 'gain +nan' and warned; it is −inf, the proposal not passing."""
+    from skigen.diagnose.name import _gain
+    assert _gain(np.array([-np.inf, 1.0]), np.array([-np.inf, 0.0])) == -np.inf
+    assert _gain(np.array([2.0, 1.0]), np.array([1.0, 0.5])) == 1.5

@@ -343,7 +343,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         loc.windows, loc.regime = w, regime or loc.regime
         stage("testing what remains")
         data["remaining"] = remaining(T.constants(corrected), rec, after.run, eqs, alpha, out if figures else None,
-                                      set(nominal.state_names + nominal.input_names))
+                                      set(nominal.state_names + nominal.input_names), additive)
         if not data["remaining"]["mismatch"] and (covers := noise_covers(filed, user_noise)):
             data["remaining"]["noise_covers"] = covers
         if data["remaining"].get("figure"):
@@ -354,7 +354,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
                                                           "regime": loc.regime},
                              "note": "no candidate explains the mismatch: it remains as detected"}
         if loc.equations and loc.equations[0] in loc.disturbance:     # what it follows: a candidate to try
-            data["remaining"].update(explain(before_naming, rec, loc, out if figures else None))
+            data["remaining"].update(explain(before_naming, rec, loc, out if figures else None, tried=additive))
             if data["remaining"].get("figure"):
                 meta["figures"].append(Path(data["remaining"].pop("figure")))
     if data["remaining"].get("mismatch") and (hint := _integration_hint(nominal)):

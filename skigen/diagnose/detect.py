@@ -181,10 +181,10 @@ def judge(model, rec, run: RunResult, equations, alpha: float = 0.01) -> Verdict
     return Verdict(cons, {k: float(v) for k, v in tested[0].items()}, float(threshold), tested, cons.mismatch)
 
 
-def remaining(model, rec, run: RunResult, equations, alpha: float, out_dir=None, names=None) -> dict:
+def remaining(model, rec, run: RunResult, equations, alpha: float, out_dir=None, names=None, tried=None) -> dict:
     """After correction: is the corrected (refitted, noise-calibrated) model consistent? If not,
     where, in which regime, the state or input that best explains what is left (a figure), and a
-    candidate to try (in ``names``, the user's states and inputs)."""
+    candidate to try (in ``names``, the user's states and inputs; not one of ``tried``)."""
     from .locate import locate
     from .suggest import explain
     v = judge(model, rec, run, equations, alpha)
@@ -195,5 +195,5 @@ def remaining(model, rec, run: RunResult, equations, alpha: float, out_dir=None,
     loc = locate(model, rec, run, v.consistency, alpha, equations=equations, tested=v.tested)
     out["where"] = {"equations": loc.equations, "windows": [[float(a), float(b)] for a, b in loc.windows],
                     "regime": loc.regime}
-    out.update(explain(model, rec, loc, out_dir, names))
+    out.update(explain(model, rec, loc, out_dir, names, tried))
     return out

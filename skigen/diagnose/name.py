@@ -727,7 +727,7 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
         if not proposals:
             break
         for p in proposals:
-            p.gain = float(np.sum(p.folds) - np.sum(current))
+            p.gain = _gain(p.folds, current)
         ranked = sorted(proposals, key=lambda p: -p.gain)
         passing = [p for p in ranked[:FINALISTS] if 2 * p.gain > stats.chi2.ppf(1 - alpha / n_cands, p.params)
                    and not (history and p.gain < MIN_SHARE * sum(h.gain for h in history))
@@ -740,8 +740,8 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
                 got = _adopt(nominal, corr, p, rec, rms, size, alpha, states, noise_from)
             except DiagnosisError:         # no noise calibrates under it: not adopted
                 got = None
-            if got is not None:
-                adopted.append(got + (cv_loglik(got[1], got[0], rec, folds, rms, size), p))
+            if got is not None and _gain(score := cv_loglik(got[1], got[0], rec, folds, rms, size), 0.0) > -np.inf:
+                adopted.append(got + (score, p))
         if not adopted:                    # its terms compensating: the next round searches without them
             new_aside = {(a["effect"], a["equation"], a.get("through", "")) for p in passing for a in p.set_aside}
             if not new_aside - aside:
@@ -784,6 +784,14 @@ def added(before: Correction, after: Correction) -> list[dict]:
                      **({"written_in": list(s.equations)} if s.equations else {}),
                      "expression": s.describe(value), "coefficient": value, "std": std}
                     for s, value, std in after.structural[len(before.structural):]]
+
+
+def _gain(folds, current) -> float:
+    """Cross-validated log-likelihood ``folds`` gains over ``current`` (per-fold arrays, or a number);
+    −inf where it cannot be scored (a fold whose filter diverges under both: −inf − (−inf))."""
+    with np.errstate(invalid="ignore"):
+        g = float(np.sum(folds) - np.sum(current))
+    return -np.inf if np.isnan(g) else g
 
 
 def evidence_threshold(alpha: float) -> float:

@@ -245,8 +245,10 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
             at = rem.get("where") or {}
             L.append("**A mismatch remains** " + (f"in `{'`, `'.join(at.get('equations', []))}`" if at else "")
                      + (f", {at['regime']}" if at.get("regime") else "") + ".")
+            if rem.get("tried"):
+                L.append(rem["tried"] + ".")
             if rem.get("explained_by"):
-                L.append(f"What is left follows `{rem['explained_by']}` best (weighted R² {rem['r2']:.2f} for "
+                L.append(f"What is left follows `{rem['explained_by']}` best{' outside those candidates' if rem.get('tried') else ''} (weighted R² {rem['r2']:.2f} for "
                          f"`{rem['shape']}`); to test it: `--candidate '{rem['suggested_candidate']}'`.")
             if rem.get("note"):
                 L.append(rem["note"] + ".")

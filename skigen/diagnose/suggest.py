@@ -9,7 +9,11 @@ smooth curve, and read as a period that is not there) — each with an intercept
 the largest weighted R² names the feature and the suggested formula. It is a
 hint for a person, not a finding: it is not cross-validated. Below an R² of
 ``HINT_R2`` no shape of one state or input explains the leftover (coloured
-noise, or dynamics of another order), and the report says so instead.
+noise, or dynamics of another order), and the report says so instead. A shape
+that is a candidate the diagnosis already tried on that equation (|r| ≥ SAME
+along the trajectory: x is the catalog's linear stiffness) is not suggested —
+run, it was "judged as the catalog's" and the same suggestion came back — but
+said, beside the best shape outside them.
 """
 from __future__ import annotations
 
@@ -23,6 +27,7 @@ from .locate import Location, features
 __all__ = ["explain"]
 
 HINT_R2 = 0.05      # a shape explaining less than 5 % of what remains is not worth suggesting
+SAME = 0.999        # |correlation| along the trajectory at which a shape is a candidate already tried
 
 
 def _shapes(name: str, x: np.ndarray):
@@ -47,31 +52,62 @@ def _r2(d: np.ndarray, w: np.ndarray, phi: np.ndarray) -> tuple[float, np.ndarra
     return float(1 - res @ res / max(tot @ tot, 1e-300)), coef
 
 
-def explain(model, rec, loc: Location, out_dir=None, names=None) -> dict:
+def _tried(model, rec, states, eq: str, tried) -> list[tuple[str, np.ndarray]]:
+    """(effect, values along the trajectory) of the candidates ``tried`` on equation ``eq``."""
+    from .name import basis_values
+    mine = [c for c in tried or () if c.equation == eq]
+    if not mine:
+        return []
+    try:
+        values = basis_values(model, rec, states, mine)
+    except (RuntimeError, ValueError):      # a candidate the corrected model cannot evaluate
+        return []
+    return [(c.effect, v) for c, v in zip(mine, values) if np.all(np.isfinite(v)) and np.std(v) > 0]
+
+
+def _already(phi: np.ndarray, tried) -> str | None:
+    """The effect of a tried candidate with the shape ``phi`` along the trajectory, or None."""
+    for effect, v in tried:
+        if abs(np.corrcoef(phi, v)[0, 1]) >= SAME:
+            return effect
+    return None
+
+
+def explain(model, rec, loc: Location, out_dir=None, names=None, tried=None) -> dict:
     """{"explained_by", "r2", "suggested_candidate"[, "figure"]} for the first located equation;
     ``names``: the states and inputs a suggestion may use (the user's model's: a corrected model's
-    own states, an actuator's lag, are not the user's to write a candidate in)."""
+    own states, an actuator's lag, are not the user's to write a candidate in); ``tried``: the
+    additive candidates the diagnosis tried, whose shapes are not suggested again."""
     eq = loc.equations[0]
     d, sd = loc.disturbance[eq]
     w = 1.0 / np.maximum(sd, 1e-12 * (np.abs(d).max() + 1e-300)) ** 2
     w = w / w.mean()
-    best = (-np.inf, None, None, None, None)
+    known = _tried(model, rec, loc.states, eq, tried)
+    best = closest = (-np.inf, None, None, None, None)
+    catalog = None
     for name, (x, _) in features(model, rec, loc.states).items():
         if name.startswith("|") or np.ptp(x) == 0 or (names is not None and name not in names):
             continue
         for formula, phi in _shapes(name, x):
             r2, coef = _r2(d, w, phi)
-            if r2 > best[0]:
+            if r2 > closest[0]:
+                closest, catalog = (r2, name, formula, phi, coef), _already(phi, known)
+            if r2 > best[0] and not _already(phi, known):
                 best = (r2, name, formula, phi, coef)
+    said = {}
+    if catalog and closest[0] >= HINT_R2:
+        said["tried"] = (f"what remains in {eq} follows {closest[2]} best (R² {closest[0]:.2g}), the shape of the "
+                         f"{catalog} the diagnosis tried there and did not adopt")
     r2, name, formula, phi, coef = best
     if name is None:
-        return {"explained_by": None, "r2": None, "suggested_candidate": None}
+        return {"explained_by": None, "r2": None, "suggested_candidate": None, **said}
     if r2 < HINT_R2:
-        return {"explained_by": None, "r2": r2, "suggested_candidate": None,
-                "note": f"no shape of one state or input explains what remains in {eq} (best: {formula}, "
-                        f"R² {r2:.2g}): coloured noise, or dynamics of another order"}
+        return {"explained_by": None, "r2": r2, "suggested_candidate": None, **said,
+                "note": f"no shape of one state or input{' outside the candidates tried' if said else ''} explains "
+                        f"what remains in {eq} (best: {formula}, R² {r2:.2g}): coloured noise, or dynamics of "
+                        f"another order"}
     out = {"explained_by": name, "r2": r2, "shape": formula,
-           "suggested_candidate": f"remaining:{eq}:{formula}"}
+           "suggested_candidate": f"remaining:{eq}:{formula}", **said}
     if out_dir is not None:
         out["figure"] = str(_plot(Path(out_dir) / "remaining.png", loc, eq, features(model, rec, loc.states)[name][0],
                                   name, d, sd, phi, coef, formula))
