@@ -180,14 +180,20 @@ def held_run(values, runs: int = 8) -> int:
     return int(round(mid)) if mid >= 2 and hi - lo <= max(1.0, 0.25 * mid) else 0
 
 
+REPEATS = 10    # readings equal to the one before them that show a quantised signal with many levels
+
+
 def resolution(values) -> float:
     """The step of a quantised signal (an encoder's count, an ADC's least significant bit), or 0
     when it is not quantised: the smallest gap between distinct values, when values repeat (fewer
-    distinct values than half the samples) and every gap is a whole multiple of it."""
+    distinct values than half the samples, or REPEATS readings equal to the one before them: a
+    moving encoder reads 1687 counts in 3000 samples and repeats one while the motor rests) and
+    every gap is a whole multiple of it. (A number format's last digit on a noisy signal gives
+    whole multiples too, but no repeats.)"""
     v = np.asarray(values, float)
     v = v[np.isfinite(v)]
     levels = np.unique(v)
-    if len(levels) < 3 or len(levels) > len(v) / 2:
+    if len(levels) < 3 or (len(levels) > len(v) / 2 and np.sum(v[1:] == v[:-1]) < REPEATS):
         return 0.0
     gaps = np.diff(levels)
     k = gaps / gaps.min()
