@@ -130,11 +130,19 @@ class Recording:
         return [n if n.startswith(str(self.path)) else f"{self.path}: {n}" for n in self.notes]
 
     def hole_note(self, what: str) -> str:
-        """A sentence on this recording's input holes, ending in what was done about them."""
+        """A sentence on this recording's input holes, ending in what was done about them; where the
+        stretches between them hold less than half the samples, how to hold a sparse input."""
         from .grid import RATE_GAP
+        kept = sum(len(p.t) for p in self.input_parts())
+        sparse = ""
+        if kept < len(self.t) / 2:
+            longest = max(h.t1 - h.t0 for h in self.input_holes)
+            sparse = (f"; those stretches hold {kept} of the {len(self.t)} samples: an input logged only when "
+                      f"it changes is held between its samples with a max_gap longer than its longest hole, "
+                      f"{longest:.3g} s (--max-gap SECONDS; max_gap= in Python)")
         return (f"{self.path}: the held input is not the input in its hole(s) longer than max_gap = "
                 f"{self.max_gap:g} s or than {RATE_GAP} of the input's own sample intervals "
-                f"({_listed(self.input_holes)}): {what}")
+                f"({_listed(self.input_holes)}): {what}{sparse}")
 
     def input_parts(self) -> list[Recording]:
         """The stretches between this recording's input holes (an input without a sample for

@@ -1271,3 +1271,26 @@ def test_a_limit_the_inputs_never_reach_is_not_given_a_two_sided_error_bar(tmp_p
         assert all(c is None for c in fitted["correlation"]["matrix"][row])
         assert "(no error bar)" in printed and "'dmax' has no effect on the likelihood at its fitted value" in printed
         assert "± inf" not in printed
+
+
+def test_an_input_logged_only_when_it_changes_is_said_with_how_to_hold_it(tmp_path):
+    """A rudder logged on 6 rows of a 300-row log: the stretches between its holes held a few
+    samples, fitted with only a note listing holes; the note now says how few and how to hold the
+    input. A stretch shorter than its filter's head drew its figure past its end (IndexError)."""
+    import pandas as pd
+    from skigen.fit.figures import recording_figure
+    from skigen.recording import load_recording
+    m, y, v, u = _linear("sparse")
+    m.dynamics({y: v, v: -4 * y - 0.5 * v + u})
+    m.output("pos", y, noise_std=0.01)
+    t = np.arange(300) * 0.05
+    frame = pd.DataFrame({"t": t, "u": np.nan, "pos": np.sin(t)})
+    frame.loc[[0, 1, 60, 140, 141, 250], "u"] = [0.0, 0.0, 1.0, -1.0, -1.0, 0.5]
+    rec = load_recording(frame, m)
+    note = rec.hole_note("fitted as parts")
+    kept = sum(len(p.t) for p in rec.input_parts())
+    assert kept < 10 and f"those stretches hold {kept} of the 300 samples" in note
+    assert "with a max_gap longer than its longest hole, 5.45 s (--max-gap SECONDS" in note
+    part = rec.input_parts()[0]
+    path = recording_figure(tmp_path / "f.png", "part", part, part.outputs, ["pos"], start=5)
+    assert path.exists()

@@ -14,7 +14,7 @@ def recording_figure(path, title: str, rec, predicted: np.ndarray, names: list[s
     """Per output: measured and model output over time (top), their difference (bottom), its RMS
     from sample ``start`` on (the head before it, where a filter learns the recording's start,
     shaded), as the report counts it."""
-    ny = len(names)
+    ny, start = len(names), min(start, len(rec.t) - 1)      # a recording shorter than its head: all shaded
     fig, axes = plt.subplots(2 * ny, 1, figsize=(9, 2.6 * ny + 1.2), sharex=True, squeeze=False)
     for j, name in enumerate(names):
         top, bottom = axes[2 * j, 0], axes[2 * j + 1, 0]
