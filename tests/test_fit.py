@@ -1294,3 +1294,19 @@ def test_an_input_logged_only_when_it_changes_is_said_with_how_to_hold_it(tmp_pa
     part = rec.input_parts()[0]
     path = recording_figure(tmp_path / "f.png", "part", part, part.outputs, ["pos"], start=5)
     assert path.exists()
+
+
+def test_a_limit_started_beyond_every_command_is_refused_with_where_it_acts(tmp_path):
+    """A rudder limit started at 40 with commands within ±10 has no effect there: the refusal said
+    'record richer excitation', though from a start of 9 the recording identifies the others and
+    bounds the limit. It now says the limit acts at 5 (halved three times) and to start it there."""
+    from skigen.modelfile import load_model
+    spec = _rudder_spec(tmp_path / "rudder.py", 40.0)
+    plant = load_model(spec).set_parameters(dict(K=0.1, T=2.0, dmax=8.0))
+    rng = np.random.default_rng(3)
+    U = np.repeat(rng.uniform(-10, 10, 30), 20)
+    _, Y = free_run(plant, U[:, None])
+    rec = recording(plant, U[:, None], Y + 0.01 * rng.normal(size=Y.shape))
+    with pytest.raises(NotIdentifiable, match="'dmax' has no effect on the likelihood at 40, but it has at 5: the "
+                                              "recordings do not reach where it acts from there"):
+        fit(load_model(spec), [rec], method="filter-error")

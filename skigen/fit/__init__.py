@@ -290,6 +290,7 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     free = [i for i in range(len(V)) if i not in held]
     G = _dense(jac_g(theta0 / scale, p))
     lost = unidentified(J0[:, free], prior.ravel()[free], [V.names[i] for i in free], G[:, free])
+    lost = [_acts_elsewhere(prob, theta0, scale, p, V, model, s) for s in lost]
     if lost and method != "output-error":
         raise _not_identifiable(model, lost)
     lower = _resolution_floor(model, V, recs, prob.solver_inputs["lbx"])
@@ -318,7 +319,7 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
         J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(xi, p))
         if again := unidentified(J[:, free], prior.ravel()[free], [V.names[i] for i in free],
                                  _dense(jac_g(xi, p))[:, free]):
-            raise _not_identifiable(model, again)
+            raise _not_identifiable(model, [_acts_elsewhere(prob, xi * scale, scale, p, V, model, s) for s in again])
         notes.append(f"output error: at the starting values the free run did not tell every quantity apart "
                      f"({'; '.join(lost)}); at the optimum it does")
     if method == "filter-error":
@@ -391,6 +392,31 @@ def _starts_at_the_fit(fitted: Model, recs, tested) -> bool:
         return False
     again = [recorded_start(fitted, recs[r]) for r in off]
     return all(rs is not None and rs.consistent for rs in again)
+
+
+ELSEWHERE = [2.0 ** -k for k in range(1, 11)] + [2.0 ** k for k in range(1, 11)]   # factors of a start tried
+
+
+def _acts_elsewhere(prob: Problem, theta0, scale, p, V, model: Model, sentence: str) -> str:
+    """``sentence`` ('X' has no effect on the likelihood) with, for a declared parameter that has
+    an effect at another value within its bounds (its start times ELSEWHERE: halved, then
+    doubled, ten times each), that value: a saturation limit started above every recorded command
+    is unseen there and seen below."""
+    name = sentence.split("'")[1] if sentence.endswith("has no effect on the likelihood") else None
+    if name not in model.parameter_names or name not in V.names:
+        return sentence
+    i, (lo, hi) = V.names.index(name), model.parameter_named(name).bounds
+    for k in ELSEWHERE:
+        theta = theta0.copy()
+        theta[i] = theta0[i] * k
+        if not (lo is None or lo <= theta[i]) or not (hi is None or theta[i] <= hi) or theta[i] == theta0[i]:
+            continue
+        J, _ = (np.asarray(ca.DM(v)) for v in prob.fisher(theta / scale, p))
+        if np.all(np.isfinite(J[:, i])) and np.any(J[:, i] != 0):
+            return (f"{sentence} at {theta0[i]:.6g}, but it has at {theta[i]:.6g}: the recordings do not reach "
+                    f"where it acts from there (a limit beyond every recorded command); start it within what "
+                    f"the recordings reach")
+    return sentence
 
 
 def _not_identifiable(model: Model, lost: list[str]) -> NotIdentifiable:
