@@ -1310,3 +1310,24 @@ def test_a_limit_started_beyond_every_command_is_refused_with_where_it_acts(tmp_
     with pytest.raises(NotIdentifiable, match="'dmax' has no effect on the likelihood at 40, but it has at 5: the "
                                               "recordings do not reach where it acts from there"):
         fit(load_model(spec), [rec], method="filter-error")
+
+
+def test_a_sensor_noise_ten_times_its_declared_variance_is_said():
+    """A speed logged in rpm for a model in rad/s: the gain takes 9.55× and the sensor noise 91× its
+    declared variance, under the process noise's 100× — said nowhere. A sensor's noise is said
+    from 10× its declared variance; the same recording in rad/s says nothing."""
+    m, y, v, u = _linear("rpm")
+    b = m.parameter("b", 1.0)
+    m.dynamics({y: v, v: -4 * y - 0.5 * v + b * u})
+    m.output("pos", y, noise_std=0.01)
+    rng = np.random.default_rng(5)
+    U = smooth_noise(rng, 600, 5, 2.0)[:, None]
+    _, Y = free_run(m, U)
+    clean = Y + 0.01 * rng.normal(size=Y.shape)
+    for factor, said in ((60 / (2 * np.pi), True), (1.0, False)):
+        res = fit(m, [recording(m, U, factor * clean)], method="filter-error", show_progress=False)
+        notes = [n for n in res.notes if n.startswith("the sensor noise on pos")]
+        assert bool(notes) == said, res.notes
+        if said:
+            assert "or a recording is in other units than the model" in notes[0]
+            assert res.parameters["b"]["value"] == pytest.approx(factor, rel=0.02)

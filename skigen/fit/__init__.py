@@ -683,17 +683,21 @@ def _unexplained_residuals(model: Model, recs, predictions, params, alpha: float
 
 
 def _absorbing(model: Model, noise: dict) -> list[str]:
-    """Filter error: a note where a noise came out over exp(NOISE_JUMP) times its declared
-    variance — the model misses something that noise covers, and the constants are those the model
-    explains the recordings best with it (a car model without its steering delay: Cf 5.6 ± 2.1 for
-    80 with 779× the declared process noise on vy, 'solved', said nowhere)."""
+    """Filter error: a note where a process noise came out over exp(NOISE_JUMP) times its declared
+    variance, or a sensor's over exp(SENSOR_JUMP) — the model misses something that noise covers,
+    and the constants are those the model explains the recordings best with it (a car model without
+    its steering delay: Cf 5.6 ± 2.1 for 80 with 779× the declared process noise on vy, 'solved',
+    said nowhere). A sensor's noise is a datasheet's number, a process noise a guess: a speed
+    logged in rpm for a model in rad/s came out at 90× its sensor's declared variance, the motor
+    constant 10× low, under the process noise's threshold."""
     kinds = {"Q_scale_": "process noise", "R_scale_": "sensor noise"}
+    level = {"Q_scale_": np.exp(NOISE_JUMP), "R_scale_": np.exp(SENSOR_JUMP)}
     big = [f"the {kinds[n[:8]]} on {n[8:]} {v['value']:.3g}× its declared variance"
-           for n, v in noise.get("scales", {}).items() if n[:8] in kinds and _surely_above(v, np.exp(NOISE_JUMP))]
+           for n, v in noise.get("scales", {}).items() if n[:8] in kinds and _surely_above(v, level[n[:8]])]
     if not big:
         return []
     return [f"{'; '.join(big)}: the model misses something that noise now covers (or the noise was declared far "
-            f"too small, or the search stopped in a local optimum whose misfit the noise covers: a fit from "
+            f"too small, or a recording is in other units than the model, or the search stopped in a local optimum whose misfit the noise covers: a fit from "
             f"other starting values tells), and the constants are those that explain the recordings best "
             f"beside it (`skigen diagnose` says what is missing)"]
 
@@ -707,6 +711,7 @@ def _surely_above(scale: dict, level: float) -> bool:
 
 
 NOISE_JUMP = np.log(100.0)   # a noise scale (log variance) this far above the declared one: it absorbed something
+SENSOR_JUMP = np.log(10.0)   # a sensor's (its std 3.2× the datasheet's)
 HELD_GAIN = 1.0              # nat: a second optimum must be this much more likely to replace the first
 HELD_JUMP = np.log(10.0)     # a process noise this far above the declared one: the parameters are refitted with it held
 
