@@ -213,3 +213,7 @@ def test_a_weak_motor_and_an_encoder_gain_are_said_to_be_the_same_on_a_position_
     g, u = pair["sensor_gain"], pair["input_gain"]
     assert abs(g["coefficient"] - 0.8) < 3 * g["std"] < 0.002 and abs(u["coefficient"] + 10) < 3 * u["std"] < 0.05
     assert d["remaining"]["mismatch"] is False
+    # The nominal's calibration put the encoder at ~1e-6 rad for 5e-4: the report says it is no statement
+    # about the sensor (a user read the table as one).
+    text = (tmp_path / "report.md").read_text()
+    assert "The calibration puts the noise of enc (" in text and "against 0.0005) far below the declared" in text

@@ -80,6 +80,17 @@ def _noise_table(noise: dict) -> list[str]:
     return L
 
 
+SENSOR_BELOW = 0.1    # a calibrated sensor std below this share of the declared one is said
+
+
+def _sensors_below(noise: dict) -> str:
+    """'the noise of enc (1.3e-06 against 0.0005)', … for the sensors calibrated below SENSOR_BELOW
+    of their declared std; '' when none is."""
+    d, c = noise["declared"]["measurement_std"], noise["calibrated"]["measurement_std"]
+    low = [f"{k} ({c[k]:.2g} against {v:.2g})" for k, v in d.items() if v and c.get(k) is not None and c[k] < SENSOR_BELOW * v]
+    return ("the noise of " + ", ".join(low)) if low else ""
+
+
 def _metrics_table(rows: list[tuple[str, dict, dict | None]]) -> list[str]:
     """rows: (label, before metrics, after metrics or None)."""
     L = ["| recording | | nominal | corrected |", "|---|---|---|---|"]
@@ -147,6 +158,10 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
         L += ["**Check the units first** — the findings below may only be making up for them: "
               + "; ".join(rem["units"]), ""]
     L += ["## 1. Calibrate the noise", "", data["noise"]["method"] + ":", ""] + _noise_table(data["noise"]) + [""]
+    if data.get("mismatch_detected") and (low := _sensors_below(data["noise"])):
+        L += [f"The calibration puts {low} far below the declared: on a model that misses something the filter "
+              f"follows the readings and leaves the misfit to the process noise, so these are not statements "
+              f"about the sensors (the corrected model's noise is in section 5's refit).", ""]
     dn = c.get("declared_noise")
     if dn:
         L += [f"With the declared noise the mean NIS is {dn['nis_mean']:.4g} (expected {dn['nis_expected']:.4g}) "
