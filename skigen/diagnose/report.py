@@ -225,7 +225,8 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
             L += ["No catalog or user candidate explains the mismatch significantly.", ""]
         for key, title in (("compensating", "Compensating, not findings"), ("not_identifiable", "Not identifiable")):
             for f in data.get(key, []):
-                L.append(f"- {title}: {f['effect']} on `{f['equation']}` (`{f['expression']}`, "
+                heading = "Not needed" if f["note"].startswith("not needed") else title   # left out by the refit
+                L.append(f"- {heading}: {f['effect']} on `{f['equation']}` (`{f['expression']}`, "
                          f"{_pm(f['coefficient'], f['std'])}): {f['note']}.")
         L += _candidate_lines(data)
         for line in meta.get("proposals", []):
