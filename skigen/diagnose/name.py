@@ -369,8 +369,9 @@ def _ties_under(nominal: Model, recal: Model, corr: Correction, new: Correction,
     motor's torque constant 10 % low and an encoder gain of 0.9 (the same transfer function from
     rest) were scored apart by a process noise 20× the true one, and the gain was named alone; at
     20 % low, 4.9 behind cross-validated and 0.3 in-sample."""
-    said = {_said(a) for a in chosen.adopted + chosen.as_good}
-    limit = chosen.params if chosen.kind == "additive" else 1
+    adopted = {_said(a) for a in chosen.adopted}
+    said = adopted | {_said(a) for a in chosen.as_good}
+    instead = [list(_acts(a)) for a in chosen.adopted]
     mine = loglik(new.build(recal), rec)
     out = []
     for p in proposals:
@@ -378,8 +379,9 @@ def _ties_under(nominal: Model, recal: Model, corr: Correction, new: Correction,
             continue
         best = sorted(p.tried, key=lambda t: -np.sum(t[1]))[:TIE_TRIALS]
         for trial in [p.correction] + [t for t, _ in best]:
-            items = added(corr, trial)
-            if not items or len(items) > limit or all(_said(a) in said for a in items):
+            items = added(corr, trial)            # another explanation: no more terms, none of the chosen's
+            if not items or len(items) > len(chosen.adopted) or any(_said(a) in adopted for a in items) \
+                    or all(_said(a) in said for a in items):
                 continue
             trial = Correction(trial.additive, corr.structural)
             scored = _scored(recal, trial, rec, folds, rms, size)
@@ -387,19 +389,20 @@ def _ties_under(nominal: Model, recal: Model, corr: Correction, new: Correction,
                 continue
             behind = float(np.sum(score) - np.sum(scored[1]))
             if evidence_threshold(alpha) <= behind < TIE_MARGIN * evidence_threshold(alpha):
-                own = recalibrated(nominal, scored[0], rec, noise_from)
-                again = _scored(own, trial, rec, folds, rms, size)
+                theirs = recalibrated(nominal, scored[0], rec, noise_from)
+                again = _scored(theirs, trial, rec, folds, rms, size)
                 if again is not None and np.sum(again[1]) > np.sum(scored[1]):
                     scored, behind = again, float(np.sum(score) - np.sum(again[1]))
-                in_sample = mine - loglik(scored[0].build(own), rec)
-                if behind >= evidence_threshold(alpha) and len(items) == chosen.params \
+                in_sample = mine - loglik(scored[0].build(theirs), rec)
+                if behind >= evidence_threshold(alpha) and len(items) == len(chosen.adopted) \
                         and in_sample < evidence_threshold(alpha):
                     said |= {_said(a) for a in items}
-                    out += [a | {"loglik_behind": float(in_sample), "in_sample": True} for a in added(corr, scored[0])]
+                    out += [a | {"loglik_behind": float(in_sample), "in_sample": True, "instead_of": instead}
+                            for a in added(corr, scored[0])]
                     continue
             if behind < evidence_threshold(alpha):
                 said |= {_said(a) for a in items}
-                out += [a | {"cv_loglik_behind": behind} for a in added(corr, scored[0])]
+                out += [a | {"cv_loglik_behind": behind, "instead_of": instead} for a in added(corr, scored[0])]
     return out
 
 
