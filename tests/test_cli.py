@@ -173,6 +173,7 @@ def test_generate_then_run_with_the_c_backend(recording, tmp_path):
     assert "sqrtf(" in (tmp_path / "c" / "wingrock_ukf_kernel.c").read_text()
     header = (tmp_path / "c" / "wingrock_ukf.h").read_text()           # every index with its declared unit
     assert "#define WINGROCK_UKF_Z_P 1 /* deg/s */" in header and "#define WINGROCK_UKF_U_DELTA 0 /* deg */" in header
+    assert "#define WINGROCK_UKF_Z_W_THETA3 7 /* times theta^3 in the rate of p */" in header
     py, c = tmp_path / "py.csv", tmp_path / "c.csv"
     assert skigen("run", MODEL, str(recording), "--filter", "ukf", "--out", str(py)).returncode == 0
     r = skigen("run", MODEL, str(recording), "--filter", "ukf", "--backend", "c", "--out", str(c))

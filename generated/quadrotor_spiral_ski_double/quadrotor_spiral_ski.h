@@ -66,14 +66,14 @@ typedef double quadrotor_spiral_ski_real;
 #define QUADROTOR_SPIRAL_SKI_Z_VX 3 /* m/s */
 #define QUADROTOR_SPIRAL_SKI_Z_VY 4 /* m/s */
 #define QUADROTOR_SPIRAL_SKI_Z_VZ 5 /* m/s */
-#define QUADROTOR_SPIRAL_SKI_Z_W_ONE 6
-#define QUADROTOR_SPIRAL_SKI_Z_W_PWM 7
-#define QUADROTOR_SPIRAL_SKI_Z_W_PWM2 8
-#define QUADROTOR_SPIRAL_SKI_Z_W_PWM3 9
-#define QUADROTOR_SPIRAL_SKI_Z_W_PWM4 10
-#define QUADROTOR_SPIRAL_SKI_Z_W_PWM5 11
-#define QUADROTOR_SPIRAL_SKI_Z_W_DRAG_LIN 12
-#define QUADROTOR_SPIRAL_SKI_Z_W_DRAG_QUAD 13
+#define QUADROTOR_SPIRAL_SKI_Z_W_ONE 6 /* times 1 in the rate of vx and vy and vz */
+#define QUADROTOR_SPIRAL_SKI_Z_W_PWM 7 /* times pwm in the rate of vx and vy and vz */
+#define QUADROTOR_SPIRAL_SKI_Z_W_PWM2 8 /* times pwm^2 in the rate of vx and vy and vz */
+#define QUADROTOR_SPIRAL_SKI_Z_W_PWM3 9 /* times pwm^3 in the rate of vx and vy and vz */
+#define QUADROTOR_SPIRAL_SKI_Z_W_PWM4 10 /* times pwm^4 in the rate of vx and vy and vz */
+#define QUADROTOR_SPIRAL_SKI_Z_W_PWM5 11 /* times pwm^5 in the rate of vx and vy and vz */
+#define QUADROTOR_SPIRAL_SKI_Z_W_DRAG_LIN 12 /* times drag_lin in the rate of vx and vy and vz */
+#define QUADROTOR_SPIRAL_SKI_Z_W_DRAG_QUAD 13 /* times drag_quad in the rate of vx and vy and vz */
 #define QUADROTOR_SPIRAL_SKI_U_QW 0
 #define QUADROTOR_SPIRAL_SKI_U_QX 1
 #define QUADROTOR_SPIRAL_SKI_U_QY 2

@@ -62,12 +62,12 @@ typedef float quadrotor_vertical_ski_real;
  * settings.param[QUADROTOR_VERTICAL_SKI_P_<declared parameter>]. */
 #define QUADROTOR_VERTICAL_SKI_Z_PZ 0 /* m */
 #define QUADROTOR_VERTICAL_SKI_Z_VZ 1 /* m/s */
-#define QUADROTOR_VERTICAL_SKI_Z_W_ONE 2
-#define QUADROTOR_VERTICAL_SKI_Z_W_PWM 3
-#define QUADROTOR_VERTICAL_SKI_Z_W_PWM2 4
-#define QUADROTOR_VERTICAL_SKI_Z_W_PWM3 5
-#define QUADROTOR_VERTICAL_SKI_Z_W_PWM4 6
-#define QUADROTOR_VERTICAL_SKI_Z_W_PWM5 7
+#define QUADROTOR_VERTICAL_SKI_Z_W_ONE 2 /* times 1 in the rate of vz */
+#define QUADROTOR_VERTICAL_SKI_Z_W_PWM 3 /* times pwm in the rate of vz */
+#define QUADROTOR_VERTICAL_SKI_Z_W_PWM2 4 /* times pwm^2 in the rate of vz */
+#define QUADROTOR_VERTICAL_SKI_Z_W_PWM3 5 /* times pwm^3 in the rate of vz */
+#define QUADROTOR_VERTICAL_SKI_Z_W_PWM4 6 /* times pwm^4 in the rate of vz */
+#define QUADROTOR_VERTICAL_SKI_Z_W_PWM5 7 /* times pwm^5 in the rate of vz */
 #define QUADROTOR_VERTICAL_SKI_U_PWM 0 /* us */
 #define QUADROTOR_VERTICAL_SKI_Y_Z 0 /* m */
 

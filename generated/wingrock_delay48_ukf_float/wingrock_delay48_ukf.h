@@ -62,54 +62,54 @@ typedef float wingrock_delay48_ukf_real;
  * settings.param[WINGROCK_DELAY48_UKF_P_<declared parameter>]. */
 #define WINGROCK_DELAY48_UKF_Z_THETA 0 /* deg */
 #define WINGROCK_DELAY48_UKF_Z_P 1 /* deg/s */
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D0 2
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D1 3
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D2 4
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D3 5
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D4 6
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D5 7
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D6 8
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D7 9
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D8 10
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D9 11
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D10 12
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D11 13
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D12 14
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D13 15
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D14 16
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D15 17
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D16 18
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D17 19
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D18 20
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D19 21
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D20 22
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D21 23
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D22 24
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D23 25
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D24 26
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D25 27
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D26 28
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D27 29
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D28 30
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D29 31
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D30 32
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D31 33
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D32 34
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D33 35
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D34 36
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D35 37
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D36 38
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D37 39
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D38 40
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D39 41
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D40 42
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D41 43
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D42 44
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D43 45
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D44 46
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D45 47
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D46 48
-#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D47 49
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D0 2 /* times delta[k] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D1 3 /* times delta[k-1] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D2 4 /* times delta[k-2] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D3 5 /* times delta[k-3] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D4 6 /* times delta[k-4] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D5 7 /* times delta[k-5] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D6 8 /* times delta[k-6] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D7 9 /* times delta[k-7] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D8 10 /* times delta[k-8] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D9 11 /* times delta[k-9] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D10 12 /* times delta[k-10] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D11 13 /* times delta[k-11] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D12 14 /* times delta[k-12] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D13 15 /* times delta[k-13] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D14 16 /* times delta[k-14] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D15 17 /* times delta[k-15] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D16 18 /* times delta[k-16] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D17 19 /* times delta[k-17] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D18 20 /* times delta[k-18] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D19 21 /* times delta[k-19] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D20 22 /* times delta[k-20] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D21 23 /* times delta[k-21] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D22 24 /* times delta[k-22] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D23 25 /* times delta[k-23] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D24 26 /* times delta[k-24] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D25 27 /* times delta[k-25] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D26 28 /* times delta[k-26] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D27 29 /* times delta[k-27] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D28 30 /* times delta[k-28] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D29 31 /* times delta[k-29] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D30 32 /* times delta[k-30] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D31 33 /* times delta[k-31] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D32 34 /* times delta[k-32] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D33 35 /* times delta[k-33] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D34 36 /* times delta[k-34] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D35 37 /* times delta[k-35] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D36 38 /* times delta[k-36] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D37 39 /* times delta[k-37] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D38 40 /* times delta[k-38] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D39 41 /* times delta[k-39] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D40 42 /* times delta[k-40] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D41 43 /* times delta[k-41] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D42 44 /* times delta[k-42] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D43 45 /* times delta[k-43] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D44 46 /* times delta[k-44] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D45 47 /* times delta[k-45] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D46 48 /* times delta[k-46] in the rate of p */
+#define WINGROCK_DELAY48_UKF_Z_W_DELTA_D47 49 /* times delta[k-47] in the rate of p */
 #define WINGROCK_DELAY48_UKF_U_DELTA 0 /* deg */
 #define WINGROCK_DELAY48_UKF_Y_PHI 0 /* deg */
 

@@ -62,14 +62,14 @@ typedef float wingrock_delay_ukf_real;
  * settings.param[WINGROCK_DELAY_UKF_P_<declared parameter>]. */
 #define WINGROCK_DELAY_UKF_Z_THETA 0 /* deg */
 #define WINGROCK_DELAY_UKF_Z_P 1 /* deg/s */
-#define WINGROCK_DELAY_UKF_Z_W_DELTA_D0 2
-#define WINGROCK_DELAY_UKF_Z_W_DELTA_D1 3
-#define WINGROCK_DELAY_UKF_Z_W_DELTA_D2 4
-#define WINGROCK_DELAY_UKF_Z_W_DELTA_D3 5
-#define WINGROCK_DELAY_UKF_Z_W_DELTA_D4 6
-#define WINGROCK_DELAY_UKF_Z_W_DELTA_D5 7
-#define WINGROCK_DELAY_UKF_Z_W_DELTA_D6 8
-#define WINGROCK_DELAY_UKF_Z_W_DELTA_D7 9
+#define WINGROCK_DELAY_UKF_Z_W_DELTA_D0 2 /* times delta[k] in the rate of p */
+#define WINGROCK_DELAY_UKF_Z_W_DELTA_D1 3 /* times delta[k-1] in the rate of p */
+#define WINGROCK_DELAY_UKF_Z_W_DELTA_D2 4 /* times delta[k-2] in the rate of p */
+#define WINGROCK_DELAY_UKF_Z_W_DELTA_D3 5 /* times delta[k-3] in the rate of p */
+#define WINGROCK_DELAY_UKF_Z_W_DELTA_D4 6 /* times delta[k-4] in the rate of p */
+#define WINGROCK_DELAY_UKF_Z_W_DELTA_D5 7 /* times delta[k-5] in the rate of p */
+#define WINGROCK_DELAY_UKF_Z_W_DELTA_D6 8 /* times delta[k-6] in the rate of p */
+#define WINGROCK_DELAY_UKF_Z_W_DELTA_D7 9 /* times delta[k-7] in the rate of p */
 #define WINGROCK_DELAY_UKF_U_DELTA 0 /* deg */
 #define WINGROCK_DELAY_UKF_Y_PHI 0 /* deg */
 

@@ -62,12 +62,12 @@ typedef float wingrock_ekf_real;
  * settings.param[WINGROCK_EKF_P_<declared parameter>]. */
 #define WINGROCK_EKF_Z_THETA 0 /* deg */
 #define WINGROCK_EKF_Z_P 1 /* deg/s */
-#define WINGROCK_EKF_Z_W_ONE 2
-#define WINGROCK_EKF_Z_W_THETA 3
-#define WINGROCK_EKF_Z_W_P 4
-#define WINGROCK_EKF_Z_W_ABS_THETA_P 5
-#define WINGROCK_EKF_Z_W_ABS_P_P 6
-#define WINGROCK_EKF_Z_W_THETA3 7
+#define WINGROCK_EKF_Z_W_ONE 2 /* times 1 in the rate of p */
+#define WINGROCK_EKF_Z_W_THETA 3 /* times theta in the rate of p */
+#define WINGROCK_EKF_Z_W_P 4 /* times p in the rate of p */
+#define WINGROCK_EKF_Z_W_ABS_THETA_P 5 /* times |theta|*p in the rate of p */
+#define WINGROCK_EKF_Z_W_ABS_P_P 6 /* times |p|*p in the rate of p */
+#define WINGROCK_EKF_Z_W_THETA3 7 /* times theta^3 in the rate of p */
 #define WINGROCK_EKF_U_DELTA 0 /* deg */
 #define WINGROCK_EKF_Y_PHI 0 /* deg */
 
