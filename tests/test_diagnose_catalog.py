@@ -351,6 +351,21 @@ def test_a_grid_goes_on_past_a_best_end():
         assert value in (min(values), max(values)) and np.isnan(std)
 
 
+@pytest.mark.parametrize("peak", [25, 20, 17, 44])
+def test_a_whole_number_past_the_grid_is_found_between_the_extensions(peak):
+    """An input delay of 20 or 25 samples past a grid ending at 15: the extension tried 30 (and
+    60) and a heat exchanger's 25-sample delay was named 30, nothing between tried; now the gaps
+    beside the best are halved down to its neighbours, in a few evaluations."""
+    from skigen.diagnose.catalog import Structural
+    from skigen.diagnose.name import _profile
+    s = Structural("input_delay", "u", "delay", "samples", tuple(range(1, 16)), True, False, None, None, "",
+                   beyond=2.0)
+    calls = []
+    total = lambda v: calls.append(v) or -abs(v - peak)
+    value, _, std = _profile(total, s, [1, 2, 4, 8, 15])
+    assert value == peak and np.isnan(std) and len(calls) < 20
+
+
 @pytest.mark.parametrize("peak", [0.9262, 1.0832, 2.4171, -0.0371])
 def test_a_profile_resolves_a_sharp_peak_above_one_as_below(peak):
     """A gain known to 0.04 % (a gyro's 1.0832 ± 0.0004 from a precise encoder) is profiled to a

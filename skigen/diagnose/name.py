@@ -342,7 +342,7 @@ def _ties(current: Correction, new: Correction, score, tried: list, alpha: float
     mine = added(current, new)
     out, seen = [], {_said(a) for a in mine}
     for trial, trial_score in sorted(tried, key=lambda t: -np.sum(t[1])):
-        behind = float(np.sum(score) - np.sum(trial_score))
+        behind = -_gain(trial_score, score)       # +inf where a fold cannot be scored
         if len(trial.additive) > len(new.additive) or not 0 <= behind < evidence_threshold(alpha):
             continue
         theirs = added(current, trial)
@@ -387,12 +387,12 @@ def _ties_under(nominal: Model, recal: Model, corr: Correction, new: Correction,
             scored = _scored(recal, trial, rec, folds, rms, size)
             if scored is None:
                 continue
-            behind = float(np.sum(score) - np.sum(scored[1]))
+            behind = -_gain(scored[1], score)
             if evidence_threshold(alpha) <= behind < TIE_MARGIN * evidence_threshold(alpha):
                 theirs = recalibrated(nominal, scored[0], rec, noise_from)
                 again = _scored(theirs, trial, rec, folds, rms, size)
                 if again is not None and np.sum(again[1]) > np.sum(scored[1]):
-                    scored, behind = again, float(np.sum(score) - np.sum(again[1]))
+                    scored, behind = again, -_gain(again[1], score)
                 in_sample = mine - loglik(scored[0].build(theirs), rec)
                 if behind >= evidence_threshold(alpha) and len(items) == len(chosen.adopted) \
                         and in_sample < evidence_threshold(alpha):
@@ -582,7 +582,9 @@ def _past_ends(total, s: Structural, seen: dict) -> None:
 def _profile(total, s: Structural, evaluated) -> tuple[float, float, float]:
     """Best parameter by whole-recording log-likelihood ``total(v)`` (past the evaluated ends while
     one is best, :func:`_past_ends`): Brent's search between the best evaluated point's neighbours
-    (log scale for scale parameters); std from the curvature (none for a whole number)."""
+    (log scale for scale parameters), or for a whole number the halving of the gaps beside the best
+    down to its neighbours (a 25-sample delay, past the grid's 15, was named 30: nothing between
+    was tried); std from the curvature (none for a whole number)."""
     seen = {float(x): total(x) for x in evaluated}
     _past_ends(total, s, seen)
     def bracket():
@@ -590,6 +592,12 @@ def _profile(total, s: Structural, evaluated) -> tuple[float, float, float]:
         ys = np.array([seen[x] for x in xs])
         return xs, ys, int(np.argmax(ys))
     xs, ys, j = bracket()
+    while s.integer:
+        between = {float(round((a + b) / 2)) for a, b in zip(xs[max(j - 1, 0):j + 1], xs[j:j + 2]) if b - a > 1}
+        if not between:
+            break
+        seen.update({v: total(v) for v in between})
+        xs, ys, j = bracket()
     if not s.integer and 0 < j < len(xs) - 1 and np.isfinite(ys[j]):
         to = (lambda x: np.log(x)) if s.log else (lambda x: x)
         back = (lambda x: float(np.exp(x))) if s.log else float
@@ -756,7 +764,7 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
         chosen.adopted = added(corr, new)
         same = {_said(a) for a in chosen.adopted}
         for other, _, other_score, p in adopted:      # a finalist within what a finding must add: a tie
-            behind = float(np.sum(score) - np.sum(other_score))
+            behind = -_gain(other_score, score)
             if p is not chosen and behind < evidence_threshold(alpha):   # not the same change found twice
                 chosen.as_good += [item | {"cv_loglik_behind": behind} for item in added(corr, other)
                                    if _said(item) not in same]
