@@ -14,6 +14,7 @@ each has one parameter searched over a grid.
 """
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -569,6 +570,11 @@ def _written(text: str, where: str, most: int = 24) -> str:
             f"{ca.OP_DIV}.0": f"{text}/{other}"}.get(op, text)
 
 
+def _factor(text: str) -> str:
+    """``text`` as a factor: in parentheses unless a name or a call."""
+    return text if re.fullmatch(r"[\w.]+(\(.*\))?", text) else f"({text})"
+
+
 def output_candidates(model: Model, outputs, recorded: np.ndarray) -> list[Structural]:
     """Per listed output, what its sensor may do: read an offset (searched over ± SENSOR_OFFSETS ×
     the recorded output's RMS, and on by threes past the largest while that is best: a speed
@@ -583,28 +589,30 @@ def output_candidates(model: Model, outputs, recorded: np.ndarray) -> list[Struc
         if len(x) < 2:                   # never measured: no range to search
             continue
         unit = model.outputs[j].unit
+        h = str(model.outputs[j].sym)           # what the sensor reads: "p + 0.02" reads as the sensor's, not a
+        h = h if len(h) <= 24 else y            # correction to the reading "p_gyro + 0.02" was taken for
         size = float(np.sqrt(np.mean(x ** 2)))
         if size > 0:
             offsets = tuple(sorted(float(_num(sign * k * size)) for k in SENSOR_OFFSETS for sign in (-1, 1)))
             out.append(Structural(
                 "sensor_offset", "", "offset", unit, offsets, False, False,
-                lambda m, b, y=y: T.output_offset(m, y, b), lambda b, y=y: f"{y} {'-' if b < 0 else '+'} {_num(abs(b))}",
+                lambda m, b, y=y: T.output_offset(m, y, b), lambda b, h=h: f"{h} {'-' if b < 0 else '+'} {_num(abs(b))}",
                 READINGS["sensor_offset"], output=y, beyond=3.0))
         dt = model.dt
         out.append(Structural(
             "sensor_lag", "", "tau", "s", tuple(dt * 2.0 ** np.arange(0, 6)), False, True,
             lambda m, tau, y=y, first=float(x[0]), s=float(np.std(x)) + 1e-9: T.sensor_lag(m, y, tau, first, s),
-            lambda tau, y=y: f"{y} through 1/({_num(tau)} s·s + 1)", READINGS["sensor_lag"], output=y, beyond=2.0,
+            lambda tau, h=h: f"{h} through 1/({_num(tau)} s·s + 1)", READINGS["sensor_lag"], output=y, beyond=2.0,
             least=dt / model.substeps))
         out.append(Structural(
             "sensor_gain", "", "gain", "", SENSOR_GAINS, False, True,
-            lambda m, g, y=y: T.output_gain(m, y, g), lambda g, y=y: f"{_num(g)}·{y}",
+            lambda m, g, y=y: T.output_gain(m, y, g), lambda g, h=h: f"{_num(g)}·{_factor(h)}",
             READINGS["sensor_gain"], output=y, beyond=SENSOR_GAINS[-1]))
         for side, qs in (("upper", SENSOR_QUANTILES), ("lower", [1 - a for a in SENSOR_QUANTILES])):
             grid = tuple(sorted({float(_num(v)) for v in np.quantile(x, qs)}))
             out.append(Structural(
                 "sensor_saturation", "", "bound", unit, grid, False, False,
                 lambda m, b, y=y, side=side: T.output_saturation(m, y, b, side),
-                lambda b, y=y, side=side: f"{'fmin' if side == 'upper' else 'fmax'}({y}, {_num(b)})",
+                lambda b, h=h, side=side: f"{'fmin' if side == 'upper' else 'fmax'}({h}, {_num(b)})",
                 READINGS["sensor_saturation"], output=y, side=side))
     return out

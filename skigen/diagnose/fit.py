@@ -95,17 +95,18 @@ def evaluate_fit(model: Model, rec: Recording, run: RunResult | None = None, win
     return Fit(metrics, run, free, window)
 
 
-def simulation_worth(nominal: Model, corr, rec: Recording, window: int | None = None) -> tuple[float, dict]:
+def simulation_worth(nominal: Model, corr, rec: Recording, window: int | None = None) -> tuple[float, dict, float]:
     """What each finding of ``corr`` (a :class:`~skigen.diagnose.name.Correction`) is worth to a
-    simulation: (the free-run error of the corrected model, {finding: that error without it}),
-    the error being the whole-record free-run RMSE over the output's spread, mean over the
-    outputs (∞ where the free run diverges). One step ahead, a delay or a sensor effect can
-    outweigh a force that a simulation cannot do without; this measures the latter."""
+    simulation: (the free-run error of the corrected model, {finding: that error without it},
+    the error the corrected model's own noise gives a right model's free run), the error being
+    the whole-record free-run RMSE over the output's spread, mean over the outputs (∞ where the
+    free run diverges). One step ahead, a delay or a sensor effect can outweigh a force that a
+    simulation cannot do without; this measures the latter."""
     spread = np.maximum(np.nanstd(rec.outputs, axis=0), 1e-300)
-
-    def error(c) -> float:
-        rmse = evaluate_fit(c.build(nominal), rec, window=window).metrics["free_run_rmse"]
-        return float(np.mean([np.inf if rmse[n] is None else rmse[n] / s
-                              for n, s in zip(nominal.output_names, spread)]))
+    mean = lambda m, key, unknown=np.inf: float(np.mean([unknown if m[key].get(n) is None else m[key][n] / s
+                                                         for n, s in zip(nominal.output_names, spread)]))
+    error = lambda c: mean(evaluate_fit(c.build(nominal), rec, window=window).metrics, "free_run_rmse")
     items = [a[0] for a in corr.found] + [s[0] for s in corr.structural]
-    return error(corr), {c: error(corr.without(c)) for c in items}
+    full = evaluate_fit(corr.build(nominal), rec, window=window).metrics
+    noise = mean(full, "free_run_noise", 0.0) if "free_run_noise" in full else 0.0
+    return mean(full, "free_run_rmse"), {c: error(corr.without(c)) for c in items}, noise
