@@ -186,7 +186,7 @@ def _diagnose(args) -> int:
     print(f"{'mismatch detected' if d['mismatch_detected'] else 'no significant mismatch'}: "
           f"whiteness p = {c['whiteness_pvalue']:.3g}, independence of the past p = "
           f"{c.get('independence_pvalue', 1.0):.3g}, slowly varying disturbance: log-likelihood gain "
-          + ", ".join(f"{k} {v:+.1f}" for k, v in c["disturbance_gain"].items())
+          + ", ".join(f"on {k} {v:+.1f}" for k, v in c["disturbance_gain"].items())
           + f" (threshold {c['disturbance_threshold']:.1f})")
     unnamed = [f"candidate {c['name']} on {c['equation']}: {c['why']}" for c in d.get("candidates_not_named", [])]
     if not d["mismatch_detected"]:
