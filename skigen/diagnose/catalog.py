@@ -49,8 +49,6 @@ READINGS = {
     "input_delay": "the plant responds to the input a few samples late (transport or computation delay)",
     "actuator_lag": "the actuator follows its command with a first-order lag (on a plant linear in the "
                     "states, a first-order lag of the sensor reads the same)",
-    "sensor_lag": "the sensor follows the quantity with a first-order lag (a thermocouple, a filtered "
-                  "reading; on a plant linear in the states, a lag of the actuator reads the same)",
     "input_saturation": "the actuator cannot deliver more than a limit",
     "dead_zone": "small commands produce nothing (backlash, stiction in the actuator, an ESC dead band)",
     "fractional_delay": "the plant responds to the input a delay off the sample grid (a whole number of "
@@ -598,12 +596,6 @@ def output_candidates(model: Model, outputs, recorded: np.ndarray) -> list[Struc
                 "sensor_offset", "", "offset", unit, offsets, False, False,
                 lambda m, b, y=y: T.output_offset(m, y, b), lambda b, h=h: f"{h} {'-' if b < 0 else '+'} {_num(abs(b))}",
                 READINGS["sensor_offset"], output=y, beyond=3.0))
-        dt = model.dt
-        out.append(Structural(
-            "sensor_lag", "", "tau", "s", tuple(dt * 2.0 ** np.arange(0, 6)), False, True,
-            lambda m, tau, y=y, first=float(x[0]), s=float(np.std(x)) + 1e-9: T.sensor_lag(m, y, tau, first, s),
-            lambda tau, h=h: f"{h} through 1/({_num(tau)} s·s + 1)", READINGS["sensor_lag"], output=y, beyond=2.0,
-            least=dt / model.substeps))
         out.append(Structural(
             "sensor_gain", "", "gain", "", SENSOR_GAINS, False, True,
             lambda m, g, y=y: T.output_gain(m, y, g), lambda g, h=h: f"{_num(g)}·{_factor(h)}",

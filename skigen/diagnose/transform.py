@@ -19,7 +19,7 @@ from ..model import Model, Variable
 
 __all__ = ["copy_model", "constants", "symbols", "formula", "rate", "add_term", "add_state", "replace_input", "read",
            "input_delay", "fractional_delay", "actuator_lag", "input_saturation", "dead_zone", "smooth_dead_zone",
-           "backlash", "output_offset", "output_gain", "output_saturation", "sensor_lag", "literals", "scale_constant",
+           "backlash", "output_offset", "output_gain", "output_saturation", "literals", "scale_constant",
            "with_disturbance", "memory_values", "load_model_file"]
 
 
@@ -249,22 +249,6 @@ def output_saturation(model: Model, y: str, bound: float, side: str) -> Model:
         raise ValueError(f"output '{y}': a saturation side is 'upper' or 'lower', got {side!r}")
     clip = ca.fmin if side == "upper" else ca.fmax
     return read(model, y, lambda h: clip(h, _number(bound)))
-
-
-def sensor_lag(model: Model, y: str, tau: float, initial: float = 0.0, std: float = 1.0) -> Model:
-    """The sensor of output ``y`` reads a first-order lag of its expression h with time constant
-    tau (seconds): a new state ``<y>_lag`` with d/dt y_lag = (h − y_lag)/tau, starting at
-    ``initial`` (a thermocouple's or a filtered sensor's response)."""
-    tau = _number(tau)
-    if not isinstance(tau, ca.SX) and not tau > 0:
-        raise ValueError("a sensor lag needs a positive time constant")
-    i = next((j for j, v in enumerate(model.outputs) if v.name == y), None)
-    if i is None:
-        raise ValueError(f"model '{model.name}' has no output '{y}' (outputs: {', '.join(model.output_names)})")
-    h, sym = ca.SX(model.outputs[i].sym), ca.SX.sym(_unique(model, f"{y}_lag"))
-    rhs = sym + (1.0 - ca.exp(-model.dt / tau)) * (h - sym) if model.discretization == "discrete" else (h - sym) / tau
-    m, _ = add_state(model, sym.name(), rhs, unit=model.outputs[i].unit, initial=initial, std=std, sym=sym)
-    return read(m, y, lambda _: sym)
 
 
 def read(model: Model, y: str, reading) -> Model:
