@@ -1331,3 +1331,21 @@ def test_a_sensor_noise_ten_times_its_declared_variance_is_said():
         if said:
             assert "or a recording is in other units than the model" in notes[0]
             assert res.parameters["b"]["value"] == pytest.approx(factor, rel=0.02)
+
+
+def test_a_recording_passed_twice_is_said():
+    """The same log passed twice (one re-exported with epoch stamps) halved the variances in silence
+    (k ± 0.070 against ± 0.098)."""
+    m, y, v, u = _linear("twice")
+    k = m.parameter("k", 3.0)
+    m.dynamics({y: v, v: -k * y - 0.5 * v + u})
+    m.output("pos", y, noise_std=0.01)
+    rng = np.random.default_rng(2)
+    U = smooth_noise(rng, 300, 5, 2.0)[:, None]
+    _, Y = free_run(m, U)
+    rec = recording(m, U, Y + 0.01 * rng.normal(size=Y.shape))
+    again = dataclasses.replace(rec, t=rec.t + 1.7e9, path="epoch.csv")
+    res = fit(m, [rec, again], show_progress=False)
+    assert any(n.startswith("epoch.csv holds the same inputs and readings as sim: fitted twice") for n in res.notes)
+    other = recording(m, U, Y + 0.01 * rng.normal(size=Y.shape), path="other")
+    assert not any("holds the same" in n for n in fit(m, [rec, other], show_progress=False).notes)
