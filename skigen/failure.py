@@ -1,10 +1,10 @@
 """Why a filter step gave non-finite numbers: the model evaluated where the filter evaluates it.
 
-A step fails when the transition or the observation is not finite at a point the filter uses:
-the prior mean (every filter), its derivatives there (the EKF), or the points up to γ standard
-deviations from it along each state (a sigma-point filter's reach). Naming the equation and
-the point tells a user what to change (a square root of a state the spread takes below zero,
-a norm differentiated at zero), where a generic hint about overflows would not.
+A step fails when the observation (at the prior) or the transition (from the posterior the update
+gives) is not finite at a point the filter uses: the mean (every filter), the derivatives there
+(the EKF), or the sigma points, z ± γ times each column of the factor (the UKF kinds). Naming the
+equation and the point tells a user what to change (a square root of a state the spread takes
+below zero, a norm differentiated at zero), where a generic hint about overflows would not.
 """
 from __future__ import annotations
 
