@@ -438,3 +438,19 @@ def test_a_proposal_no_fold_can_score_gains_nothing():
     from skigen.diagnose.name import _gain
     assert _gain(np.array([-np.inf, 1.0]), np.array([-np.inf, 0.0])) == -np.inf
     assert _gain(np.array([2.0, 1.0]), np.array([1.0, 0.5])) == 1.5
+
+
+def test_a_proposal_whose_terms_none_survive_the_refit_says_so(monkeypatch):
+    """A quadrotor's thrust loss drew an 8-term SKI proposal (+145.8 cross-validated); refitted
+    together by the EKF none was significant, nothing was adopted, and the report said only 'no
+    candidate explains the mismatch'. The proposal now carries why."""
+    from skigen.diagnose import name as N
+    from skigen.diagnose.catalog import Additive
+    terms = [Additive("bias", "vz", "1", ""), Additive("input_gain", "vz", "pwm", "")]
+    p = N.Proposal("additive", 145.8, 2, N.Correction([(c, 0.0, 0.0) for c in terms]), "bias on vz, input_gain on vz")
+    monkeypatch.setattr(N, "refit", lambda nominal, corr, rec, rms, size:
+                        N.Correction([(c, 0.1, 1.0) for c, *_ in corr.additive]))
+    assert N._adopt(None, N.Correction(), p, None, {}, {}, 0.01, None) is None
+    assert p.note == ("not adopted: refitted together by the EKF, none of its 2 term(s) is significant (within "
+                      "2.58 std of zero): together they explain what none explains alone, a sign of physics "
+                      "outside the candidates")

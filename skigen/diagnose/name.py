@@ -852,6 +852,11 @@ def _adopt(nominal: Model, corr: Correction, p: Proposal, rec: Recording, rms: d
         else:
             new_terms.append((c, coef, std))
     if p.kind == "additive" and not new_terms:
+        if not p.set_aside:          # said, or the report lists a gain of +146 and adopts nothing in silence
+            n = len(accepted.additive) - len(corr.additive)
+            p.note = (f"not adopted: refitted together by the EKF, none of its {n} term(s) is significant "
+                      f"(within {stats.norm.isf(alpha / 2):.2f} std of zero): together they explain what none "
+                      f"explains alone, a sign of physics outside the candidates")
         return None
     new = refit(nominal, Correction(accepted.additive[:len(corr.additive)] + new_terms, accepted.structural),
                 rec, rms, size)
