@@ -13,7 +13,7 @@ import numpy as np
 
 from .guard import chol_psd
 
-__all__ = ["sigma_reach", "explain"]
+__all__ = ["sigma_reach", "nearer", "explain"]
 
 
 def sigma_reach(filt) -> tuple[float, int]:
@@ -22,6 +22,13 @@ def sigma_reach(filt) -> tuple[float, int]:
     o = filt.options
     n = len(filt.partition.nonlinear) if filt.partition is not None else len(filt.aug.names)
     return o.alpha * np.sqrt(n + o.kappa), n
+
+
+def nearer(filt) -> str:
+    """How to bring a sigma-point filter's points nearer: alpha 0.3 and where they would sit."""
+    o, (_, n) = filt.options, sigma_reach(filt)
+    return (f"A smaller alpha (--alpha 0.3, FilterOptions(alpha=0.3): ±{0.3 * np.sqrt(n + o.kappa):.3g}; now "
+            f"{o.alpha:g}) or smaller prior variances of the weights bring them nearer")
 
 
 def _point(names, z, nx) -> str:
@@ -67,14 +74,11 @@ def explain(filt, prior, posterior, u, mem) -> str | None:
             continue
         for point in _sigma_points(filt, z, C, gamma):
             if what := undefined(point):
-                o, n = filt.options, sigma_reach(filt)[1]
                 return (f"{what} not finite at one of the {filt.kind}'s sigma points ({_point(names, point, nx)}), "
                         f"{gamma:.3g} standard deviations from {at_mean}: a term there overflows (a cubic or "
                         f"exponential far out) or is undefined (a square root, logarithm or division). The model "
-                        f"must be finite wherever the points reach: a smaller alpha (--alpha 0.3, "
-                        f"FilterOptions(alpha=0.3): ±{0.3 * np.sqrt(n + o.kappa):.3g}; now {o.alpha:g}) or smaller "
-                        f"prior variances bring them nearer, and a term written to be defined there "
-                        f"(sqrt(fmax(x, 0))) cannot fail")
+                        f"must be finite wherever the points reach. {nearer(filt)}; a term written to be defined "
+                        f"there (sqrt(fmax(x, 0))) cannot fail")
     return None
 
 

@@ -36,7 +36,7 @@ import numpy as np
 from scipy import stats
 
 from .derive import DerivedFilter, step_inputs
-from .failure import explain, sigma_reach
+from .failure import explain, nearer, sigma_reach
 from .emit.c import Status
 from .grid import clock, first_known
 from .guard import Guard, bound_std, reinit
@@ -241,13 +241,10 @@ class RunSummary:
         filt = self.filter
         if filt.kind == "ekf":
             return None
-        o = filt.options
         gamma, n = sigma_reach(filt)
         return (f"the {filt.kind} evaluates the model at ±{gamma:.3g} standard deviations of each of its {n} "
-                f"sigma-point states and weights (alpha = {o.alpha:g}): a cubic or exponential term there can "
-                f"overflow the step, and each restart widens them again. A smaller alpha (--alpha 0.3, "
-                f"FilterOptions(alpha=0.3): ±{0.3 * np.sqrt(n + o.kappa):.3g}) or smaller prior variances of "
-                f"the weights bring them nearer")
+                f"sigma-point states and weights (alpha = {filt.options.alpha:g}): a cubic or exponential term "
+                f"there can overflow the step, and each restart widens them again. {nearer(filt)}")
 
     def verdict(self) -> str:
         """The mean NIS against its two-sided 99 % band: a consistent filter's summed NIS is χ² with
@@ -295,7 +292,7 @@ class RunSummary:
             if self.events[Status.NUMERICAL_FAILURE]:
                 if self.failure:
                     out.append(f"why the first failed: {self.failure}")
-                if "--alpha" not in (self.failure or "") and (spread := self.sigma_spread()):
+                if nearer(self.filter) not in (self.failure or "") and (spread := self.sigma_spread()):
                     out.append(f"why steps may fail: {spread}")
         elif self.gate:
             out.append("events: none (no outlier, stuck reading, bad input, rejection or restart)")

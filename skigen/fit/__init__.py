@@ -349,7 +349,7 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     Y = np.asarray(prob.predict(xi, p)).T
     result = _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_at,
                      nll, Y, stats, status, perf_counter() - t0, float(sol["f"]), info, robust)
-    for i, side in _flat_sides(prob, xi, inputs, std / scale, fitted_at).items():
+    for i, side in _flat_sides(prob, xi, inputs, std / scale, info["information"], fitted_at).items():
         ({**result.parameters, **result.weights})[V.names[i]]["flat"] = side
     if method == "filter-error":
         result.initial_states = [{} if rs is None or rs.consistent else
@@ -466,14 +466,14 @@ CORRELATED = 0.99   # |correlation| of two estimates above which the data see mo
 FLAT = 0.1    # a side where −log L rises less than this share of what the error bar predicts is flat
 
 
-def _flat_sides(prob: Problem, xi: np.ndarray, inputs: dict, std: np.ndarray, at: list[int]) -> dict[int, str]:
+def _flat_sides(prob: Problem, xi: np.ndarray, inputs: dict, std: np.ndarray, information: np.ndarray,
+                at: list[int]) -> dict[int, str]:
     """{variable: 'above' or 'below'} for the estimates (indices ``at``, scaled ``std``) whose
     −log L, moved 2σ to that side within the bounds (the others held), rises less than FLAT of
-    what their information predicts: the data bound them from one side only (a limit just
-    above the largest command has ±0.04 from the few samples it clips, and nothing above)."""
+    what their ``information`` (the Fisher information's diagonal at ``xi``) predicts: the data
+    bound them from one side only (a limit just above the largest command has ±0.04 from the few
+    samples it clips, and nothing above)."""
     p = inputs["p"]
-    J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(xi, p))
-    information = np.sum(J * J, axis=0) + prior.ravel()
     f0, out = float(prob.objective(xi, p)), {}
     for i in at:
         if not 0 < std[i] < np.inf:
@@ -585,12 +585,14 @@ def _solve(prob: Problem, solver, inputs: dict, negligible, label: str | None) -
 
 def _at_optimum(prob: Problem, jac_g, sol: dict, inputs: dict, lengths, robust: bool):
     """(the solution within its bounds, the residuals, −log L per sample, the covariance of the
-    scaled unknowns, its info) at IPOPT's solution."""
+    scaled unknowns, its info, with ``information``: the Fisher information's diagonal) at IPOPT's
+    solution."""
     xi = np.clip(np.asarray(sol["x"]).ravel(), inputs["lbx"], inputs["ubx"])   # IPOPT may overstep a bound by ~1e-8
     p = inputs["p"]
     rho, nll = (np.asarray(v) for v in prob.residuals(xi, p))
     J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(xi, p))
     C, info = covariance(J, rho if robust else None, lengths, prior.ravel(), _dense(jac_g(xi, p)))
+    info["information"] = np.sum(J * J, axis=0) + prior.ravel()
     return xi, rho, nll, C, info
 
 
