@@ -45,7 +45,7 @@ from .fit import DIVERGED, evaluate_fit, free_run_window, simulation_worth
 from .inputs import MIN_SAMPLES, check, load, usable
 from .locate import Location, locate
 from .suggest import explain
-from .name import (DELAYS, Correction, basis_rms, beyond_parameters, focus_window, name_terms, recalibrated,
+from .name import (DELAYS, Correction, acts, basis_rms, beyond_parameters, focus_window, name_terms, recalibrated,
                    redelayed, shape_search)
 from .plausible import screen, significant, term_item
 from .name import refit as refit_terms
@@ -729,21 +729,16 @@ def _findings(nominal: Model, corr: Correction, ev: dict, shapes: dict, worth: d
     return sorted(out, key=lambda f: (-f["free_run_without"], -f["evidence"]))
 
 
-def _signal(item: dict) -> tuple:
-    """What a finding or a proposal's item acts on: its output or input, else its equation."""
-    return item["effect"], item.get("output") or item.get("input") or item["equation"], item.get("through", "")
-
-
 def _as_good(findings: list[dict], history) -> None:
     """Each finding that a naming round adopted over a finalist explaining the recording as well
     (cross-validated log-likelihood within what a finding must add) lists it under ``as_good``: the
     recording cannot tell them apart (a constant force on a linear spring and an offset of its
     position sensor)."""
     for p in history:
-        adopted = {_signal(a) for a in p.adopted}
+        adopted = {acts(a) for a in p.adopted}
         for f in findings:
-            if p.as_good and _signal(f) in adopted:          # a tie said of the finding it would replace
-                ties = [a for a in p.as_good if "instead_of" not in a or list(_signal(f)) in a["instead_of"]]
+            if p.as_good and acts(f) in adopted:          # a tie said of the finding it would replace
+                ties = [a for a in p.as_good if "instead_of" not in a or list(acts(f)) in a["instead_of"]]
                 if ties:
                     f["as_good"] = ties
 

@@ -346,7 +346,7 @@ def _ties(current: Correction, new: Correction, score, tried: list, alpha: float
         if len(trial.additive) > len(new.additive) or not 0 <= behind < evidence_threshold(alpha):
             continue
         theirs = added(current, trial)
-        instead = [list(_acts(a)) for a in mine if _said(a) not in {_said(b) for b in theirs}]
+        instead = [list(acts(a)) for a in mine if _said(a) not in {_said(b) for b in theirs}]
         for item in theirs:
             if _said(item) not in seen:
                 seen.add(_said(item))
@@ -371,7 +371,7 @@ def _ties_under(nominal: Model, recal: Model, corr: Correction, new: Correction,
     20 % low, 4.9 behind cross-validated and 0.3 in-sample."""
     adopted = {_said(a) for a in chosen.adopted}
     said = adopted | {_said(a) for a in chosen.as_good}
-    instead = [list(_acts(a)) for a in chosen.adopted]
+    instead = [list(acts(a)) for a in chosen.adopted]
     mine = loglik(new.build(recal), rec)
     out = []
     for p in proposals:
@@ -406,7 +406,7 @@ def _ties_under(nominal: Model, recal: Model, corr: Correction, new: Correction,
     return out
 
 
-def _acts(item: dict) -> tuple:
+def acts(item: dict) -> tuple:
     """What a report item acts on: (effect, its output, input or equation, what it acts through)."""
     return item["effect"], item.get("output") or item.get("input") or item["equation"], item.get("through", "")
 
