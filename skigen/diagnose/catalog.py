@@ -23,6 +23,7 @@ import numpy as np
 
 from ..model import Model
 from . import transform as T
+from .source import to_python
 
 __all__ = ["Additive", "Structural", "EFFECTS", "READINGS", "evaluate", "additive_candidates",
            "structural_candidates", "output_candidates", "user_candidates", "declared_candidates", "rate_equations",
@@ -238,6 +239,57 @@ def driven(model: Model, velocity: str) -> list[str]:
             and ca.is_equal(model.rhs[s.name], v)]
 
 
+def summands(expr: ca.SX) -> list[ca.SX]:
+    """The terms of a sum, each with its sign: a − (b + c) → [a, −b, −c]."""
+    if expr.is_constant() or expr.is_symbolic():
+        return [expr]
+    if expr.op() == ca.OP_ADD:
+        return summands(expr.dep(0)) + summands(expr.dep(1))
+    if expr.op() == ca.OP_SUB:
+        return summands(expr.dep(0)) + [-e for e in summands(expr.dep(1))]
+    if expr.op() == ca.OP_NEG:
+        return [-e for e in summands(expr.dep(0))]
+    return [expr]
+
+
+def input_term(model: Model, eq: str, u: str) -> Additive:
+    """The input gain candidate of ``u`` on ``eq``: ``u`` itself where the rate is linear in u with a
+    constant gain, else u's own terms of the rate, each less its value at u = 0 (a thrust k·pwm², a
+    moment b·u·cos θ), which a thrust constant or an inertia error scales. The formula ``u`` where
+    such a term is not finite at u = 0 (a 1/u) or reads an input history. A candidate beside u,
+    not a variant of it: their coefficients are not of one scale (a shape search averaged them)."""
+    plain = Additive("input_gain", eq, u, READINGS["input_gain"])
+    sym = T.symbols(model)[u]
+    if ca.jacobian(model.rhs[eq], sym).is_constant():
+        return plain
+    values = {p.sym.name(): p.value for p in model.parameters}       # at the declared values
+    zero = lambda e: ca.substitute(e, sym, 0.0)
+    share = sum((e if _vanishes(zero(e)) else e - zero(e) for e in summands(model.rhs[eq]) if ca.depends_on(e, sym)),
+                ca.SX(0))
+    share = share / model.dt if model.discretization == "discrete" else share
+    if values:
+        share = ca.substitute(share, ca.vertcat(*[p.sym for p in model.parameters]), ca.DM(list(values.values())))
+    if {s.name() for s in ca.symvar(share)} - set(T.symbols(model)) or not _finite(share):
+        return plain
+    return Additive("input_gain", eq, to_python(share).replace("ca.", ""), READINGS["input_gain"], f"its {u} term",
+                    expr=share, shape=(("gain on", f"{u}'s terms"),))      # its own group: not a variant of u
+
+
+def _samples(expr: ca.SX, n: int = 4) -> np.ndarray:
+    """``expr`` at ``n`` random values of its symbols."""
+    z = ca.vertcat(*ca.symvar(expr))
+    f = ca.Function("f", [z], [expr]).map(n)
+    return np.asarray(f(np.random.default_rng(0).normal(size=(z.shape[0], n)))).ravel()
+
+
+def _vanishes(expr: ca.SX) -> bool:
+    return bool(np.all(_samples(expr) == 0))
+
+
+def _finite(expr: ca.SX) -> bool:
+    return bool(np.all(np.isfinite(_samples(expr))))
+
+
 def _inputs_of(model: Model, equation: str) -> list[str]:
     e = model.rhs[equation]
     return [v.name for v in model.inputs if ca.depends_on(e, v.sym)]
@@ -310,6 +362,8 @@ def additive_candidates(model: Model, equations, scale: dict[str, float],
                             (("bound", b), ("side", side), ("state", q)), sign=1)
         for u in _inputs_of(model, eq):
             add("input_gain", u)
+            if (term := input_term(model, eq, u)).expr is not None:
+                out.append(term)
         alt = [q for q in pairs(model, eq) if next(v.role for v in model.states if v.name == q) == "altitude"]
         for z in alt:
             per_m = LENGTH_UNITS.get(units[z], 1.0)

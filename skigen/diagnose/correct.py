@@ -130,10 +130,10 @@ def _unique_name(model: Model, name: str) -> str:
     return out
 
 
-def parametrised(base: Model, corr: Correction, lift: list[tuple[str, str, str]] = ()) -> tuple[Model, dict, dict]:
+def parametrised(base: Model, corr: Correction, lift: list[C.Additive] = ()) -> tuple[Model, dict, dict]:
     """``base`` plus the correction, each additive coefficient a declared parameter (a physical
-    sign as its bound), plus ``lift``: (effect, equation, formula) corrections of the nominal's own
-    linear terms, parameters starting at 0, and each structural change whose value is continuous (a
+    sign as its bound), plus ``lift``: corrections of the nominal's own terms (:func:`liftable`),
+    parameters starting at 0, and each structural change whose value is continuous (a
     limit, a width, a time constant, a sensor's bound) with that value a parameter. Returns (model,
     {parameter: finding candidate or None}, {equation: [comment per added term]})."""
     m = T.copy_model(base, unknowns=False)
@@ -155,12 +155,13 @@ def parametrised(base: Model, corr: Correction, lift: list[tuple[str, str, str]]
         names[name] = c
     for u, extra in added.items():
         m = T.replace_input(m, u, T.symbols(m)[u] + extra)
-    for effect, eq, formula in lift:
-        name = _unique_name(m, f"{effect}_{eq}_correction")
+    for c in lift:
+        name = _unique_name(m, f"{c.effect}_{c.equation}_correction")
         p = m.parameter(name, 0.0)
-        m.rhs[eq] = m.rhs[eq] + T.rate(m, p * T.formula(m, formula))
+        m.rhs[c.equation] = m.rhs[c.equation] + T.rate(m, p * c.sx(m))
         names[name] = None
-        notes.setdefault(eq, []).append(f"correction of the nominal {effect.replace('_', ' ')}: {name} × ({formula})")
+        notes.setdefault(c.equation, []).append(
+            f"correction of the nominal {c.effect.replace('_', ' ')}: {name} × ({c.formula})")
     for s, value, _ in corr.structural:
         if s.effect != "constant":
             m = s.build(m, _structural_parameter(m, s, value, names))
@@ -177,24 +178,25 @@ def _structural_parameter(m: Model, s, value: float, names: dict):
     return m.parameter(name, float(value), unit=s.unit, bounds=(0.0, np.inf) if s.log else None)   # log: positive
 
 
-def liftable(nominal: Model, corr: Correction, equations) -> list[tuple[str, str, str]]:
-    """The nominal's own linear terms on the located equations — stiffness of the positions an
-    equation drives, its damping, its input gains — when the nominal has them, declares no
-    parameters, and no finding already covers them: their constants are refitted with the findings."""
+def liftable(nominal: Model, corr: Correction, equations) -> list[C.Additive]:
+    """The nominal's own terms on the located equations — stiffness of the positions an equation
+    drives, its damping, each input's term (:func:`catalog.input_term`) — when the nominal has
+    them, declares no parameters, and no finding already covers them: their constants are
+    refitted with the findings."""
     if nominal.parameters:
         return []
     found = {(c.effect, c.equation) for c, *_ in corr.additive}
     syms = T.symbols(nominal)
     out = []
     for eq in equations:
-        rhs = nominal.rhs[eq]
-        terms = [("linear_stiffness", q, f"-{q}") for q in C.pairs(nominal, eq) if q != eq]
-        terms += [("viscous_damping", eq, f"-{eq}")]
-        terms += [("input_gain", u, u) for u in nominal.input_names]
-        for effect, var, formula in terms:
-            if (effect, eq) not in found and ca.depends_on(rhs, syms[var]) and not _constant_covers(
-                    nominal, corr, eq, T.formula(nominal, formula)):
-                out.append((effect, eq, formula))
+        own = lambda effect, formula: C.Additive(effect, eq, formula, C.READINGS[effect])
+        terms = [(q, own("linear_stiffness", f"-{q}")) for q in C.pairs(nominal, eq) if q != eq]
+        terms += [(eq, own("viscous_damping", f"-{eq}"))]
+        terms += [(u, C.input_term(nominal, eq, u)) for u in nominal.input_names]
+        for var, c in terms:
+            if (c.effect, eq) not in found and ca.depends_on(nominal.rhs[eq], syms[var]) and \
+                    not _constant_covers(nominal, corr, eq, c.sx(nominal)):
+                out.append(c)
     return out
 
 
@@ -262,7 +264,7 @@ def refit_jointly(nominal: Model, calibrated: Model, corr: Correction, rec, equa
         info.update(parameters=res.parameters, noise=res.noise.get("scales"), converged=res.converged,
                     loglik=-res.objective,
                     seconds=res.seconds, iterations=res.iterations,
-                    lifted=[dict(effect=e, equation=q, formula=f) for e, q, f in attempt])
+                    lifted=[dict(effect=c.effect, equation=c.equation, formula=c.formula) for c in attempt])
         return _polished(res.model, rec, pieces, names, notes, info, window)
     info["note"] += "coefficients from the cross-validated search"
     model, names, notes = parametrised(calibrated, corr, [])
