@@ -246,13 +246,27 @@ class RunSummary:
                 f"sigma-point states and weights (alpha = {filt.options.alpha:g}): a cubic or exponential term "
                 f"there can overflow the step, and each restart widens them again. {nearer(filt)}")
 
+    REFUSED = 0.05   # a filter that gates, or fails on, more than 1 in 20 samples with a reading is not following it
+
     def verdict(self) -> str:
         """The mean NIS against its two-sided 99 % band: a consistent filter's summed NIS is χ² with
-        as many degrees of freedom as readings used (white innovations, each of unit variance)."""
+        as many degrees of freedom as readings used (white innovations, each of unit variance).
+        Where more than REFUSED of the samples with a reading were gated or failed, inconsistent
+        whatever that NIS: it leaves out the readings that disagreed (a PWM command where the model
+        wants a thrust fraction: 599 of 623 altimeter readings gated, "conservative" on the rest)."""
         dof = self.expected_sum
         lo, hi = (stats.chi2.ppf(q, dof) / dof for q in (0.005, 0.995))
         mean = self.nis_sum / self.expected_sum
         band = f"the 99 % band for {dof:.0f} readings is {lo:.3g}–{hi:.3g} times the expected"
+        gated, failed = self.events[Status.OUTLIER_REJECTED], self.events[Status.NUMERICAL_FAILURE]
+        if gated + failed > self.REFUSED * self.present:
+            said = " and ".join(filter(None, (f"{gated} gated" if gated else "", f"{failed} failed" if failed else "")))
+            return (f"inconsistent: of the {self.present} samples with a reading, {said} (more than 1 in "
+                    f"{1 / self.REFUSED:.0f}): the filter is not following the recording, and the mean NIS of the "
+                    f"readings it used ({mean:.3g} times their predicted variance) leaves out those that disagreed"
+                    + ("; why the first step failed is said above" if failed else "")
+                    + ". Check the units and mapping of the inputs and outputs; `skigen diagnose` says where and "
+                      "what is missing")
         if mean > hi:
             gated = self.events[Status.OUTLIER_REJECTED]
             return (f"inconsistent: the innovations are {mean:.3g} times their predicted variance ({band}): the "

@@ -58,7 +58,7 @@ def _summary(out: Path) -> dict:
         return {r["log"]: r for r in csv.DictReader(f)}
 
 
-def test_22_logs_give_20_ok_rows_and_2_failed_rows_with_their_messages(first):
+def test_22_logs_give_20_ok_rows_and_2_failed_rows_with_their_messages(first, fleet):
     result, out = first
     rows = _summary(out)
     assert len(rows) == 22 and result.counts == {"ok": 20, "diverged": 0, "failed": 2}
@@ -71,6 +71,9 @@ def test_22_logs_give_20_ok_rows_and_2_failed_rows_with_their_messages(first):
         assert r["status"] == "ok" and r["message"] == r["notes"] == "" and int(r["samples"]) == 151
         assert float(r["duration_s"]) == pytest.approx(3.0)
         assert 0.2 < float(r["mean_nis"]) < 5 and float(r["nis_expected"]) == 1.0
+        assert r["verdict"] in ("consistent", "inconsistent", "conservative")
+        assert r["verdict"] == skigen.run(load_model(MODEL), fleet / f"{name}.csv", filter=FILTER).summary(
+        ).verdict().partition(":")[0] if name == "flight_00" else True
         assert (out / name / "done.json").exists() and (out / name / "result.csv").exists()
     for bad in ("flight_bad_cell", "flight_no_phi"):
         assert not (out / bad / "done.json").exists()
@@ -350,3 +353,20 @@ def test_a_binary_log_is_a_failed_row_whose_message_is_printable(tmp_path):
     text = write_summary(tmp_path / "summary.csv", [row, odd], []).read_text()
     assert "\x00" not in text and "\x1b" not in text and "\x07" not in text
     assert "a\\x00b\\x1b[2J x" in text and "c\\x07d" in text and len(text) < 2000
+
+
+def test_the_terminal_names_the_runs_that_are_not_consistent_and_their_moves(tmp_path):
+    """A run's verdict is a column and, where not consistent, a line; a move at a log whose run is
+    inconsistent says its ± may be too small (a gusty flight's Lda 14σ from the fleet's, listed as
+    a move like a real aileron degradation)."""
+    from skigen.batch import BatchResult
+    rows = [dict(log="f0", status="ok", verdict="consistent", mean_nis=1.02, nis_expected=1.0),
+            dict(log="f1", status="ok", verdict="inconsistent", mean_nis=5.2, nis_expected=1.66),
+            dict(log="f2", status="ok", verdict="consistent", mean_nis=0.98, nis_expected=1.0)]
+    moved = [dict(quantity="Lda", log="f1", before=20.0, after=16.6, z=14.0, threshold=2.39),
+             dict(quantity="Lda", log="f2", before=16.6, after=20.0, z=14.0, threshold=2.39)]
+    lines = BatchResult(tmp_path, rows, moved, "file name", tmp_path / "summary.csv", None, 0, 1.0, 1, {"ok": 3}).lines()
+    assert lines[1].endswith("(z = 14.0 > 2.39); its run is inconsistent: its ± may be too small, the move false")
+    assert lines[2].endswith("(z = 14.0 > 2.39)")
+    assert lines[3] == f"  inconsistent: f1: mean NIS 5.2 (expected 1.66); see {tmp_path / 'f1' / 'summary.txt'}"
+    assert len(lines) == 4

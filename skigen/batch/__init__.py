@@ -65,15 +65,21 @@ class BatchResult:
                f"{c.get('failed', 0)} failed ({self.skipped} already complete, not done again) in "
                f"{self.seconds:.1f} s on {self.workers} worker(s) -> {self.summary_csv}"]
         out += [f"  {r['status']}: {r['log']}: {r['message']}" for r in self.rows if r["status"] != "ok"]
+        verdicts = {r["log"]: r.get("verdict") for r in self.rows}
         for m in self.moved:
             out.append(f"  moved: {m['quantity']} at {m['log']}: {m['before']:.4g} -> {m['after']:.4g} "
-                       f"(z = {m['z']:.1f} > {m['threshold']:.2f})")
+                       f"(z = {m['z']:.1f} > {m['threshold']:.2f})" + (
+                           f"; its run is {verdicts[m['log']]}: its ± may be too small, the move false"
+                           if verdicts.get(m["log"]) == "inconsistent" else ""))
         optimistic = [r["log"] for r in self.rows if any(str(n).startswith(OPTIMISTIC) for n in r.get("notes") or [])]
         if optimistic:
             out.append(f"  note: the fits of {_few(optimistic)} say their error bars are optimistic (output error, its "
                        f"free-run residuals beyond the declared sensor noise: a disturbance it does not model), so "
                        f"moves between them may be false; --method filter-error models the disturbance")
         for r in self.rows:
+            if r["status"] == "ok" and r.get("verdict") not in (None, "consistent"):
+                out.append(f"  {r['verdict']}: {r['log']}: mean NIS {r.get('mean_nis') or float('nan'):.3g} (expected "
+                           f"{r.get('nis_expected') or float('nan'):.3g}); see {self.out_dir / r['log'] / 'summary.txt'}")
             if r.get("mismatch") and r["status"] == "ok":
                 out.append(f"  mismatch: {r['log']}: " + ("; ".join(r.get("findings") or []) or "nothing named")
                            + ("; a mismatch remains" if r.get("remains") else ""))

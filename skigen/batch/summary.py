@@ -82,14 +82,14 @@ def _cell(x) -> str:
 
 
 def write_summary(path, rows: list[dict], moved: list[dict], mode: str = "run") -> Path:
-    """``summary.csv``: the fixed columns, the NIS (a run, a diagnosis) or each output's
-    ``rmse_`` (a fit), each quantity and its ``std_``, then ``moved`` (the quantities that moved
+    """``summary.csv``: the fixed columns, the NIS (a run, a diagnosis; a run's ``verdict`` on it:
+    consistent, inconsistent, conservative) or each output's ``rmse_`` (a fit), each quantity and its ``std_``, then ``moved`` (the quantities that moved
     at this log), and for a diagnosis ``mismatch`` (detected in the nominal), ``findings`` and
     ``remains`` (a mismatch remains after the correction)."""
     qs = quantities(rows)
     diag = mode == "diagnose"
     outputs = list(dict.fromkeys(o for r in rows for o in r.get("rmse") or {}))
-    own = [f"rmse_{o}" for o in outputs] if mode == "fit" else NIS
+    own = [f"rmse_{o}" for o in outputs] if mode == "fit" else NIS + ["verdict"] * (mode == "run")
     header = (FIXED + own + [c for q in qs for c in (q, f"std_{q}")] + ["moved"]
               + (["mismatch", "findings", "remains"] if diag else []))
     at = {}
@@ -101,7 +101,7 @@ def write_summary(path, rows: list[dict], moved: list[dict], mode: str = "run") 
         w.writerow(header)
         for r in rows:
             vals = [r.get(c) for c in FIXED]
-            vals += [(r.get("rmse") or {}).get(o) for o in outputs] if mode == "fit" else [r.get(c) for c in NIS]
+            vals += [(r.get("rmse") or {}).get(o) for o in outputs] if mode == "fit" else [r.get(c) for c in own]
             for q in qs:
                 vals += list((r.get("quantities") or {}).get(q, [None, None]))
             vals.append(at.get(r["log"], []))

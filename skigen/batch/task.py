@@ -116,6 +116,9 @@ def _run(spec, digest, path, tmp: Path, opt: dict, row: dict) -> None:
     if summary.nis_count:
         row["mean_nis"] = summary.nis_sum / summary.nis_count
         row["nis_expected"] = summary.expected_sum / summary.nis_count
+        row["verdict"] = summary.verdict().partition(":")[0]
+    elif summary.present:
+        row["verdict"] = "no reading used"
     row["holes"] = len(rec.holes)
 
 
@@ -198,7 +201,7 @@ def run_log(spec: str, path: str, out_dir: str, name: str, options: dict) -> dic
     tmp = out / f".{name}.tmp-{uuid.uuid4().hex[:8]}"
     tmp.mkdir(parents=True)
     row = dict(file=str(path), log=name, status="ok", message="", samples=None, duration_s=None, start=None,
-               seconds=None, mean_nis=None, nis_expected=None, quantities={}, findings=[], mismatch=None,
+               seconds=None, mean_nis=None, nis_expected=None, verdict=None, quantities={}, findings=[], mismatch=None,
                fingerprint=options["fingerprint"])
     spec, digest, mode = options["spec"], options["digest"], options["mode"]
     from .. import runtime
