@@ -138,6 +138,26 @@ def _repeats(ts, before=None) -> tuple[int, float | None]:
     return len(same), (float(ts[same[0] + 1]) if len(same) else None)
 
 
+COARSE_STAMPS = 16          # stamps needed to judge a column's time as written too coarsely
+
+
+def coarse(ts) -> bool:
+    """Whether more than half of a column's stamps ``ts`` (at least COARSE_STAMPS) repeat the one
+    before them: a time written with too few digits (an epoch in whole seconds for a 50 Hz log)."""
+    return len(ts) >= COARSE_STAMPS and _repeats(ts)[0] > len(ts) / 2
+
+
+def _refuse_coarse(samples, name, ts, dt) -> None:
+    if coarse(ts):
+        apart = np.diff(np.unique(ts))
+        raise RecordingError(
+            f"{samples.source}, " + (f"column '{samples.time_column}'" if samples.time_column else "the time") + f": {_repeats(ts)[0]} of the {len(ts)} samples of "
+            f"'{samples.columns[name]}' repeat the time stamp before them, whose distinct values are "
+            f"{np.median(apart) if len(apart) else 0:.3g} s apart (the model's dt is {dt:g} s): the time is "
+            f"written too coarsely (too few digits?); write it with more digits, or name a finer time column "
+            f"with --time")
+
+
 def _offset_units(ts, k, start, dt) -> int:
     """The sum of stamps ``ts`` minus their grid samples' times ``k``, in OFFSET_UNIT samples."""
     return int(np.sum(np.rint((np.asarray(ts) - (start + np.asarray(k) * dt)) / (dt * OFFSET_UNIT)).astype(np.int64)))
@@ -270,6 +290,8 @@ def to_grid(samples: Samples, dt: float, input_names, output_names, input_hold: 
     for name in input_names:
         if not len(series[name][0]):
             raise RecordingError(f"{samples.source}, column '{cols[name]}': input '{name}' has no value")
+    for name in input_names + output_names:
+        _refuse_coarse(samples, name, series[name][0], dt)
     firsts = [series[n][0][0] for n in input_names] or [series[n][0][0] for n in output_names if len(series[n][0])]
     if not firsts:
         raise RecordingError(f"{samples.source}: no output has a value")
@@ -457,10 +479,12 @@ class GridStream:
 
         for name in self.names:
             c = self.cols[name]
-            if name in self.output_names and not c.judged and (final or len(c.head) > RATE_STAMPS):
+            if not c.judged and (final or len(c.head) > RATE_STAMPS):
                 c.judged = True
-                if held_run(c.head_v):
+                if name in self.output_names and held_run(c.head_v):
                     raise NotStreamable(f"output '{name}' is held by the logger")
+                if coarse(c.head):              # the whole-file reader says where
+                    raise NotStreamable(f"column '{name}' has coarse time stamps")
             if c.limit is None and (name not in self.input_names or final or len(c.head) > RATE_STAMPS):
                 c.limit = gap_limit(c.head, self.max_gap, self.dt) if name in self.input_names else self.max_gap
 

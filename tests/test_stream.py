@@ -285,3 +285,26 @@ def test_memory_does_not_grow_with_the_file(tmp_path):
     (kept_short, peak_short, _), (kept_long, peak_long, _) = sizes[20_000], sizes[80_000]
     assert kept_long <= 4 * 600 and kept_long <= kept_short + 10
     assert peak_long < 1.3 * peak_short                 # 4x the rows, not 4x the memory
+
+
+def test_a_time_written_too_coarsely_is_refused_by_both_readers(tmp_path, capsys):
+    """An epoch written with 10 significant digits at 50 Hz: about 50 rows share each whole second.
+    Used as stamps, the first at each second was the only reading used (6 of 601) and the run said
+    ok; the whole-file reader refuses it, naming the time column and the stamps' resolution, and the
+    streamed reader leaves it to that. 14 duplicated rows in 400 are read, with their note."""
+    t = 1.7e9 + np.arange(400) * 0.02
+    df = pd.DataFrame({"t": t, "u": 0.1, "g": 1.0, "xm": 0.0, "vm": 0.0})
+    coarse_path, dup_path = tmp_path / "coarse.csv", tmp_path / "dup.csv"
+    df.assign(t=np.floor(t)).to_csv(coarse_path, index=False, float_format="%.10g")
+    with pytest.raises(NotStreamable):
+        list(stream_recording(coarse_path, MODEL, rows=50))
+    with pytest.raises(ValueError, match=r"coarse.csv, column 't': 392 of the 400 samples of 'u' repeat the time stamp "
+                                         r"before them, whose distinct values are 1 s apart \(the model's dt is 0.02 s\): "
+                                         r"the time is written too coarsely"):
+        load_recording(coarse_path, MODEL)
+    assert main(["run", "tests.test_stream:MODEL", str(coarse_path), "--filter", "ekf", "--out",
+                 str(tmp_path / "o.csv")]) == 2
+    assert "written too coarsely" in capsys.readouterr().err
+    pd.concat([df, df.iloc[100:114]]).sort_values("t", kind="stable").to_csv(dup_path, index=False, float_format="%.15g")
+    rec = load_recording(dup_path, MODEL)
+    assert any("14 sample(s) repeat the time stamp before them" in n for n in rec.notes)
