@@ -173,7 +173,9 @@ def _csv_header(path) -> list[str]:
             second = f.readline()
     except FileNotFoundError:
         raise RecordingError(f"{path}: file not found") from None
-    except (OSError, UnicodeDecodeError, csv.Error) as e:
+    except UnicodeDecodeError:
+        raise RecordingError(_undecodable(path)) from None
+    except (OSError, csv.Error) as e:
         raise RecordingError(f"{path}: cannot read file ({e})") from None
     if not first or not any(c.strip() for c in first):
         raise RecordingError(f"{path}: file is empty")
@@ -300,6 +302,8 @@ def _csv_exact(path, header, wanted, columns, time_col, real, iso) -> Group:
                 lines.append(line)
         except csv.Error as e:
             raise RecordingError(f"{_where(path, f'row {reader.line_num}')}: malformed CSV ({e})") from None
+        except UnicodeDecodeError:
+            raise RecordingError(_undecodable(path, header)) from None
 
     def fail(i, col, msg):
         raise RecordingError(f"{_where(path, f'row {lines[i]}', col)}: {msg}")
@@ -308,6 +312,25 @@ def _csv_exact(path, header, wanted, columns, time_col, real, iso) -> Group:
     g = Group(data[time_col], {n: data[c] for n, c in columns.items()}, lambda i: f"row {lines[i]}", iso)
     check_group(g, columns, time_col, real, fail)
     return g
+
+
+def _undecodable(path, header=()) -> str:
+    """Where a file stops being UTF-8 text: its row, column and bytes (a CSV saved in Latin-1, a
+    corrupt block)."""
+    data = Path(path).read_bytes()
+    try:
+        data.decode("utf-8")
+        return f"{path}: not UTF-8 text"
+    except UnicodeDecodeError as e:
+        at = e.start
+    row, row_start = data.count(b"\n", 0, at) + 1, data.rfind(b"\n", 0, at) + 1
+    if not header and row > 1:                  # the header is text: its names
+        header = [h.strip() for h in data[:data.find(b"\n")].decode("utf-8-sig").split(",")]
+    j = data.count(b",", row_start, at)
+    where = _where(path, f"row {row}", header[j] if j < len(header) else None)
+    return (f"{where}: byte {at} ({data[at:at + 4].hex(' ')}) is not UTF-8 text: a corrupt block, or a file "
+            f"saved in another encoding (re-save it as UTF-8, e.g. pandas.read_csv(path, encoding='latin-1')"
+            f".to_csv(new_path, index=False))")
 
 
 def _read_csv(path, names, mapping, time, real) -> Samples:

@@ -361,3 +361,20 @@ def test_held_readings_are_used_once_by_run_in_streamed_and_whole_file_reading(t
         assert main(["run", str(spec), str(tmp_path / f"{name}.csv"), "--filter", "ukf", "--out",
                      str(tmp_path / f"{name}_out.csv")]) == 0
     assert (tmp_path / "gaps_out.csv").read_text() == (tmp_path / "held_out.csv").read_text()
+
+
+def test_bytes_that_are_not_utf8_name_their_row_and_column(tmp_path):
+    """A Latin-1 'é' in row 203's phi, and a header written in Latin-1: the error names the file, the
+    row, the column and the byte, and how to re-save it (before: "'utf-8' codec can't decode byte
+    0xe9 in position 738", a position in a buffer, not in the file)."""
+    rows = "".join(f"{k * 0.1:.1f},1,2,3\n" for k in range(300))
+    lines = ("t,delta,p,phi\n" + rows).encode().split(b"\n")
+    lines[202] = lines[202][:-1] + "é".encode("latin-1")
+    path = tmp_path / "latin.csv"
+    path.write_bytes(b"\n".join(lines))
+    at = b"\n".join(lines).index(b"\xe9")
+    assert _error(path) == (f"{path}, row 203, column 'phi': byte {at} (e9 0a 32 30) is not UTF-8 text: a corrupt block, or a "
+                            "file saved in another encoding (re-save it as UTF-8, e.g. pandas.read_csv(path, "
+                            "encoding='latin-1').to_csv(new_path, index=False))")
+    path.write_bytes("t,delta,p,phï\n0,1,2,3\n".encode("latin-1"))
+    assert _error(path).startswith(f"{path}, row 1: byte 12 (ef 0a 30 2c) is not UTF-8 text")   # the header
