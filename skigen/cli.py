@@ -34,7 +34,8 @@ def load_model(spec: str) -> Model:
 
 def _add_data_options(p: argparse.ArgumentParser) -> None:
     """The options of every command that reads DATA (see :func:`_read_options`)."""
-    p.add_argument("--time", metavar="COLUMN", help="time column (default: t, time or timestamp)")
+    p.add_argument("--time", metavar="COLUMN", help="time column (default: t, time or timestamp; a ULog: timestamp, "
+                   "or timestamp_sample where its topics have it)")
     p.add_argument("--time-unit", choices=["s", "ms", "us", "ns", "auto"], default="s",
                    help="unit of the time column (default s; auto decides from magnitude and spacing and "
                         "says what it chose); ULog stamps are always µs")

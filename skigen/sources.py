@@ -35,7 +35,8 @@ FLOAT_MAX = float(np.finfo(np.float32).max)
 _NUMBER = re.compile(r"[+-]?(?:\d+\.?\d*(?:[eE][+-]?\d+)?|\.\d+(?:[eE][+-]?\d+)?|inf|infinity)",
                      re.ASCII | re.IGNORECASE)
 _ISO_STAMP = re.compile(r"\d{4}-\d{2}-\d{2}[T ]\d", re.ASCII)    # an ISO-8601 date and time
-_ULOG_COLUMN = re.compile(r"(?P<topic>\w+)(?::(?P<instance>\d+))?\.(?P<field>\w+(?:\[\d+\])?)$", re.ASCII)
+_ULOG_COLUMN = re.compile(r"(?P<topic>\w+)(?::(?P<instance>\d+))?\.(?P<field>\w+(?:\[\d+\])?(?:\.\w+(?:\[\d+\])?)*)$",
+                          re.ASCII)     # a nested field as pyulog flattens it: esc_status.esc[0].esc_rpm
 
 
 def parse_number(cell: str) -> float:
@@ -601,7 +602,8 @@ def _read_ulog(path, names, mapping, time, real) -> Samples:
         m = _ULOG_COLUMN.match(c)
         if not m:
             raise RecordingError(f"{path}: '{n}' reads column '{c}', which is not a ULog column: use "
-                                 f"topic.field, topic.field[i] or topic:instance.field (--map {n}=COLUMN, or columns= in Python)")
+                                 f"topic.field, topic.field[i], topic.field[i].subfield or topic:instance.field "
+                                 f"(--map {n}=COLUMN, or columns= in Python)")
         specs[n] = (m["topic"], int(m["instance"] or 0), m["field"])
     try:
         log, damage = _parse_ulog(path, sorted({s[0] for s in specs.values()}))
@@ -628,16 +630,45 @@ def _read_ulog(path, names, mapping, time, real) -> Samples:
         key = (topic, inst)
         if key not in groups:
             label = topic if inst == 0 else f"{topic}:{inst}"
-            groups[key] = Group(np.asarray(d.data["timestamp"], float) * 1e-6, {},
+            stamp, said = _stamps(label, d.data, time == "timestamp_sample")
+            notes += said
+            groups[key] = Group(stamp * 1e-6, {},
                                 lambda i, label=label: f"topic '{label}' message {i + 1}", seconds=True)
         groups[key].values[n] = np.asarray(d.data[fld], float)
     for g in groups.values():
         def fail(i, col, msg, g=g):
             raise RecordingError(f"{_where(path, g.where(i), col)}: {msg}")
         check_group(g, columns, "timestamp", real, fail)
-    if time not in (None, "timestamp"):
-        notes.append(f"--time '{time}' ignored: every ULog topic has its own 'timestamp' (µs)")
+    if time not in (None, "timestamp", "timestamp_sample"):
+        notes.append(f"--time '{time}' ignored: every ULog topic has its own 'timestamp' (µs, when published) "
+                     f"and many a 'timestamp_sample' (when sampled), which --time timestamp_sample uses")
     return Samples(str(path), list(groups.values()), columns, "timestamp", notes)
+
+
+SAMPLE_LAG = 1e3      # µs: a topic sampled this much before it is published, on average, gets a note
+MOST_LAG = 1e6        # µs: a timestamp_sample further before its timestamp is not a sampling time (0, unset)
+
+
+def _stamps(label: str, data: dict, sampled: bool) -> tuple[np.ndarray, list[str]]:
+    """One topic's stamps (µs): its timestamp_sample where asked for (``sampled``) and a sampling
+    time on every message (at most MOST_LAG before the timestamp), else its timestamp; and notes
+    saying which, or what timestamp_sample would do."""
+    published = np.asarray(data["timestamp"], float)
+    if "timestamp_sample" not in data:
+        return published, [f"topic '{label}' has no timestamp_sample: its timestamp is used"] if sampled else []
+    at = np.asarray(data["timestamp_sample"], float)
+    lag = published - at
+    if not np.all((lag >= 0) & (lag <= MOST_LAG)):
+        bad = int(np.sum((lag < 0) | (lag > MOST_LAG)))
+        return published, [f"topic '{label}': timestamp_sample is not a sampling time on {bad} of {len(at)} messages "
+                           f"(0, or more than {MOST_LAG / 1e6:g} s before or after its timestamp): its timestamp is "
+                           f"used"] if sampled else []
+    if sampled:
+        return at, []
+    mean = float(np.mean(lag))
+    return published, [f"topic '{label}' is published {mean / 1e3:.3g} ms after it is sampled, on average: its "
+                       f"readings are placed at their timestamp (publication); --time timestamp_sample places them "
+                       f"when sampled"] if mean >= SAMPLE_LAG else []
 
 
 # --------------------------------------------------------------------------- dispatch

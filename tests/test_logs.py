@@ -487,6 +487,11 @@ def write_ulog(path, topics):
         for f, v in fields.items():
             if f == "timestamp":
                 continue
+            if f == "timestamp_sample":                       # µs, as PX4 writes it
+                fmt.fields.append(("uint64_t", 0, f))
+                data.field_data.append(ULog._FieldData(f, "uint64_t"))
+                data.data[f] = np.asarray(v, np.uint64)
+                continue
             v = np.asarray(v, np.float32)
             names = [f"{f}[{i}]" for i in range(v.shape[1])] if v.ndim == 2 else [f]
             fmt.fields.append(("float", v.shape[1] if v.ndim == 2 else 0, f))
@@ -517,6 +522,34 @@ def test_ulog_topics_at_their_own_rates_arrays_and_instances(tmp_path, flight):
         load_recording(path, MODEL, columns={**mapping, "delta": "actuator:2.control[1]"})
     with pytest.raises(RecordingError, match="topic 'attitude' has no field 'pitch' \\(fields: roll\\)"):
         load_recording(path, MODEL, columns={**mapping, "phi": "attitude.pitch"})
+
+
+def test_readings_go_where_they_were_sampled_with_time_timestamp_sample(tmp_path, flight):
+    """An attitude topic published 46 ms (2.3 samples) after it was sampled, as PX4's air data often
+    is: by default its readings sit at their timestamp and a note says by how much they lag; with
+    time="timestamp_sample" they sit where they were sampled. A topic without the field, or whose
+    timestamp_sample is 0 on a message (PX4 leaves it unset), keeps its timestamp, with a note."""
+    us = np.round(flight.t.to_numpy() * 1e6).astype(np.uint64) + 10_000_000
+    path = tmp_path / "sampled.ulg"
+    sampled = us[::2] - 46_000
+    write_ulog(path, {("actuator", 0): {"timestamp": us, "control": flight.delta},
+                      ("attitude", 0): {"timestamp": us[::2], "timestamp_sample": sampled, "roll": flight.phi[::2]}})
+    mapping = {"delta": "actuator.control", "phi": "attitude.roll"}
+    late = load_recording(path, MODEL, columns=mapping)
+    assert "topic 'attitude' is published 46 ms after it is sampled, on average" in " ".join(late.notes)
+    rec = load_recording(path, MODEL, columns=mapping, time="timestamp_sample")
+    assert rec.notes[0] == "topic 'actuator' has no timestamp_sample: its timestamp is used"
+    assert "output 'phi': 1 sample(s) before the inputs are known (t < 10 s) not used" in rec.notes
+    k = np.flatnonzero(rec.measured[:, 0])                  # the first reading, at 9.954 s, is before the grid
+    np.testing.assert_allclose(rec.t[k] - 10.0 + 0.046, flight.t.to_numpy()[2::2][:len(k)], atol=0.0105)
+    np.testing.assert_array_equal(rec.outputs[k, 0], flight.phi.to_numpy(np.float32)[2::2][:len(k)])
+    unset = sampled.copy()
+    unset[7] = 0
+    write_ulog(path, {("actuator", 0): {"timestamp": us, "control": flight.delta},
+                      ("attitude", 0): {"timestamp": us[::2], "timestamp_sample": unset, "roll": flight.phi[::2]}})
+    rec = load_recording(path, MODEL, columns=mapping, time="timestamp_sample")
+    assert "topic 'attitude': timestamp_sample is not a sampling time on 1 of 376 messages" in " ".join(rec.notes)
+    np.testing.assert_array_equal(rec.t, late.t)
 
 
 def test_a_truncated_ulog_is_read_as_far_as_it_goes_and_said_so(tmp_path, flight, capsys):
@@ -551,6 +584,19 @@ def test_the_px4_log_cut_at_50_kb_says_it_is_corrupt_and_prints_nothing(tmp_path
                                              r"before any data\)"):
         load_recording(cut, m, columns={"z": "vehicle_local_position.z"})
     assert capsys.readouterr().out == ""          # pyulog's "File corruption detected ..." is not printed
+
+
+@pytest.mark.skipif(not ULOG.is_file(), reason=f"PX4 log not found: {ULOG} (../shared/data)")
+def test_a_nested_field_of_the_px4_log_is_read_as_pyulog_names_it():
+    """esc_status.esc[0].esc_rpm: a field of an array of structs, flattened so by pyulog (refused as
+    'not a ULog column' before)."""
+    from pyulog import ULog
+    m = skigen.Model("rpm", dt=0.1)
+    m.output("rpm", m.state("w", std=100.0, process_std=10.0), noise_std=10.0)
+    rec = load_recording(ULOG, m, columns={"rpm": "esc_status.esc[0].esc_rpm"})
+    esc = ULog(str(ULOG), ["esc_status"]).data_list[0].data
+    got = rec.outputs[rec.measured[:, 0], 0]
+    assert len(got) > 100 and set(got) <= set(esc["esc[0].esc_rpm"].astype(float)) and np.ptp(got) > 1000
 
 
 @pytest.mark.skipif(not ULOG.is_file(), reason=f"PX4 log not found: {ULOG} (../shared/data)")
