@@ -105,7 +105,7 @@ def _run(args) -> int:
         summary = RunSummary(filt)
         try:
             with TableWriter(out, background=True) as w:
-                for part in iter_run_stream(filt, grid, backend=args.backend, real=args.real):
+                for part in iter_run_stream(filt, grid, backend=args.backend, real=args.real, guard=_guard(args)):
                     w.write(part.columns())
                     summary.add(part)
         except NotStreamable:
@@ -125,10 +125,21 @@ def _run(args) -> int:
     filt = filt or derive(model, args.filter, _filter_options(args))
     summary = RunSummary(filt)
     with TableWriter(out, background=True) as w:
-        for part in iter_run(filt, rec, backend=args.backend, real=args.real):
+        for part in iter_run(filt, rec, backend=args.backend, real=args.real, guard=_guard(args)):
             w.write(part.columns())
             summary.add(part)
     return _ran(args, model, len(rec.t), rec.t[0], rec.t[-1], summary)
+
+
+def _guard(args):
+    """The recovery policy of ``skigen run``: the default, with --std-scale."""
+    from .guard import Guard
+    if args.std_scale is None:
+        return None
+    try:
+        return Guard(std_scale=args.std_scale)
+    except ValueError as exc:
+        raise CliError(f"--std-scale: {exc}") from None
 
 
 def _ran(args, model, n, t0, t1, summary) -> int:
@@ -309,6 +320,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="python: step by step; c: the generated C; casadi: chained by CasADi, without the "
                         "gate, stuck-sensor test and restarts (raw innovations)")
     r.add_argument("--real", choices=["double", "float"], default="double", help="C backend precision")
+    r.add_argument("--std-scale", type=float, default=None, metavar="K",
+                   help="bound on each prior std, K times its declared initial std (default 100; inf: none)")
     r.add_argument("--out", required=True, help="result CSV")
     _add_filter_options(r)
     _add_data_options(r)

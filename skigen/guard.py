@@ -117,10 +117,13 @@ def reinit(z, C, nx: int, z0, C0, scale: float, square_root: bool):
     return z, C
 
 
-def bound_std(C, std_max, square_root: bool):
-    """C with every state's std at most std_max: its row of S (or row and column of P) scaled."""
+def bound_std(C, std_max, square_root: bool, held: list | None = None):
+    """C with every state's std at most std_max: its row of S (or row and column of P) scaled;
+    ``held``: a list given gets the mask of the states scaled appended."""
     C = np.array(C, float)
     with np.errstate(over="ignore"):          # as in C: a row too large to square gets d = 0
         sd = np.sqrt(np.sum(C * C, axis=1)) if square_root else np.sqrt(np.clip(np.diag(C), 0, None))
     d = np.where(sd > std_max, std_max / np.where(sd > 0, sd, 1), 1.0)
+    if held is not None:
+        held.append(d < 1)
     return d[:, None] * C if square_root else d[:, None] * C * d[None, :]

@@ -105,6 +105,7 @@ class RunResult:
     next_prior: tuple | None = None   # (z, C): the prior for the sample after the last (C as in Trace)
     gate: float = Guard.gate  # the innovation gate the run had, in std (0: none, as on the casadi backend)
     failure: str | None = None   # where the model is not finite at the first failed step (failure.explain)
+    held: np.ndarray | None = None   # (N, n) True where the prior std was held at Guard's std_max (python backend)
 
     def __post_init__(self):
         if self.measured is None:
@@ -157,7 +158,8 @@ class RunResult:
                    cat("nis"), cat("loglik"), cat("prior_var"), cat("code"), last.final_cov, cat("measured"),
                    first.holes, first.notes,
                    Trace.concat([p.trace for p in parts]) if first.trace is not None else None, last.next_prior,
-                   first.gate, next((p.failure for p in parts if p.failure), None))
+                   first.gate, next((p.failure for p in parts if p.failure), None),
+                   cat("held") if all(p.held is not None for p in parts) else None)
 
 
 EVENT_WORDS = {Status.OUTLIER_REJECTED: "gated (outlier not used)", Status.SENSOR_STUCK: "stuck reading",
@@ -182,6 +184,7 @@ class RunSummary:
         self.per_output = np.zeros(len(filt.aug.model.output_names), int)   # samples where each reading was used
         self.gate, self.beyond, self.first_beyond = Guard.gate, 0, None   # ungated: readings used beyond Guard.gate
         self.present, self.failure = 0, None     # samples with a reading; why the first failed step failed
+        self.held = np.zeros(filt.aug.n, int)     # samples whose prior std of each state was held at std_max
 
     def add(self, part: RunResult) -> "RunSummary":
         ok, used = np.isfinite(part.nis), np.isfinite(part.innovation)     # a reading gated or stuck is not used
@@ -189,6 +192,8 @@ class RunSummary:
         self.with_measurement += int(used.any(axis=1).sum()) if used.size else 0
         self.present += int(part.measured.any(axis=1).sum()) if part.measured.size else 0
         self.failure = self.failure or part.failure
+        if part.held is not None:
+            self.held += part.held.sum(axis=0)
         if used.size:
             self.per_output += used.sum(axis=0).astype(int)
         self.nis_sum += float(part.nis[ok].sum())
@@ -278,6 +283,16 @@ class RunSummary:
                     f"declared noise is larger than the recording shows, and the ± 2σ above are wide")
         return f"consistent: the innovations are {mean:.3g} times their predicted variance ({band})"
 
+    def held_line(self) -> str:
+        """Which states' prior std the guard held at its bound, on how many samples, and what to do."""
+        aug = self.filter.aug
+        sd = np.sqrt(np.diag(aug.P0))
+        held = ", ".join(f"{aug.names[i]} on {self.held[i]} (declared std {sd[i]:.3g})" for i in np.flatnonzero(self.held))
+        return (f"prior std held at its bound (std_scale × the declared std; 100 by default): {held} of "
+                f"{self.samples} samples: there the filter is surer of the state than its model and the weights' "
+                f"prior make it, and may gate readings it should use. A broad weight prior beside a tight state "
+                f"std does this; raise the bound (--std-scale, Guard(std_scale=...)) or declare a larger std")
+
     def lines(self) -> list[str]:
         aug, out = self.filter.aug, []
         if self.filter.partition is not None:           # which states the MUKF marginalises
@@ -316,6 +331,8 @@ class RunSummary:
                        + (f"{self.beyond} sample(s) used a reading beyond {Guard.gate:g}σ of its prediction, "
                           f"which the default gate would not, first at t = {clock(self.first_beyond)} s"
                           if self.beyond else f"no reading was beyond {Guard.gate:g}σ of its prediction"))
+        if self.held.any():
+            out.append(self.held_line())
         if self.nis_count:
             expected = self.expected_sum / self.nis_count
             out.append(f"mean NIS {self.nis_sum / self.nis_count:.3f} (expected {expected:.3f}: the "
@@ -368,6 +385,7 @@ class PythonStepper:
         self.C = st["C"] if C0 is None else np.array(C0, float)
         self.mem, self.s = st["mem"], st.get("s")
         self.u_held = np.zeros(self.filt.aug.shapes["nu"])
+        self.held = np.zeros(self.filt.aug.n, bool)    # the states whose prior std the last step held at std_max
         ny = self.filt.aug.shapes["ny"]
         self.y_last, self.repeats = np.zeros(ny), np.zeros(ny, int)
         self.rejected, self.stuck = np.zeros(ny, int), np.zeros(ny, int)
@@ -440,7 +458,9 @@ class PythonStepper:
             self._reset_posterior()
             return Status.NUMERICAL_FAILURE
         self.z_post, self.C_post = out["z_post"].ravel(), out["C_post"]
-        self.z, self.C = out["z_next"].ravel(), bound_std(out["C_next"], self.std_max, self.filt.square_root)
+        bounded = []
+        self.z, self.C = out["z_next"].ravel(), bound_std(out["C_next"], self.std_max, self.filt.square_root, bounded)
+        self.held = bounded[0]
         self.e, self.Pyy, self.nis, self.loglik = out["e"].ravel(), out["Pyy"], out["nis"].item(), out["loglik"].item()
         self.used = valid.astype(float)
         if self.filt.has_ard:
@@ -491,14 +511,16 @@ def _step_python(stepper: PythonStepper, inputs, outputs, trace: bool = False) -
     nw = len(stepper.filt.aug.w_index) if stepper.filt.has_ard else 0
     raw = dict(z_post=np.empty((N, n)), std=np.empty((N, n)), e=np.empty((N, ny)), pyy=np.empty((N, ny)),
                nis=np.empty(N), loglik=np.empty(N), s=np.empty((N, nw)), used=np.empty((N, ny)),
-               code=np.empty(N, int))
+               code=np.empty(N, int), held=np.zeros((N, n), bool))
     if trace:
         raw.update(C_post=np.empty((N, n, n)), z_next=np.empty((N, n)), C_next=np.empty((N, n, n)),
                    mem=np.empty((N, len(stepper.mem))))
     for k in range(N):
         if trace:
             raw["mem"][k] = stepper.mem
+        stepper.held = np.zeros(n, bool)
         raw["code"][k] = stepper.step(inputs[k], outputs[k])
+        raw["held"][k] = stepper.held
         raw["z_post"][k], raw["std"][k] = stepper.z_post, stepper.std()
         raw["e"][k], raw["pyy"][k], raw["used"][k] = stepper.e, np.diag(stepper.Pyy), stepper.used
         raw["nis"][k], raw["loglik"][k] = stepper.nis, stepper.loglik
@@ -965,7 +987,7 @@ def _part(filt, t, outputs, raw, holes=(), notes=()) -> RunResult:
     trace = Trace(*(np.asarray(raw[k], float) for k in ("C_post", "z_next", "C_next", "mem"))) \
         if "C_next" in raw else None
     return RunResult(filt, t, mean, std, e, ev, nis, ll, s, code, np.full((filt.aug.n,) * 2, np.nan),
-                     valid, holes, notes, trace)
+                     valid, holes, notes, trace, held=raw.get("held"))
 
 
 def _steps(filt, stepper, backend, pieces, again, holes=(), notes=(), strict=False, trace=False, gate=Guard.gate):

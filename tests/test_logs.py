@@ -642,3 +642,48 @@ def test_a_slow_model_s_log_has_no_hole_at_every_sample():
     (hole,) = rec.holes
     assert (hole.t0, hole.t1) == (5940.0, 7920.0) and rec.max_gap == 300.0
     assert load_recording(frame, m).holes == ()
+
+
+def _delay_plant(prior_variance: float):
+    """x[k+1] = 0.9·x[k] + 0.5·u[k−3] (declared std of x 0.5) with the last 8 inputs as SKI's
+    library, and 1500 samples of it under ±1 steps held 0.4 s (model, frame)."""
+    from skigen.library import delayed_inputs
+    m = skigen.Model("delay1", dt=0.02, discretization="discrete")
+    x = m.state("x", std=0.5, process_std=1e-3)
+    u = m.input("u")
+    m.dynamics({x: 0.9 * x})
+    m.output("xm", x, noise_std=0.02)
+    m.unknown(x, delayed_inputs(m, u, 8), prior_variance=prior_variance)
+    rng = np.random.default_rng(0)
+    us = np.repeat(rng.choice([-1.0, 1.0], 75), 20)
+    xs = np.zeros(1500)
+    for k in range(1499):
+        xs[k + 1] = 0.9 * xs[k] + (0.5 * us[k - 3] if k >= 3 else 0.0) + 1e-3 * rng.standard_normal()
+    return m, pd.DataFrame({"t": np.arange(1500) * 0.02, "u": us, "xm": xs + 0.02 * rng.standard_normal(1500)})
+
+
+def test_a_prior_std_held_at_its_bound_is_said_with_the_remedy(tmp_path, capsys):
+    """A weight prior of 10⁴ beside a state std of 0.5: the first predictions put x's std above its
+    bound (100 × 0.5), the filter grows surer of x than it should be, gates a quarter of the readings
+    and keeps four false delays. The summary says which state was held and how to widen the bound;
+    with --std-scale 1e5 the delay of 3 is found alone (0.5001) and the run is consistent."""
+    from skigen.guard import Guard
+    m, frame = _delay_plant(1e4)
+    lines = skigen.run(m, frame, filter="ski", show_progress=False).summary().lines()
+    held = next(line for line in lines if line.startswith("prior std held at its bound"))
+    assert "x on 8 (declared std 0.5) of 1500 samples" in held and "--std-scale" in held, held
+    wide = skigen.run(m, frame, filter="ski", show_progress=False, guard=Guard(std_scale=1e5))
+    w = dict(zip(wide.filter.aug.names, wide.mean[-1]))
+    assert w["w_u_d3"] == pytest.approx(0.5, abs=0.003) and max(abs(w[f"w_u_d{j}"]) for j in (0, 1, 2, 4, 5, 6, 7)) < 1e-3
+    wide_lines = wide.summary().lines()
+    assert not any(line.startswith("prior std held") for line in wide_lines)
+    assert any(line.startswith("consistent") for line in wide_lines)
+    path = tmp_path / "delay.csv"
+    frame.to_csv(path, index=False)
+    from skigen.cli import main
+    assert main(["run", "tests.test_logs:DELAY_MODEL", str(path), "--filter", "ski", "--out", str(tmp_path / "o.csv"),
+                 "--std-scale", "1e5"]) == 0
+    assert "consistent: the innovations" in capsys.readouterr().out
+
+
+DELAY_MODEL = _delay_plant(1e4)[0]
