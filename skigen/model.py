@@ -401,7 +401,9 @@ class Model:
         syms = [v.sym for v in self.states + self.inputs] + [m.sym for m in self.memory] + [p.sym for p in self.parameters]
         values = list(self.x0) + [0.0] * (len(self.inputs) + len(self.memory)) + [p.value for p in self.parameters]
         exprs = [(f"dynamics of '{n}'", self.rhs[n]) for n in self.state_names] + \
-                [(f"output '{v.name}'", v.sym) for v in self.outputs]
+                [(f"output '{v.name}'", v.sym) for v in self.outputs] + \
+                [(f"term '{t.name}' of the unknown on {', '.join(map(repr, b.equations))}", e)
+                 for b in self.unknowns for t in b.terms for e in ca.vertsplit(ca.vec(t.expr))]
         f = ca.Function("at_start", [ca.vertcat(*syms)], [ca.vertcat(*[e for _, e in exprs])])
         out = np.asarray(f(values)).ravel()
         for (what, _), v in zip(exprs, out):

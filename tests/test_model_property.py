@@ -78,6 +78,18 @@ def test_nan_constant_in_the_dynamics_is_named():
         m.check()
 
 
+def test_a_basis_term_undefined_at_the_initial_state_is_named():
+    """1/x in the library at x = 0: every SKI step failed ('the rk4 step of x is not finite'), the
+    term itself never named; check() names it as it names the dynamics."""
+    from skigen.library import term
+    m, x, u = base()
+    m.dynamics({x: -x + u})
+    m.output("y", x, noise_std=0.1)
+    m.unknown(x, [term("x", x, key="lin"), term("1/x", 1 / x, key="inv")])
+    with pytest.raises(ModelError, match="term '1/x' of the unknown on 'x' is inf at the declared initial state"):
+        m.check()
+
+
 def test_weight_name_colliding_with_a_state_is_refused():
     from skigen.library import term
     m, x, u = base()
