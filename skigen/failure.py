@@ -25,9 +25,13 @@ def sigma_reach(filt) -> tuple[float, int]:
 
 
 def nearer(filt) -> str:
-    """How to bring a sigma-point filter's points nearer: alpha 0.3 and where they would sit."""
+    """How to bring a sigma-point filter's points nearer: the next smaller alpha of 0.3, 0.1, 0.03, …
+    10⁻³ and where they would sit, or smaller prior variances of the weights."""
     o, (_, n) = filt.options, sigma_reach(filt)
-    return (f"A smaller alpha (--alpha 0.3, FilterOptions(alpha=0.3): ±{0.3 * np.sqrt(n + o.kappa):.3g}; now "
+    a = next((a for a in (0.3, 0.1, 0.03, 0.01, 0.003, 0.001) if a < o.alpha), o.alpha)
+    if a >= o.alpha:                       # alpha as small as it usefully goes: the prior it is
+        return "Smaller prior variances of the weights (prior_variance) or initial stds of the states bring them nearer"
+    return (f"A smaller alpha (--alpha {a:g}, FilterOptions(alpha={a:g}): ±{a * np.sqrt(n + o.kappa):.3g}; now "
             f"{o.alpha:g}) or smaller prior variances of the weights bring them nearer")
 
 

@@ -527,6 +527,9 @@ def test_a_sigma_point_filter_that_overflows_says_where_it_evaluates_and_alpha_h
     assert not summary.events[Status.NUMERICAL_FAILURE] and not any("why steps" in line for line in summary.lines())
     i = near.names.index("w_x3")
     assert abs(near.mean[-1, i] + 1.5) < 2 * near.std[-1, i] < 0.22
+    from skigen.failure import nearer                # advice past the alpha tried: the next, not the same
+    assert "--alpha 0.1, FilterOptions(alpha=0.1)" in nearer(near.filter) and "now 0.3" in nearer(near.filter)
+    assert nearer(derive(m, "ski", FilterOptions(alpha=1e-3))).startswith("Smaller prior variances of the weights")
 
 
 def _falling_tank(n: int = 400, dt: float = 0.05):
