@@ -386,6 +386,7 @@ class Model:
         clash = set(names) & set(self.names)
         if clash:
             raise ModelError(f"weight name(s) {', '.join(sorted(clash))} collide with a declared name")
+        self._check_proportional_terms()
         self._check_finite_at_start()
         if self.P0 is None and (known := [n for n, s in zip(self.state_names, self.x_std) if s == 0]):
             raise ModelError(f"state(s) {', '.join(map(repr, known))} declare std=0 (an initial value known "
@@ -395,6 +396,32 @@ class Model:
         _check_covariance(self.measurement_noise(), "R (measurement noise)", self.output_names)
         _check_covariance(self.initial_covariance(), "P0 (initial covariance)", self.state_names)
         return self
+
+    def _check_proportional_terms(self, points: int = 4):
+        """No two basis terms on one equation are proportional (x and 2·x): their weights could not
+        be told apart, and each would be reported within its error bar of 0. Judged at ``points``
+        random values of every symbol."""
+        groups: dict[str, list] = {}
+        for w in self.weights():
+            groups.setdefault(w[1], []).append(w)
+        rng = np.random.default_rng(0)
+        for eq, ws in groups.items():
+            if len(ws) < 2:
+                continue
+            terms = ca.horzcat(*[ca.vec(d) for *_, d in ws])
+            z = ca.vertcat(*ca.symvar(terms))
+            f = ca.Function("terms", [z], [terms])
+            V = np.vstack([np.asarray(f(rng.normal(size=z.shape[0]))) for _ in range(points)])  # (points·rows, terms)
+            with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+                U = V / np.linalg.norm(V, axis=0)
+            for i in range(len(ws)):
+                for j in range(i):
+                    if np.all(np.isfinite(U[:, [i, j]])) and abs(U[:, i] @ U[:, j]) > 1 - 1e-12:
+                        (wi, _, ti, _), (wj, _, tj, _) = ws[i], ws[j]
+                        k = V[:, i] @ V[:, j] / (V[:, j] @ V[:, j])
+                        raise ModelError(f"basis terms '{tj.name}' and '{ti.name}' on equation '{eq}' are "
+                                         f"proportional ('{ti.name}' = {k:.6g} × '{tj.name}'): their weights {wj} "
+                                         f"and {wi} cannot be told apart; keep one")
 
     def _check_finite_at_start(self):
         """Every equation and output is finite at the declared initial state (inputs, history 0)."""

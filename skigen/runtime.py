@@ -185,6 +185,7 @@ class RunSummary:
         self.gate, self.beyond, self.first_beyond = Guard.gate, 0, None   # ungated: readings used beyond Guard.gate
         self.present, self.failure = 0, None     # samples with a reading; why the first failed step failed
         self.held = np.zeros(filt.aug.n, int)     # samples whose prior std of each state was held at std_max
+        self.cov = None                           # the last finite posterior covariance
 
     def add(self, part: RunResult) -> "RunSummary":
         ok, used = np.isfinite(part.nis), np.isfinite(part.innovation)     # a reading gated or stuck is not used
@@ -217,7 +218,36 @@ class RunSummary:
             if good.size:
                 k = good[-1]
                 self.last = (part.mean[k], part.std[k], part.prior_var[k] if part.prior_var.size else None)
+            if np.all(np.isfinite(part.final_cov)):
+                self.cov = part.final_cov
         return self
+
+    TOGETHER = 0.99   # weights whose final posterior correlation is beyond this: one combination known
+
+    def together(self) -> list[str]:
+        """Pairs of weights or estimated parameters the recording fixes only in combination (final
+        posterior |correlation| > TOGETHER): each alone reads as uncertain, the combination is not."""
+        aug = self.filter.aug
+        idx = list(aug.w_index) + list(aug.p_index)
+        if self.cov is None or len(idx) < 2:
+            return []
+        P = self.cov[np.ix_(idx, idx)]
+        sd = np.sqrt(np.clip(np.diag(P), 0, None))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            r = P / np.outer(sd, sd)
+        out = []
+        for a in range(len(idx)):
+            for b in range(a):
+                if abs(r[a, b]) > self.TOGETHER:
+                    k = -np.sign(r[a, b]) * sd[a] / sd[b]        # w_a + k·w_b: the combination fixed
+                    i, j = idx[a], idx[b]
+                    comb = self.last[0][i] + k * self.last[0][j]
+                    var = P[a, a] + k * k * P[b, b] + 2 * k * P[a, b]
+                    out.append(f"  {aug.names[j]} and {aug.names[i]} move together (correlation {r[a, b]:+.5f}): the "
+                               f"recording fixes {aug.names[i]} {'+' if k >= 0 else '−'} {abs(k):.4g}·{aug.names[j]} = "
+                               f"{comb:+.4g} ± {2 * np.sqrt(max(var, 0)):.2g}, not each (their terms are nearly one "
+                               f"on this recording: another excitation, or one term fewer)")
+        return out
 
     def event_counts(self) -> list[str]:
         """'1067 gated (outlier not used)', … for every event counted."""
@@ -312,6 +342,8 @@ class RunSummary:
         if self.last is not None and len(aug.p_index):
             out.append("parameter" + " " * 11 + "final ± 2σ   (estimated online)")
             out += [f"  {aug.names[i]:16s} {self.last[0][i]:+.6g} ± {2 * self.last[1][i]:.2g}" for i in aug.p_index]
+        if self.last is not None:
+            out += self.together()
         if any(self.events.values()):
             out.append("events: " + "; ".join(f"{n} {EVENT_WORDS[c]}, first at t = {clock(self.first[c])} s"
                                               for c, n in self.events.items() if n))

@@ -581,3 +581,25 @@ def test_an_ekf_linearised_where_the_model_has_no_derivative_says_so():
     assert any(line.startswith("why the first failed: the EKF's derivative of output airspeed with respect to vx "
                                "is not finite at the prior mean (vx = 0, vz = 0)") for line in lines)
     assert f"no reading was used ({n} samples had one: each failed, was gated or stuck): no NIS" in lines
+
+
+def test_weights_the_recording_fixes_only_together_are_said_with_their_combination():
+    """The Duffing's cubic library plus sin(x), whose swing (±1.2) keeps it within a few percent of
+    x − x³/6: the weights of x and sin(x) each read as uncertain (±0.6 at 2σ, one 'within 2σ of 0'),
+    yet their combination is known to ±0.01. The summary names the pair with that combination;
+    the true x³ weight with nothing beside it is not named."""
+    import casadi as ca
+    from skigen.library import term
+    m, rec = _duffing(0.01)
+    m.unknown(m.states[1].sym, [term("sinx", ca.sin(m.states[0].sym), key="sinx")])
+    summary = run(derive(m, "ski"), rec, show_progress=False).summary()
+    together = [line for line in summary.lines() if "move together" in line]
+    pair = next(line for line in together if line.startswith("  w_x and w_sinx"))
+    P, i, j = summary.cov, summary.filter.aug.names.index("w_x"), summary.filter.aug.names.index("w_sinx")
+    r = P[i, j] / np.sqrt(P[i, i] * P[j, j])
+    assert r < -0.99 and f"(correlation {r:+.5f})" in pair and np.sqrt(P[i, i]) > 0.1
+    k = np.sqrt(P[j, j] / P[i, i])
+    combo = np.sqrt(P[j, j] + k * k * P[i, i] + 2 * k * P[i, j])
+    assert combo < 0.01 and f"= {summary.last[0][j] + k * summary.last[0][i]:+.4g} ± {2 * combo:.2g}, not each" in pair
+    plain = run(derive(_duffing(0.01)[0], "ski"), rec, show_progress=False).summary()
+    assert not any("move together" in line for line in plain.lines())

@@ -90,6 +90,26 @@ def test_a_basis_term_undefined_at_the_initial_state_is_named():
         m.check()
 
 
+def test_proportional_basis_terms_on_one_equation_are_refused_by_name():
+    """x and 2x in one library: ARD kept both, each 'within 2σ of 0' (−0.57 ± 1.9, −0.22 ± 0.97)
+    while their sum was −1.007 ± 0.004; x on one equation and 2x on another are fine."""
+    from skigen.library import term
+    m, x, u = base()
+    m.dynamics({x: -x + u})
+    m.output("y", x, noise_std=0.1)
+    m.unknown(x, [term("x", x, key="lin"), term("x^2", x ** 2, key="sq"), term("2x", 2 * x, key="two_x")])
+    with pytest.raises(ModelError, match=r"basis terms 'x' and '2x' on equation 'x' are proportional \('2x' = 2 × 'x'\): "
+                                         r"their weights w_lin and w_two_x cannot be told apart; keep one"):
+        m.check()
+    m, x, u = base()
+    z = m.state("z", std=1.0, process_std=0.1)
+    m.dynamics({x: -x + u, z: -z})
+    m.output("y", x, noise_std=0.1)
+    m.unknown(x, [term("x", x, key="lin")])
+    m.unknown(z, [term("2x", 2 * x, key="two_x")])
+    m.check()
+
+
 def test_weight_name_colliding_with_a_state_is_refused():
     from skigen.library import term
     m, x, u = base()
