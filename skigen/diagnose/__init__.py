@@ -173,6 +173,9 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     stage("calibrating the noise")
     declared_run = ekf_run(T.constants(nominal), rec)
     declared, noise = calibrate(nominal, [rec])
+    if noise.note:                              # a declared parameter on its bound, or held
+        caveats.append(noise.note)
+        stage.note(noise.note)
     calibrated = T.constants(declared)          # parameters at their values, for every test below
     user_noise = nominal.process_noise(), nominal.measurement_noise()     # every recalibration starts here too
     stage("testing the calibrated model")

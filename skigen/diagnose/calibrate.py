@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..fit import FitError, NotIdentifiable, fit
+from ..fit import FitError, NotIdentifiable, _bound_notes, fit
 from ..model import Model
 from ..recording import Recording
 from .catalog import kinematic_equations
@@ -112,6 +112,7 @@ def calibrate(model: Model, recs: list[Recording], show_progress: bool = False,
     except FitError as exc:
         kind = NoiseNotIdentifiable if isinstance(exc, NotIdentifiable) else DiagnosisError
         raise kind(f"could not calibrate the noise of '{model.name}' on this recording: {exc}") from None
+    note = "; ".join(filter(None, [note, *(f"calibrating the declared parameters: {n}" for n in _bound_notes(res.parameters))]))
     noise = res.noise
     params = {n: {"declared": p["initial"], "calibrated": p["value"], "std": p["std"]} for n, p in res.parameters.items()}
     return res.model, Noise(noise["declared"], noise["calibrated"], noise["scales"], res.seconds, params, note)
