@@ -250,11 +250,38 @@ def gap_limit(head, max_gap: float, dt: float) -> float:
     """Seconds without a sample that make a hole in an input whose first stamps are ``head``
     (RATE_STAMPS + 1 of them, or all it has): ``max_gap`` (already at least MIN_GAP_SAMPLES of dt),
     or RATE_GAP of its median interval where that is shorter (but not below MIN_GAP_SAMPLES of dt)."""
+    own = interval(head)
+    return max_gap if own is None else min(max_gap, max(RATE_GAP * own, MIN_GAP_SAMPLES * dt))
+
+
+SHORT_GAP = 2.5     # an input without a sample for this many of its own intervals, short of a hole: held
+
+
+def interval(head) -> float | None:
+    """An input's own sample interval: the median of its first stamps' (None: too few)."""
     iv = np.diff(np.asarray(head, float)[:RATE_STAMPS + 1])
     iv = iv[iv > 0]
-    if iv.size < RATE_MIN:
-        return max_gap
-    return min(max_gap, max(RATE_GAP * float(np.median(iv)), MIN_GAP_SAMPLES * dt))
+    return float(np.median(iv)) if iv.size >= RATE_MIN else None
+
+
+def short_gaps(gaps, own: float | None, limit: float, dt: float) -> tuple[int, int, float]:
+    """(how many of the intervals ``gaps`` (s) are gaps short of a hole, the grid samples they
+    hold the input over, the longest): longer than SHORT_GAP of the input's own interval ``own``
+    and than 1.5 dt, at most ``limit``."""
+    if own is None:
+        return 0, 0, 0.0
+    gaps = np.asarray(gaps, float)
+    short = gaps[(gaps > max(SHORT_GAP * own, 1.5 * dt)) & (gaps <= limit)]
+    held = int(np.sum(np.rint((short - max(own, dt)) / dt)))
+    return len(short), held, float(short.max(initial=0.0))
+
+
+def _short_gap_note(name, count, held, longest, limit) -> list[str]:
+    if not count:
+        return []
+    return [f"input '{name}': {count} gap(s) short of a hole (the longest {longest:.3g} s; a hole is longer than "
+            f"{limit:.3g} s) hold its last value over {held} grid sample(s), where the plant's input is not known; "
+            f"the states are not restarted there (--max-gap shorter makes them holes)"]
 
 
 def _holes(series, names, inputs, start, end, max_gap, columns, dt) -> list[Hole]:
@@ -312,6 +339,10 @@ def to_grid(samples: Samples, dt: float, input_names, output_names, input_hold: 
         else:
             inputs[:, j] = v[np.searchsorted(ts, t + dt / 2, side="left") - 1]   # the last sample nearest ≤ t
         notes += _column_notes(name, cols[name], False, len(ts), 0, 0, *_repeats(ts), origin, start, dt)
+        limit = gap_limit(ts, max_gap, dt)
+        inside = ts[(ts > start) & (ts < end)]
+        notes += _short_gap_note(name, *short_gaps(np.diff(np.concatenate([[start], inside, [end]])),
+                                                   interval(ts), limit, dt), limit)
     outputs = np.full((n, len(output_names)), np.nan)
     for j, name in enumerate(output_names):
         ts, v = series[name][:2]
@@ -359,6 +390,8 @@ class _Column:
         self.head_v = np.zeros(0)     # and values (an output held by the logger, :func:`held_run`)
         self.judged = False           # whether those values were judged
         self.limit = None             # seconds without a sample that make a hole, once known
+        self.own = None               # an input's own sample interval, once known
+        self.short = (0, 0, 0.0)      # an input's gaps short of a hole: count, grid samples held, longest
 
     def add(self, t, v):
         if len(t):
@@ -487,6 +520,7 @@ class GridStream:
                     raise NotStreamable(f"column '{name}' has coarse time stamps")
             if c.limit is None and (name not in self.input_names or final or len(c.head) > RATE_STAMPS):
                 c.limit = gap_limit(c.head, self.max_gap, self.dt) if name in self.input_names else self.max_gap
+                c.own = interval(c.head) if name in self.input_names else None
 
     def _scan_holes(self):
         for name in self.names:
@@ -501,7 +535,14 @@ class GridStream:
             edges = np.concatenate([[c.prev], ts])
             for j in np.flatnonzero(np.diff(edges) > c.limit):
                 self._span(float(edges[j]), float(edges[j + 1]), name)
+            self._short(c, np.diff(edges))
             c.prev = float(ts[-1])
+
+    def _short(self, c, gaps):
+        """Count an input's gaps short of a hole (:func:`short_gaps`)."""
+        if c.own is not None:
+            n, held, longest = short_gaps(gaps, c.own, c.limit, self.dt)
+            c.short = (c.short[0] + n, c.short[1] + held, max(c.short[2], longest))
 
     def _span(self, a, b, name):
         self.spans.setdefault((a, b), []).append(name)
@@ -613,6 +654,7 @@ class GridStream:
             c = self.cols[name]
             if self.end - c.prev > c.limit:
                 self._span(c.prev, self.end, name)
+            self._short(c, [self.end - c.prev])
         yield from self._emit(self.n)
         order = {n: i for i, n in enumerate(self.names)}
         cols, dt = self.stream.columns, self.dt
@@ -629,6 +671,8 @@ class GridStream:
                                         c.first_repeat, self.origin, self.start, dt)
             if output:
                 self.notes += _offset_note(name, c.used, c.offset, dt, "inputs" if self.input_names else "outputs")
+            else:
+                self.notes += _short_gap_note(name, *c.short, c.limit)
 
     def time(self, k) -> float:
         """The time of grid sample ``k`` (seconds), as in the recording."""
