@@ -220,6 +220,24 @@ def test_a_step_is_a_move_and_a_slow_drift_is_not():
     assert threshold(98) == pytest.approx(3.48, abs=0.01) and threshold(3) == pytest.approx(2.39, abs=0.01) and threshold(1) == 2.0
 
 
+def test_one_log_off_the_fleet_is_a_move_and_a_move_back():
+    """Lp −4 on every flight but one other aircraft's (−14.8): the move is at that log, and the next
+    flight's return to −4 is a move back, not a second move (before, the healthy flight after it was
+    flagged too). A step that stays is still a move at each end it has."""
+    from skigen.batch import BatchResult
+    rows = [dict(log=f"f{k}", status="ok", quantities={"Lp": [-14.8 if k == 3 else -4.0 + 0.01 * k, 0.13]})
+            for k in range(8)]
+    m = moves(rows)
+    assert [(x["log"], x.get("back", False)) for x in m] == [("f3", False), ("f4", True)]
+    lines = BatchResult(Path("."), rows, m, "file name", Path("summary.csv"), None, 0, 1.0, 1, {"ok": 8}).lines()
+    assert lines[1].startswith("  moved: Lp at f3: -3.98 -> -14.8")
+    assert lines[2].startswith("  back: Lp at f4: -14.8 -> -3.96, the level before f3") and lines[2].endswith(
+        "f3 alone moved")
+    steps = [dict(log=f"s{k}", status="ok", quantities={"Lp": [-4.0 if k < 3 else -8.0 if k == 3 else -12.0, 0.13]})
+             for k in range(6)]
+    assert [(x["log"], x.get("back", False)) for x in moves(steps)] == [("s3", False), ("s4", False)]
+
+
 def test_clear_errors(fleet, tmp_path):
     with pytest.raises(BatchError, match=r"no log file matches '.*nothing_\*\.csv'"):
         batch(MODEL, str(fleet / "nothing_*.csv"), tmp_path)

@@ -67,6 +67,10 @@ class BatchResult:
         out += [f"  {r['status']}: {r['log']}: {r['message']}" for r in self.rows if r["status"] != "ok"]
         verdicts = {r["log"]: r.get("verdict") for r in self.rows}
         for m in self.moved:
+            if m.get("back"):
+                out.append(f"  back: {m['quantity']} at {m['log']}: {m['before']:.4g} -> {m['after']:.4g}, the level "
+                           f"before {m['previous']} (z = {m['z']:.1f}): {m['previous']} alone moved")
+                continue
             out.append(f"  moved: {m['quantity']} at {m['log']}: {m['before']:.4g} -> {m['after']:.4g} "
                        f"(z = {m['z']:.1f} > {m['threshold']:.2f})" + (
                            f"; its run is {verdicts[m['log']]}: its ± may be too small, the move false"

@@ -54,20 +54,31 @@ def threshold(pairs: int, alpha: float = ALPHA) -> float:
     return max(2.0, float(norm.isf(alpha / (2 * max(pairs, 1)))))
 
 
+def _z(va, sa, vb, sb) -> float:
+    sd = math.hypot(sa, sb)
+    return abs(vb - va) / sd if sd > 0 else (math.inf if vb != va else 0.0)
+
+
 def moves(rows: list[dict], alpha: float = ALPHA) -> list[dict]:
-    """The significant moves between consecutive ok logs: quantity, log, previous log, values, z."""
+    """The significant moves between consecutive ok logs: quantity, log, previous log, values, z.
+    A move that returns to the level of the log before the previous one (within the same
+    threshold) is marked ``back``: the previous log alone moved (one aircraft's log among a fleet's
+    flagged the healthy flight after it as well)."""
     out = []
     for q in quantities(rows):
         pts = [(r, *r["quantities"][q]) for r in rows if r["status"] == "ok" and q in (r.get("quantities") or {})]
         pts = [(r, v, s) for r, v, s in pts if v is not None and s is not None and math.isfinite(v)
                and math.isfinite(s)]
         z_crit = threshold(len(pts) - 1, alpha)
-        for (ra, va, sa), (rb, vb, sb) in zip(pts, pts[1:]):
-            sd = math.hypot(sa, sb)
-            z = abs(vb - va) / sd if sd > 0 else (math.inf if vb != va else 0.0)
+        moved_at = set()
+        for k in range(1, len(pts)):
+            (ra, va, sa), (rb, vb, sb) = pts[k - 1], pts[k]
+            z = _z(va, sa, vb, sb)
             if z > z_crit:
+                back = k - 1 in moved_at and _z(*pts[k - 2][1:], vb, sb) <= z_crit
+                moved_at.add(k)
                 out.append(dict(quantity=q, log=rb["log"], previous=ra["log"], before=va, after=vb, z=z,
-                                threshold=z_crit))
+                                threshold=z_crit) | ({"back": True} if back else {}))
     return out
 
 
@@ -94,7 +105,8 @@ def write_summary(path, rows: list[dict], moved: list[dict], mode: str = "run") 
               + (["mismatch", "findings", "remains"] if diag else []))
     at = {}
     for m in moved:
-        at.setdefault(m["log"], []).append(m["quantity"])
+        if not m.get("back"):                  # a return to the level before an outlier log: not a move here
+            at.setdefault(m["log"], []).append(m["quantity"])
     path = Path(path)
     with open(path, "w", newline="") as f:
         w = csv.writer(f)
@@ -137,7 +149,7 @@ def plot_summary(path, rows: list[dict], moved: list[dict], order: str, title: s
         for i, r in enumerate(rows):
             if r["status"] != "ok":
                 ax.axvline(i, color="0.6", lw=0.8, ls=":")
-        for m in (m for m in moved if m["quantity"] == q):
+        for m in (m for m in moved if m["quantity"] == q and not m.get("back")):
             i = index[m["log"]]
             ax.axvline(i - 0.5, color="C3", lw=1.2)
             ax.annotate(f"{m['log']} (z = {m['z']:.1f})", (i - 0.5, 1.0), xycoords=("data", "axes fraction"),
