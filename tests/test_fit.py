@@ -732,6 +732,20 @@ def test_an_input_hole_cuts_the_recording_into_parts_fitted_apart():
     assert held["rmse"]["angle"] > 10 * max(r["rmse"]["angle"] for r in res.recordings), held
 
 
+def test_an_output_hole_is_said_with_its_share_of_the_recording():
+    """The angle missing for 4 s of 24: the fit goes through (the input is known) and says where it
+    saw nothing, as `skigen run` and a diagnosis do (before, not a word)."""
+    from skigen.recording import load_recording
+    frame = _pendulum_frame(np.random.default_rng(5))
+    frame.loc[200:299, "angle"] = np.nan
+    model = pendulum(PENDULUM_START)
+    res = fit(model, [load_recording(frame, model)], show_progress=False)
+    (note,) = [n for n in res.notes if "output hole" in n]
+    assert "output hole(s) longer than max_gap = 1 s, 17% of the recording: 7.96–12 s (4.04 s) without angle" in note
+    for n, p in res.parameters.items():
+        assert abs(p["value"] - PENDULUM[n]) < 3 * p["std"], (n, p)
+
+
 def test_several_dataframes_are_told_apart_by_place():
     """Two pendulum flights given as DataFrames: each recording of the result is named by its
     place (both were 'DataFrame'); a file given once keeps its name."""

@@ -789,6 +789,12 @@ def _usable(recs: list[Recording], starts) -> tuple[list[Recording], list | None
         if rec.input_holes:
             notes.append(rec.hole_note(f"fitted as {len(cut)} recordings, "
                                        + ", ".join(f"{p.t[0]:g}–{p.t[-1]:g} s" for p in cut)))
+        if blind := [h for h in rec.holes if not h.inputs]:
+            span = rec.t[-1] - rec.t[0] + rec.dt if len(rec.t) else 0.0
+            notes.append(f"{rec.path}: output hole(s) longer than max_gap = {rec.max_gap:g} s, "
+                         f"{sum(h.t1 - h.t0 for h in blind) / max(span, 1e-300):.0%} of the recording: "
+                         + "; ".join(map(str, blind[:5])) + (f"; … {len(blind) - 5} more" if len(blind) > 5 else "")
+                         + ": there the fit follows what the other outputs read, or nothing")
         parts += cut
         part_starts += [start] + [None] * (len(cut) - 1)
     return parts, None if starts is None else part_starts, notes
