@@ -336,8 +336,11 @@ class RunSummary:
             kept = self.kept()
             out.append("weight" + " " * 14 + "final ± 2σ" + ("   (SKI: kept?)" if kept is not None else ""))
             for j, i in enumerate(aug.w_index):
-                mark = "" if kept is None else ("   pruned" if not kept[j] else "   kept" if
-                                                abs(self.last[0][i]) > 2 * self.last[1][i] else "   kept, within 2σ of 0")
+                z = abs(self.last[0][i]) / self.last[1][i] if self.last[1][i] > 0 else np.inf
+                mark = "" if kept is None else (
+                    (f"   pruned, yet {z:.0f}σ from 0: a term small against the others, not absent (the rule "
+                     f"compares prior stds across terms of different scales)" if z > 5 else "   pruned")
+                    if not kept[j] else "   kept" if z > 2 else "   kept, within 2σ of 0")
                 out.append(f"  {aug.names[i]:16s} {self.last[0][i]:+.4g} ± {2 * self.last[1][i]:.2g}{mark}")
         if self.last is not None and len(aug.p_index):
             out.append("parameter" + " " * 11 + "final ± 2σ   (estimated online)")

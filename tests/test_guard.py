@@ -485,14 +485,14 @@ def test_a_restart_after_an_input_hole_is_reported(backend):
             f"restarted), first at t = {rec.t[k]:g} s") in lines, lines
 
 
-def _duffing(noise: float, seed: int = 1, n: int = 3000, dt: float = 0.01):
-    """A Duffing oscillator (ẍ = −4x − 0.3ẋ + u − 1.5x³, RK4 in 20 substeps) read with ``noise``,
+def _duffing(noise: float, seed: int = 1, n: int = 3000, dt: float = 0.01, v3: float = 0.0):
+    """A Duffing oscillator (ẍ = −4x − 0.3ẋ + u − 1.5x³ − v3·ẋ³, RK4 in 20 substeps) read with ``noise``,
     its model declaring the linear part and a cubic library on v̇."""
     rng = np.random.default_rng(seed)
     t = np.arange(n) * dt
     u = sum(a * np.sin(2 * np.pi * f * t + rng.uniform(0, 2 * np.pi)) for a, f in ((2, 0.13), (1.5, 0.31), (1, 0.57)))
     u = u + rng.uniform(-1.5, 1.5, n // 200 + 1)[(t / 2).astype(int)]
-    f = lambda s, uu: np.array([s[1], -4 * s[0] - 0.3 * s[1] + uu - 1.5 * s[0] ** 3])
+    f = lambda s, uu: np.array([s[1], -4 * s[0] - 0.3 * s[1] + uu - 1.5 * s[0] ** 3 - v3 * s[1] ** 3])
     X, x, h = np.zeros((n, 2)), np.zeros(2), dt / 20
     for k in range(n):
         X[k] = x
@@ -603,3 +603,17 @@ def test_weights_the_recording_fixes_only_together_are_said_with_their_combinati
     assert combo < 0.01 and f"= {summary.last[0][j] + k * summary.last[0][i]:+.4g} ± {2 * combo:.2g}, not each" in pair
     plain = run(derive(_duffing(0.01)[0], "ski"), rec, show_progress=False).summary()
     assert not any("move together" in line for line in plain.lines())
+
+
+def test_a_small_term_far_from_zero_is_not_called_pruned_without_a_word():
+    """A cubic damping of 0.01 beside the cubic spring's 1.5: ARD's display rule (prior std at least
+    1 % of the largest) calls it pruned, though its weight is many σ from 0 (a user read a 49σ term
+    as absent). The summary says so beside it; a truly pruned weight keeps the plain label."""
+    m, rec = _duffing(0.01, v3=0.01)
+    lines = run(derive(m, "ski"), rec, show_progress=False).summary().lines()
+    v3 = next(line for line in lines if line.startswith("  w_v3 "))
+    x3 = next(line for line in lines if line.startswith("  w_x3 "))
+    w, two_sd = (float(v) for v in v3.split()[1:4:2])
+    assert abs(w + 0.01) < 0.002 and "pruned, yet" in v3 and f"yet {abs(w) / (two_sd / 2):.0f}σ from 0" in v3, v3
+    assert x3.endswith("kept")
+    assert any(line.endswith("   pruned") for line in lines)
