@@ -176,7 +176,8 @@ def _offset_note(name, used, offset, dt, phase_from) -> list[str]:
             f"stamped at t {'+' if later else '−'} {ms:.3g} ms"]
 
 
-def _column_notes(name, column, output, count, early, dropped, repeated, first_repeat, origin, start, dt):
+def _column_notes(name, column, output, count, early, dropped, repeated, first_repeat, origin, start, dt,
+                  own=None):
     """What the grid did with one column's samples, as notes (times relative to ``origin``, s)."""
     kind = "output" if output else "input"
     notes = []
@@ -189,8 +190,10 @@ def _column_notes(name, column, output, count, early, dropped, repeated, first_r
                      f"(first at t = {clock(origin + first_repeat)} s): {use}")
     faster = dropped - repeated
     if faster > 0:
+        why = (f"the log is faster than the model's 1/dt = {1 / dt:g} Hz" if own is None or own < 0.75 * dt else
+               f"its stamps, {1 / own:.3g} Hz, are irregular: two fell nearest one grid sample")
         notes.append(f"output '{name}': {faster} sample(s) not used: a nearer sample of '{name}' had "
-                     f"the same grid sample (the log is faster than the model's 1/dt = {1 / dt:g} Hz)")
+                     f"the same grid sample ({why})")
     if output and not count:
         notes.append(f"output '{name}' (column '{column}') has no value: never measured")
     return notes
@@ -254,7 +257,7 @@ def gap_limit(head, max_gap: float, dt: float) -> float:
     return max_gap if own is None else min(max_gap, max(RATE_GAP * own, MIN_GAP_SAMPLES * dt))
 
 
-SHORT_GAP = 2.5     # an input without a sample for this many of its own intervals, short of a hole: held
+SHORT_GAP = 4       # an input without a sample for this many of its own intervals (3 missing), short of a hole: held
 
 
 def interval(head) -> float | None:
@@ -267,11 +270,11 @@ def interval(head) -> float | None:
 def short_gaps(gaps, own: float | None, limit: float, dt: float) -> tuple[int, int, float]:
     """(how many of the intervals ``gaps`` (s) are gaps short of a hole, the grid samples they
     hold the input over, the longest): longer than SHORT_GAP of the input's own interval ``own``
-    and than 1.5 dt, at most ``limit``."""
+    and than 3 dt, at most ``limit``."""
     if own is None:
         return 0, 0, 0.0
     gaps = np.asarray(gaps, float)
-    short = gaps[(gaps > max(SHORT_GAP * own, 1.5 * dt)) & (gaps <= limit)]
+    short = gaps[(gaps > max(SHORT_GAP * own, 3 * dt)) & (gaps <= limit)]
     held = int(np.sum(np.rint((short - max(own, dt)) / dt)))
     return len(short), held, float(short.max(initial=0.0))
 
@@ -354,7 +357,7 @@ def to_grid(samples: Samples, dt: float, input_names, output_names, input_hold: 
         outputs[k, j] = v[used]
         early = int(np.sum(ts < start - dt / 2))
         notes += _column_notes(name, cols[name], True, len(ts), early, len(ts) - len(used) - early,
-                               *_repeats(ts), origin, start, dt)
+                               *_repeats(ts), origin, start, dt, interval(ts))
         notes += _offset_note(name, len(used), _offset_units(ts[used], k, start, dt), dt,
                               "inputs" if input_names else "outputs")
     holes = [Hole(h.t0 + origin, h.t1 + origin, h.columns, h.inputs) for h in
@@ -668,7 +671,7 @@ class GridStream:
             c, output = self.cols[name], name in self.output_names
             self.notes += _column_notes(name, cols[name], output, c.count, c.early,
                                         c.count - c.used - c.early if output else 0, c.repeated,
-                                        c.first_repeat, self.origin, self.start, dt)
+                                        c.first_repeat, self.origin, self.start, dt, interval(c.head))
             if output:
                 self.notes += _offset_note(name, c.used, c.offset, dt, "inputs" if self.input_names else "outputs")
             else:

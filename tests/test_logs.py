@@ -101,6 +101,19 @@ def test_a_log_faster_than_the_model_uses_the_nearest_sample():
     assert any("not used" in n and "faster than the model" in n for n in rec.notes)
 
 
+def test_a_slower_output_whose_stamps_jitter_is_not_called_faster_than_the_model():
+    """A 30 Hz output on a 50 Hz grid, its stamps jittered by ±12 ms: now and then two fall nearest
+    one grid sample and one is not used; the note says the stamps are irregular, not that the log
+    is faster than the model (a 20 Hz PX4 topic was called faster than 50 Hz)."""
+    rng = np.random.default_rng(2)
+    t_out = np.arange(120) / 30 + rng.uniform(-0.012, 0.012, 120)
+    df = pd.concat([pd.DataFrame({"t": np.arange(200) * 0.02, "delta": 0.0}),
+                    pd.DataFrame({"t": np.sort(t_out[t_out > 0]), "phi": 0.0})]).sort_values("t", kind="stable")
+    rec = load_recording(df, MODEL)
+    (note,) = [n for n in rec.notes if "not used" in n]
+    assert note.startswith("output 'phi': 3 sample(s) not used") and "its stamps, 29.9 Hz, are irregular" in note, note
+
+
 def test_repeated_time_stamps_are_named_as_such(flight, tmp_path):
     """A logger that writes a row twice: the repeat is named with its time, the first output value
     and the last input value at the stamp are used, and the log is not called faster than the model."""
