@@ -148,6 +148,7 @@ class Recording:
         """The stretches between this recording's input holes (an input without a sample for
         longer than ``max_gap``: the value held there is not the input), each with at least two
         samples and named ``'<path> [t0–t1 s]'``; ``[self]`` where no input has a hole."""
+        from .grid import clock
         spans = [(h.t0, h.t1) for h in self.input_holes]
         if not spans:
             return [self]
@@ -162,7 +163,7 @@ class Recording:
                 continue
             ta, tb = self.t[a], self.t[b - 1]
             parts.append(dataclasses.replace(
-                self.slice(a, b), path=f"{self.path} [{ta:g}–{tb:g} s]",
+                self.slice(a, b), path=f"{self.path} [{clock(ta)}–{clock(tb)} s]",
                 holes=tuple(h for h in self.holes if not h.inputs and h.t1 > ta and h.t0 < tb)))
         return parts
 

@@ -6,6 +6,7 @@ import os
 import numpy as np
 
 from ..model import Model
+from ..grid import clock
 from ..recording import Recording, load_recording
 from ..runtime import check_columns
 from . import transform as T
@@ -50,8 +51,8 @@ def usable(rec: Recording) -> tuple[Recording, list[str]]:
     parts, notes = rec.usable()
     longest = max(parts, key=len)
     if rec.input_holes:
-        notes.append(rec.hole_note(f"diagnosed on the longest stretch between them, {longest.t[0]:g}–"
-                                   f"{longest.t[-1]:g} s ({len(longest)} of {len(rec)} samples)"))
+        notes.append(rec.hole_note(f"diagnosed on the longest stretch between them, {clock(longest.t[0])}–"
+                                   f"{clock(longest.t[-1])} s ({len(longest)} of {len(rec)} samples)"))
     span = longest.t[-1] - longest.t[0]
     quiet = [h for h in rec.holes if not h.inputs and h.t1 > longest.t[0] and h.t0 < longest.t[-1]]
     if quiet and span > 0:

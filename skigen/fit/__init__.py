@@ -22,6 +22,7 @@ import casadi as ca
 import numpy as np
 from scipy.optimize import minimize, minimize_scalar
 
+from ..grid import clock
 from ..model import Model, ModelError
 from ..progress import note
 from ..recording import Recording, load_recording, resolution
@@ -788,7 +789,7 @@ def _usable(recs: list[Recording], starts) -> tuple[list[Recording], list | None
         notes += rec.said() + stuck
         if rec.input_holes:
             notes.append(rec.hole_note(f"fitted as {len(cut)} recordings, "
-                                       + ", ".join(f"{p.t[0]:g}–{p.t[-1]:g} s" for p in cut)))
+                                       + ", ".join(f"{clock(p.t[0])}–{clock(p.t[-1])} s" for p in cut)))
         if blind := [h for h in rec.holes if not h.inputs]:
             span = rec.t[-1] - rec.t[0] + rec.dt if len(rec.t) else 0.0
             notes.append(f"{rec.path}: output hole(s) longer than max_gap = {rec.max_gap:g} s, "
