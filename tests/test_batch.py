@@ -323,6 +323,19 @@ def test_logs_of_one_name_keep_apart_and_the_output_folder_is_not_read(tmp_path)
         expand_logs(str(tmp_path / "out" / "**" / "*.csv"), outside=tmp_path / "out")
 
 
+def test_a_broken_link_is_a_failed_row_and_a_folder_is_no_log(tmp_path):
+    """A glob over a folder with a log, a link to a log that is gone and a subfolder named like a
+    log: the link is a row that fails naming it (it was dropped in silence, or stopped the batch
+    reading its size), the folder is not a log."""
+    from skigen.batch import expand_logs
+    from skigen.batch.task import log_digest
+    (tmp_path / "a.csv").write_text("t\n")
+    (tmp_path / "sub.csv").mkdir()
+    (tmp_path / "gone.csv").symlink_to(tmp_path / "nowhere" / "x.csv")
+    paths = expand_logs(str(tmp_path / "*.csv"))
+    assert [p.name for p in paths] == ["a.csv", "gone.csv"] and log_digest(paths[1]) == "missing"
+
+
 def test_a_constant_imported_by_the_model_file_is_part_of_its_digest(tmp_path):
     """A resumed batch redoes its logs when the model changes, also through a module it imports."""
     from skigen.batch.task import model_digest

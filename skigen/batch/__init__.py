@@ -98,7 +98,8 @@ def _few(names: list[str], most: int = 5) -> str:
 
 def expand_logs(patterns, outside: Path | None = None) -> list[Path]:
     """The files matching each glob (sorted; ``**`` recurses) or named plainly, in order, without
-    duplicates, and none below the folder ``outside`` (a batch's own results, when its output
+    duplicates (a broken link among them: its row fails, naming it; folders are not logs), and none
+    below the folder ``outside`` (a batch's own results, when its output
     folder lies where the glob looks). A pattern that matches no file is an error naming it."""
     if isinstance(patterns, (str, os.PathLike)):
         patterns = [patterns]
@@ -106,17 +107,22 @@ def expand_logs(patterns, outside: Path | None = None) -> list[Path]:
     files: dict = {}
     for pat in map(str, patterns):
         if _glob.has_magic(pat):
-            found = sorted(p for p in _glob.glob(pat, recursive=True) if Path(p).is_file())
+            found = sorted(p for p in _glob.glob(pat, recursive=True) if _a_log(Path(p)))
         else:
-            found = [pat] if Path(pat).is_file() else []
+            found = [pat] if _a_log(Path(pat)) else []
         if outside is not None:
             found = [p for p in found if not Path(p).resolve().is_relative_to(outside)]
         if not found:
             raise BatchError(f"no log file matches '{pat}'")
-        files.update(dict.fromkeys(Path(p).resolve() for p in found))
+        files.update(dict.fromkeys(Path(p).resolve() if Path(p).exists() else Path(p).absolute() for p in found))
     if not files:
         raise BatchError("no log given")
     return list(files)
+
+
+def _a_log(p: Path) -> bool:
+    """A file, or a link to one that is gone (its row fails, naming it); not a folder."""
+    return p.is_file() or (p.is_symlink() and not p.exists())
 
 
 def log_names(paths: list[Path]) -> list[str]:

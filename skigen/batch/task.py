@@ -59,8 +59,12 @@ def model_digest(spec: str, model) -> str:
 
 
 def log_digest(path) -> str:
-    """Size and modification time of a log: a changed log is done again."""
-    st = os.stat(path)
+    """Size and modification time of a log: a changed log is done again ('missing': a log gone, or a
+    link to nothing, whose row then fails naming it)."""
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        return "missing"
     return f"{st.st_size}-{st.st_mtime_ns}"
 
 
