@@ -307,7 +307,9 @@ class RunSummary:
             return (f"inconsistent: the innovations are {mean:.3g} times their predicted variance ({band}): the "
                     f"model or its declared noise does not explain the recording, and the ± 2σ above are too "
                     f"small" + (f"; the {gated} gated readings may be that mismatch, not outliers" if gated else "")
-                    + ". `skigen diagnose` says where and what is missing; `skigen fit` calibrates the noise")
+                    + ". `skigen diagnose` says where and what is missing; `skigen fit` calibrates the noise"
+                    + ("; a first-order EKF's linearisation may be it: try --second-order or the UKF"
+                       if self.filter.kind == "ekf" and not self.filter.options.second_order else ""))
         if mean < lo:
             return (f"conservative: the innovations are {mean:.3g} times their predicted variance ({band}): the "
                     f"declared noise is larger than the recording shows, and the ± 2σ above are wide")

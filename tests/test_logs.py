@@ -465,6 +465,20 @@ def test_the_summary_judges_the_nis_against_its_band(noise, verdict):
     assert ("196 gated" in said and "`skigen diagnose`" in said) == (noise == 0.3)
 
 
+def test_an_inconsistent_first_order_ekf_points_at_its_linearisation_too():
+    """Readings 1.5× the declared noise: inconsistent for every filter; the first-order EKF's verdict
+    also names its linearisation (--second-order, the UKF), which the UKF's does not."""
+    m = skigen.Model("still", dt=0.02)
+    x = m.state("x", std=1e-3, process_std=1e-6)
+    m.dynamics({x: 0 * x})
+    m.output("xm", x, noise_std=0.1)
+    df = pd.DataFrame({"t": np.arange(2000) * 0.02, "xm": np.random.default_rng(1).normal(0, 0.15, 2000)})
+    hint = "a first-order EKF's linearisation may be it: try --second-order or the UKF"
+    for kind in ("ekf", "ukf"):
+        said = skigen.run(m, df, filter=kind, show_progress=False).summary().verdict()
+        assert said.startswith("inconsistent: the innovations are 2.2") and (hint in said) == (kind == "ekf"), said
+
+
 def test_a_run_that_gates_more_than_one_reading_in_twenty_is_inconsistent_whatever_the_rest_say():
     """A tenth of the readings 50 off (a wrong mapping, a unit slip), the rest a third of the declared
     noise: the readings used say "conservative"; the 200 gated of 2000 make it inconsistent. One in
