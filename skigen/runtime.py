@@ -337,9 +337,12 @@ class RunSummary:
         if self.last is not None and len(aug.w_index):
             kept = self.kept()
             out.append("weight" + " " * 14 + "final ± 2σ" + ("   (SKI: kept?)" if kept is not None else ""))
+            prior = np.sqrt(np.diag(aug.P0))
             for j, i in enumerate(aug.w_index):
                 z = abs(self.last[0][i]) / self.last[1][i] if self.last[1][i] > 0 else np.inf
-                mark = "" if kept is None else (
+                unmoved = self.last[1][i] >= 0.99 * prior[i]
+                mark = "   its prior's std: the recording never informed it (its term not excited?)" if unmoved else \
+                    "" if kept is None else (
                     (f"   pruned, yet {z:.0f}σ from 0: a term small against the others, not absent (the rule "
                      f"compares prior stds across terms of different scales)" if z > 5 else "   pruned")
                     if not kept[j] else "   kept" if z > 2 else "   kept, within 2σ of 0")

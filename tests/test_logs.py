@@ -714,3 +714,16 @@ def test_a_prior_std_held_at_its_bound_is_said_with_the_remedy(tmp_path, capsys)
 
 
 DELAY_MODEL = _delay_plant(1e4)[0]
+
+
+def test_weights_the_recording_never_informed_are_said_so():
+    """The input held at 0: no delayed input is ever excited, every weight ends at its prior (0 ± 2 at
+    2σ), and was labelled 'kept, within 2σ of 0'; each now says the recording never informed it.
+    Under ±1 steps none does."""
+    m, frame = _delay_plant(1.0)
+    lines = skigen.run(m, frame.assign(u=0.0), filter="ski", show_progress=False).summary().lines()
+    rows = [line for line in lines if line.startswith("  w_u_d")]
+    assert len(rows) == 8 and all(r.endswith("± 2   its prior's std: the recording never informed it (its term "
+                                             "not excited?)") for r in rows), rows
+    lines = skigen.run(m, frame, filter="ski", show_progress=False).summary().lines()
+    assert not any("never informed" in line for line in lines)
