@@ -315,6 +315,20 @@ class RunSummary:
                     f"declared noise is larger than the recording shows, and the ± 2σ above are wide")
         return f"consistent: the innovations are {mean:.3g} times their predicted variance ({band})"
 
+    def _mark(self, i: int, kept: bool | None) -> str:
+        """What the weight table says beside weight ``i``: never informed, or (SKI, ``kept`` not
+        None) kept or pruned, with how far from 0 where the label alone misleads."""
+        mean, std = self.last[0][i], self.last[1][i]
+        if std >= 0.99 * np.sqrt(self.filter.aug.P0[i, i]):
+            return "   its prior's std: the recording never informed it (its term not excited?)"
+        if kept is None:
+            return ""
+        z = abs(mean) / std if std > 0 else np.inf
+        if not kept:
+            return (f"   pruned, yet {z:.0f}σ from 0: a term small against the others, not absent (the rule "
+                    f"compares prior stds across terms of different scales)") if z > 5 else "   pruned"
+        return "   kept" if z > 2 else "   kept, within 2σ of 0"
+
     def held_line(self) -> str:
         """Which states' prior std the guard held at its bound, on how many samples, and what to do."""
         aug = self.filter.aug
@@ -337,15 +351,8 @@ class RunSummary:
         if self.last is not None and len(aug.w_index):
             kept = self.kept()
             out.append("weight" + " " * 14 + "final ± 2σ" + ("   (SKI: kept?)" if kept is not None else ""))
-            prior = np.sqrt(np.diag(aug.P0))
             for j, i in enumerate(aug.w_index):
-                z = abs(self.last[0][i]) / self.last[1][i] if self.last[1][i] > 0 else np.inf
-                unmoved = self.last[1][i] >= 0.99 * prior[i]
-                mark = "   its prior's std: the recording never informed it (its term not excited?)" if unmoved else \
-                    "" if kept is None else (
-                    (f"   pruned, yet {z:.0f}σ from 0: a term small against the others, not absent (the rule "
-                     f"compares prior stds across terms of different scales)" if z > 5 else "   pruned")
-                    if not kept[j] else "   kept" if z > 2 else "   kept, within 2σ of 0")
+                mark = self._mark(i, None if kept is None else kept[j])
                 out.append(f"  {aug.names[i]:16s} {self.last[0][i]:+.4g} ± {2 * self.last[1][i]:.2g}{mark}")
         if self.last is not None and len(aug.p_index):
             out.append("parameter" + " " * 11 + "final ± 2σ   (estimated online)")
