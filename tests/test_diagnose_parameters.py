@@ -234,6 +234,20 @@ def test_a_remaining_mismatch_points_at_a_step_too_coarse_for_a_fast_mode():
     assert motor(8).step_error()[0] < 1e-3 and _integration_hint(motor(8)) is None
 
 
+def test_a_free_run_that_drifts_away_is_no_unit_conversion():
+    """A closed loop's nominal free run drifting 100× past a climb: some small scale (here 0.01,
+    "a unit 100× larger?") leaves a tenth of the unscaled error, yet two thirds of the recording's
+    own variance; no hint. The recording as 0.01× a free run that follows it is one."""
+    from skigen.diagnose import _unit_hint
+    m = Model("climb", dt=0.1)
+    m.output("z_baro", m.state("z", std=1.0, process_std=0.1), noise_std=0.01)
+    t = np.linspace(0, 1, 500)
+    drift = 0.5 * t
+    y = drift + 0.3 * np.sin(2 * np.pi * 5 * t)
+    assert _unit_hint(m, 0, y, 100 * drift) is None
+    assert "is 0.01× the nominal free run: is the recording in a unit 100× larger" in _unit_hint(m, 0, y, 100 * y)
+
+
 def test_a_recording_in_degrees_against_a_model_in_radians_is_named():
     """A pendulum's angle logged in degrees (57.3× the radians its model declares), and its rate in
     mrad/s: both named with the conversion. The same recording in the model's units, and one whose
