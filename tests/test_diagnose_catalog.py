@@ -684,6 +684,12 @@ def test_an_input_entering_nonlinearly_has_a_gain_on_its_own_terms():
             assert (c.effect, c.equation, c.variant, c.shape) == ("input_gain", "v", f"its {u} term", (("gain on", f"{u}'s terms"),))
             assert value(c) == pytest.approx(per * e, rel=1e-12), (u, c.formula)
         assert (input_term(m, "v", "w").formula, input_term(m, "v", "w").expr) == ("w", None)
+    prop = Model("prop", dt=0.02)                       # a sum over a mass: the input's own term, not f − f(0)
+    v = prop.state("v", role="velocity", std=1.0, process_std=1e-3)
+    n = prop.input("n")
+    prop.dynamics({v: (10.0 * n * ca.fabs(n) - 5.0 * v * ca.fabs(v)) / 50.0})
+    prop.output("y", v, noise_std=0.1)
+    assert input_term(prop, "v", "n").formula == "10.0 * n * fabs(n) / 50.0"
     lin = Model("lin", dt=0.02)
     x = lin.state("x", std=1.0, process_std=1e-3)
     u = lin.input("u")

@@ -240,15 +240,22 @@ def driven(model: Model, velocity: str) -> list[str]:
 
 
 def summands(expr: ca.SX) -> list[ca.SX]:
-    """The terms of a sum, each with its sign: a − (b + c) → [a, −b, −c]."""
+    """The terms of a sum, each with its sign, through constant factors and divisors:
+    (a − (b + c))/m → [a/m, −b/m, −c/m]."""
     if expr.is_constant() or expr.is_symbolic():
         return [expr]
-    if expr.op() == ca.OP_ADD:
-        return summands(expr.dep(0)) + summands(expr.dep(1))
-    if expr.op() == ca.OP_SUB:
-        return summands(expr.dep(0)) + [-e for e in summands(expr.dep(1))]
-    if expr.op() == ca.OP_NEG:
-        return [-e for e in summands(expr.dep(0))]
+    op, a = expr.op(), expr.dep(0)
+    if op == ca.OP_ADD:
+        return summands(a) + summands(expr.dep(1))
+    if op == ca.OP_SUB:
+        return summands(a) + [-e for e in summands(expr.dep(1))]
+    if op == ca.OP_NEG:
+        return [-e for e in summands(a)]
+    if op == ca.OP_DIV and expr.dep(1).is_constant():
+        return [e / expr.dep(1) for e in summands(a)]
+    if op == ca.OP_MUL and (a.is_constant() or expr.dep(1).is_constant()):
+        k, rest = (a, expr.dep(1)) if a.is_constant() else (expr.dep(1), a)
+        return [k * e for e in summands(rest)]
     return [expr]
 
 

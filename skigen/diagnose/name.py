@@ -838,17 +838,18 @@ def _revised(first: Model, corr: Correction, current, rounds: list, rec, folds, 
             revision.adopted = mine
             revision.note = ("a tie of an earlier round that leaves the later findings unneeded: fewer numbers "
                              "for the same evidence")
-            revision.as_good = [a | {"cv_loglik_behind": -short, "instead_of": [list(acts(b)) for b in mine]}
-                                for a in replaced + later]
+            instead, theirs = [list(acts(b)) for b in mine], replaced + later
+            revision.as_good = [a | {"cv_loglik_behind": -short, "instead_of": instead,
+                                     "with": [_text(b) for b in theirs if b is not a]} for a in theirs]
             return revision
     return None
 
 
 def _text(item: dict) -> str:
-    """A report item as the round labels say it: 'bias on vz', 'sensor_gain of z_lidar'."""
+    """A report item as the round labels say it: 'bias on vz (`1`)', 'sensor_gain of z_lidar (`0.951·z`)'."""
     effect, where, through = acts(item)
     return f"{effect} {'of' if item.get('output') or item.get('input') else 'on'} {where}" + (
-        f" through {through}" if through else "")
+        f" through {through}" if through else "") + f" (`{item['expression']}`)"
 
 
 def added(before: Correction, after: Correction) -> list[dict]:

@@ -61,8 +61,13 @@ def finding_line(f: dict) -> str:
     return (f"{where(f)}: {f['expression']}, coefficient {f['coefficient']:.6g} {bar}, "
             f"cross-validated evidence {f['evidence']:+.1f}, free run without it "
             f"{'diverges' if free is None or not math.isfinite(free) else format(free, '.3g')}"
-            + "".join(f"; not told apart from {where(a)}: {a['expression']}, coefficient {a['coefficient']:.6g}, "
-                      f"explains the recording as well" for a in f.get("as_good", [])))
+            + "".join(f"; not told apart from {where(a)}: {a['expression']}, coefficient {a['coefficient']:.6g}"
+                      f"{_together(a)}, explains the recording as well" for a in f.get("as_good", [])))
+
+
+def _together(tie: dict) -> str:
+    """A tie that is one of several terms explaining as well together (a revision's): the others."""
+    return f", together with {', '.join(tie['with'])}" if tie.get("with") else ""
 
 
 def _fmt(x, spec=".4g"):
@@ -219,7 +224,7 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
                 L.append(f"- **{f['effect']}**: {f['reading']}." + (f" *Note: {f['note']}.*" if f.get("note") else ""))
                 for a in f.get("as_good", []):
                     L.append(f"  **Not told apart** from {where(a)} (`{a['expression']}`, "
-                             f"{_pm(a['coefficient'], a['std'])}): it explains the recording "
+                             f"{_pm(a['coefficient'], a['std'])}){_together(a)}: it explains the recording "
                              f"as well ({behind(a)}, less than a finding must add); another recording, or a "
                              f"measurement of one of them, decides.")
             L.append("")
