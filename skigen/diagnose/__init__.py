@@ -742,8 +742,9 @@ def _as_good(findings: list[dict], history) -> None:
     for p in history:
         adopted = {acts(a) for a in p.adopted}
         for f in findings:
-            if p.as_good and acts(f) in adopted:          # a tie said of the finding it would replace
-                ties = [a for a in p.as_good if "instead_of" not in a or list(acts(f)) in a["instead_of"]]
+            if p.as_good and acts(f) in adopted:          # a tie said of the finding it would replace,
+                ties = [a for a in p.as_good if ("instead_of" not in a or list(acts(f)) in a["instead_of"])
+                        and (a["effect"], a["expression"]) != (f["effect"], f["expression"])]   # not itself
                 if ties:
                     f["as_good"] = ties
 

@@ -376,18 +376,23 @@ def _ties_under(nominal: Model, recal: Model, corr: Correction, new: Correction,
     coefficients cost two equivalent forms unequally). Under the noise calibrated on the nominal, a
     motor's torque constant 10 % low and an encoder gain of 0.9 (the same transfer function from
     rest) were scored apart by a process noise 20× the true one, and the gain was named alone; at
-    20 % low, 4.9 behind cross-validated and 0.3 in-sample. Returns (report items, the corrections
-    they come from)."""
+    20 % low, 4.9 behind cross-validated and 0.3 in-sample. Each set without the terms the chosen's
+    adoption dropped as not significant (a Coulomb friction kept beside a linear pwm gain, then
+    dropped, left the thrust's pwm² term with it as a pair of two, never compared). Returns (report
+    items, the corrections they come from)."""
     adopted = {_said(a) for a in chosen.adopted}
     said = adopted | {_said(a) for a in chosen.as_good}
     instead = [list(acts(a)) for a in chosen.adopted]
     mine = loglik(new.build(recal), rec)
+    kept = {a[0] for a in new.additive}
+    lost = [a[0] for a in chosen.correction.additive if a[0] not in kept]   # dropped as not significant
     out, whole = [], []
     for p in proposals:
         if p.kind != "additive":
             continue
         best = sorted(p.tried, key=lambda t: -np.sum(t[1]))[:TIE_TRIALS]
         for trial in [p.correction] + [t for t, _ in best]:
+            trial = trial.without(*lost)          # as the chosen's adoption left it
             items = added(corr, trial)            # another explanation: no more terms, none of the chosen's
             if not items or len(items) > len(chosen.adopted) or any(_said(a) in adopted for a in items) \
                     or all(_said(a) in said for a in items):
@@ -808,41 +813,48 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
 
 def _revised(first: Model, corr: Correction, current, rounds: list, rec, folds, rms, size, alpha: float,
              noise_from=None) -> "Proposal | None":
-    """A round's tie that leaves every later finding unneeded: the correction it was a tie in
-    (later findings dropped, and the terms its round's adoption dropped as not significant), under
-    the noise calibrated with it, within what a finding must add
-    of the final correction ``current`` (cross-validated): fewer numbers for the same evidence. The
-    first such, as a proposal whose ``noise`` is that model; None if there is none. (KT·pwm² 10 %
-    low on a closed-loop hover: a rate offset was chosen over the thrust term, 0.6 ahead, and a
-    lidar gain of 0.93 was named to make up the rest; the thrust term alone was 0.7 behind both.)"""
-    for i, (p, before) in enumerate(rounds[:-1]):
-        later = added(rounds[i + 1][1], corr)
-        kept = {a[0] for a in rounds[i + 1][1].additive}
+    """The best of the rounds' ties, each in the correction it was a tie in (without the terms its
+    round's adoption dropped as not significant, and without the later rounds' findings), under
+    the noise calibrated with it: within what a finding must add of the final correction
+    ``current`` (cross-validated) where it leaves later findings out (fewer numbers for the same
+    evidence), ahead of it where it leaves none (as many numbers, better under its own noise).
+    A proposal whose ``noise`` is that model; None if there is none. (KT·pwm² 10 % low on a
+    closed-loop hover: a rate offset was chosen over the thrust term, 0.6 ahead, and a lidar gain
+    of 0.93 was named to make up the rest; the thrust term alone was 0.7 behind both. On another
+    flight a linear gain on pwm won its round, and the pwm² term, under its own noise, was 3.3
+    ahead of it.)"""
+    best = None
+    for (p, before), after in zip(rounds, [r[1] for r in rounds[1:]] + [corr]):
+        later = added(after, corr)
+        kept = {a[0] for a in after.additive}
         lost = [a[0] for a in p.correction.additive if a[0] not in kept]    # not significant when adopted
         for alt in p.alternatives:
             try:                               # its coefficients as the noise before naming has them
                 alt = refit(first, alt.without(*lost), rec, rms, size)
             except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):
                 continue
-            theirs = recalibrated(first, alt, rec, noise_from)
-            if (scored := _scored(theirs, alt, rec, folds, rms, size)) is None:
+            noise = recalibrated(first, alt, rec, noise_from)
+            if (scored := _scored(noise, alt, rec, folds, rms, size)) is None:
                 continue
             short = -_gain(scored[1], current)
-            if short >= evidence_threshold(alpha):
-                continue
-            mine, replaced = added(before, scored[0]), added(before, rounds[i + 1][1])
-            revision = Proposal("revision", -short, len(mine) - len(replaced) - len(later), scored[0],
-                                ", ".join(_text(a) for a in mine) + " in place of " + ", ".join(_text(a) for a in replaced)
-                                + ", leaving out " + ", ".join(_text(a) for a in later), scored[1])
-            revision.noise = theirs
-            revision.adopted = mine
-            revision.note = ("a tie of an earlier round that leaves the later findings unneeded: fewer numbers "
-                             "for the same evidence")
-            instead, theirs = [list(acts(b)) for b in mine], replaced + later
-            revision.as_good = [a | {"cv_loglik_behind": -short, "instead_of": instead,
-                                     "with": [_text(b) for b in theirs if b is not a]} for a in theirs]
-            return revision
-    return None
+            if (short < evidence_threshold(alpha) if later else short < 0) and (
+                    best is None or np.sum(scored[1]) > np.sum(best[1][1])):
+                best = (noise, scored, short, added(before, scored[0]), added(before, after), later)
+    if best is None:
+        return None
+    noise, (fewer, score), short, mine, replaced, later = best
+    revision = Proposal("revision", -short, len(mine) - len(replaced) - len(later), fewer,
+                        ", ".join(map(_text, mine)) + " in place of " + ", ".join(map(_text, replaced))
+                        + (", leaving out " + ", ".join(map(_text, later)) if later else ""), score)
+    revision.noise, revision.adopted = noise, mine
+    revision.note = ("a tie of an earlier round that leaves the later findings unneeded: fewer numbers for the "
+                     "same evidence" if later else "a tie that explains the recording better under the noise "
+                     "calibrated with it")
+    instead, others = [list(acts(b)) for b in mine], replaced + later
+    revision.as_good = [a | {"cv_loglik_behind": -short, "instead_of": instead,
+                             "with": [_text(b) for b in others if b is not a]} for a in others
+                        if -short < evidence_threshold(alpha)]           # what it replaced, if still a tie
+    return revision
 
 
 def _text(item: dict) -> str:
