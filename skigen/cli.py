@@ -178,7 +178,7 @@ def _generate(args) -> int:
 
 def _diagnose(args) -> int:
     from .diagnose import DiagnosisError, diagnose
-    from .diagnose.report import finding_line, noise_covers_sentence, where
+    from .diagnose.report import finding_line, lifted, noise_covers_sentence, where
 
     try:
         report = diagnose(args.model, args.data, args.out, candidates=args.candidate, alpha=args.alpha,
@@ -212,6 +212,8 @@ def _diagnose(args) -> int:
             print(f"finding: {finding_line(f)}")
         for f in d["compensating"] + d["not_identifiable"]:
             print(f"not a finding: {where(f)}: {f['note']}")
+        if (own := lifted(d)) is not None:
+            print("refit: " + own.replace("`", "").replace("section 5", "report.md"))
         for line in unnamed:
             print(line)
         if d["fit"]["after"]:

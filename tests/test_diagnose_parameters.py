@@ -155,6 +155,23 @@ def test_a_finding_not_needed_that_the_refit_corrects_as_a_nominal_term_is_not_s
     assert item["note"].endswith("left out of the corrected model")
 
 
+def test_the_nominal_terms_the_joint_refit_corrects_are_said_where_findings_are():
+    """A thrust that sags partway: the sensor gain named first is not needed after the joint refit,
+    which corrects the nominal's own input gain by −0.124 ± 0.0098 (12.6 std) and its damping; the
+    report said "no candidate explains the mismatch" and nothing of either. Both are now said in
+    section 4 and on the terminal's refit line; a refit without lifted corrections says nothing."""
+    from skigen.diagnose.report import lifted
+    refit = {"lifted": [dict(effect="viscous_damping", equation="u", formula="-u"),
+                        dict(effect="input_gain", equation="u", formula="0.2 * n * fabs(n)")],
+             "parameters": {"viscous_damping_u_correction": dict(value=-0.01767, std=0.004),
+                            "input_gain_u_correction": dict(value=-0.1238, std=0.0098)}}
+    said = lifted({"refit": refit})
+    assert said == ("The joint refit corrects the nominal's own terms: its viscous damping on `u` (`-u`) by -0.01767 "
+                    "± 0.004 (4.4 std from 0); its input gain on `u` (`0.2 * n * fabs(n)`) by -0.1238 ± 0.0098 "
+                    "(12.6 std from 0) — its constants are off there (refitted, not catalog findings; section 5)")
+    assert lifted({"refit": {"lifted": [], "parameters": {}}}) is None and lifted({}) is None
+
+
 def test_a_finding_a_simulation_is_better_without_is_flagged():
     """Before the regressors were scaled to a unit prior, the Silverbox training range named a limit
     without which the corrected model free-ran better (0.041 of the output's spread against 0.063

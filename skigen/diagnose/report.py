@@ -8,7 +8,7 @@ from pathlib import Path
 from ..fit import plus_minus as _pm
 from ..simulate import AMPLIFICATION
 
-__all__ = ["write_json", "write_markdown", "finding_line", "behind"]
+__all__ = ["write_json", "write_markdown", "finding_line", "behind", "lifted"]
 
 
 def behind(tie: dict) -> str:
@@ -64,6 +64,20 @@ def finding_line(f: dict) -> str:
             f"{'diverges' if free is None or not math.isfinite(free) else format(free, '.3g')}"
             + "".join(f"; not told apart from {where(a)}: {a['expression']}, coefficient {a['coefficient']:.6g}"
                       f"{_together(a)}, explains the recording as well" for a in f.get("as_good", [])))
+
+
+def lifted(data: dict) -> str | None:
+    """What the joint refit corrected in the nominal's own terms (its lifted corrections, kept
+    because the data want them), as a sentence; None when it corrected none."""
+    refit = data.get("refit") or {}
+    said = []
+    for d in refit.get("lifted", []):
+        p = (refit.get("parameters") or {}).get(f"{d['effect']}_{d['equation']}_correction")
+        if p and p.get("std"):
+            said.append(f"its {d['effect'].replace('_', ' ')} on `{d['equation']}` (`{d['formula']}`) by "
+                        f"{p['value']:.4g} ± {p['std']:.2g} ({abs(p['value']) / p['std']:.1f} std from 0)")
+    return ("The joint refit corrects the nominal's own terms: " + "; ".join(said) + " — its constants are off "
+            "there (refitted, not catalog findings; section 5)") if said else None
 
 
 def _together(tie: dict) -> str:
@@ -231,6 +245,8 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
             L.append("")
         else:
             L += ["No catalog or user candidate explains the mismatch significantly.", ""]
+        if (own := lifted(data)) is not None:
+            L += [own + ".", ""]
         for key, title in (("compensating", "Compensating, not findings"), ("not_identifiable", "Not identifiable")):
             for f in data.get(key, []):
                 heading = "Not needed" if f["note"].startswith("not needed") else title   # left out by the refit
