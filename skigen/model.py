@@ -397,31 +397,23 @@ class Model:
         _check_covariance(self.initial_covariance(), "P0 (initial covariance)", self.state_names)
         return self
 
-    def _check_proportional_terms(self, points: int = 4):
-        """No two basis terms on one equation are proportional (x and 2·x): their weights could not
-        be told apart, and each would be reported within its error bar of 0. Judged at ``points``
-        random values of every symbol."""
+    def _check_proportional_terms(self):
+        """No two scalar basis terms on one equation are one expression times a constant (x and 2·x,
+        a term declared twice under two keys): their weights could not be told apart, and each would
+        be reported within its error bar of 0. Judged on the expressions (constant factors,
+        divisors and signs set aside), so that two saturations of different widths, alike at most
+        values, are not taken for one."""
         groups: dict[str, list] = {}
         for w in self.weights():
-            groups.setdefault(w[1], []).append(w)
-        rng = np.random.default_rng(0)
+            if w[3].shape == (1, 1):
+                groups.setdefault(w[1], []).append((w, *_factored(ca.SX(w[3]))))
         for eq, ws in groups.items():
-            if len(ws) < 2:
-                continue
-            terms = ca.horzcat(*[ca.vec(d) for *_, d in ws])
-            z = ca.vertcat(*ca.symvar(terms))
-            f = ca.Function("terms", [z], [terms])
-            V = np.vstack([np.asarray(f(rng.normal(size=z.shape[0]))) for _ in range(points)])  # (points·rows, terms)
-            with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-                U = V / np.linalg.norm(V, axis=0)
-            for i in range(len(ws)):
-                for j in range(i):
-                    if np.all(np.isfinite(U[:, [i, j]])) and abs(U[:, i] @ U[:, j]) > 1 - 1e-12:
-                        (wi, _, ti, _), (wj, _, tj, _) = ws[i], ws[j]
-                        k = V[:, i] @ V[:, j] / (V[:, j] @ V[:, j])
+            for i, ((wi, _, ti, _), ki, ci) in enumerate(ws):
+                for (wj, _, tj, _), kj, cj in ws[:i]:
+                    if ca.is_equal(ci, cj, 64):
                         raise ModelError(f"basis terms '{tj.name}' and '{ti.name}' on equation '{eq}' are "
-                                         f"proportional ('{ti.name}' = {k:.6g} × '{tj.name}'): their weights {wj} "
-                                         f"and {wi} cannot be told apart; keep one")
+                                         f"proportional ('{ti.name}' = {ki / kj:.6g} × '{tj.name}'): their weights "
+                                         f"{wj} and {wi} cannot be told apart; keep one")
 
     def _check_finite_at_start(self):
         """Every equation and output is finite at the declared initial state (inputs, history 0)."""
@@ -581,6 +573,24 @@ def _check_symbols(expr: ca.SX, known: set[str], what: str):
         if s.name() not in known:
             raise ModelError(f"{what} uses symbol '{s.name()}', which is not a declared state, "
                              f"input, parameter or input history")
+
+
+def _factored(e: ca.SX) -> tuple[float, ca.SX]:
+    """(k, core) with e = k·core: constant factors, divisors and signs taken out of ``e``."""
+    k = 1.0
+    while not (e.is_constant() or e.is_symbolic()):
+        op = e.op()
+        if op in (ca.OP_NEG, ca.OP_TWICE):
+            k, e = (-k if op == ca.OP_NEG else 2 * k), e.dep(0)
+        elif op == ca.OP_MUL and e.dep(0).is_constant():
+            k, e = k * float(e.dep(0)), e.dep(1)
+        elif op in (ca.OP_MUL, ca.OP_DIV) and e.dep(1).is_constant():
+            k, e = (k * float(e.dep(1)) if op == ca.OP_MUL else k / float(e.dep(1))), e.dep(0)
+        else:
+            break
+    if e.is_constant():
+        return k * float(e), ca.SX(1)
+    return k, e
 
 
 def _check_covariance(M: np.ndarray, what: str, labels: list[str], definite: bool = True):

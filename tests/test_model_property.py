@@ -108,6 +108,12 @@ def test_proportional_basis_terms_on_one_equation_are_refused_by_name():
     m.unknown(x, [term("x", x, key="lin")])
     m.unknown(z, [term("2x", 2 * x, key="two_x")])
     m.check()
+    m, x, u = base()                                   # alike at most values, not one expression: fine
+    m.dynamics({x: -x + u})
+    m.output("y", x, noise_std=0.1)
+    m.unknown(x, [term("t1", -ca.tanh(x / 0.0005), key="t1"), term("t2", -ca.tanh(x / 0.002), key="t2"),
+                  term("one", ca.SX(1), key="one"), term("x3", -x ** 3, key="x3"), term("-x/4", -x / 4, key="lin")])
+    m.check()
 
 
 def test_weight_name_colliding_with_a_state_is_refused():

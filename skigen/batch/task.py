@@ -136,7 +136,7 @@ def _fit(spec, digest, path, tmp: Path, opt: dict, row: dict) -> None:
     result = fit(model, [rec], method=opt["method"], estimate=list(opt["estimate"]) or None,
                  show_progress=False)
     write_outputs(result, tmp, model_spec=spec, figures=opt["figures"])
-    row["notes"] = [f"{len(rec.holes)} hole(s): " + "; ".join(map(str, rec.holes))] * bool(rec.holes) + result.notes
+    row["notes"] = list(result.notes)               # its holes among them, as `skigen fit` says them
     row["holes"] = len(rec.holes)
     row["quantities"] = {n: [_num(p["value"]), _num(p["std"])]
                          for n, p in {**result.parameters, **result.weights}.items()}
