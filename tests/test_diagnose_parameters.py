@@ -487,29 +487,47 @@ def test_a_proposal_whose_terms_none_survive_the_refit_says_so(monkeypatch):
                       "outside the candidates")
 
 
-def test_a_declared_parameter_calibrated_onto_its_bound_is_said(tmp_path):
-    """An aileron logged with the opposite sign: the roll model's Lda, bounded to (0, 300), is
-    calibrated onto 0 with a std that is no confidence interval. The diagnosis says so first (as
-    `skigen fit` does), where before its report listed Lda 0 ± 1.5 without a word."""
+def _roll_logged(logged: float, upper: float = 300.0):
+    """A roll axis p' = −3p + 15·δa flown on ±0.05 rad steps, the aileron logged times ``logged`` (a
+    sign slip: −1; milliradians: 1000), and its model declaring Lp = −3, Lda = 15 bounded to (0, upper)."""
     rng = np.random.default_rng(3)
     n, dt = 1500, 0.02
     da = np.repeat(rng.uniform(-0.05, 0.05, n // 25 + 1), 25)[:n]
     x, X = np.zeros(2), np.zeros((n, 2))
     for k in range(n):
         X[k] = x
-        x = x + dt * np.array([x[1], -3.0 * x[1] - 15.0 * da[k]]) + np.r_[0.0, 2e-3 * rng.standard_normal()]
+        x = x + dt * np.array([x[1], -3.0 * x[1] + 15.0 * da[k]]) + np.r_[0.0, 2e-3 * rng.standard_normal()]
     m = Model("roll", dt=dt)
     phi = m.state("phi", unit="rad", role="angle", std=0.05, process_std=1e-4)
     p = m.state("p", unit="rad/s", role="rate", std=0.05, process_std=2e-3)
     u = m.input("da", unit="rad")
     Lp = m.parameter("Lp", -3.0, std=2.0, bounds=(-60.0, 0.0))
-    Lda = m.parameter("Lda", 15.0, std=10.0, bounds=(0.0, 300.0))
+    Lda = m.parameter("Lda", 15.0, std=10.0, bounds=(0.0, upper))
     m.dynamics({phi: p, p: Lp * p + Lda * u})
     m.output("phi_m", phi, noise_std=0.005)
     m.output("p_m", p, noise_std=0.01)
-    rec = Recording("flipped", np.arange(n) * dt, da[:, None], X + rng.normal(0, [0.005, 0.01], (n, 2)),
-                    ("da",), ("phi_m", "p_m"))
+    return m, Recording("logged", np.arange(n) * dt, logged * da[:, None], X + rng.normal(0, [0.005, 0.01], (n, 2)),
+                        ("da",), ("phi_m", "p_m"))
+
+
+def test_a_declared_parameter_calibrated_onto_its_bound_is_said():
+    """An aileron logged with the opposite sign: the roll model's Lda, bounded to (0, 300), is
+    calibrated onto 0 with a std that is no confidence interval. The diagnosis says so first (as
+    `skigen fit` does), where before its report listed Lda 0 ± 1.5 without a word."""
+    m, rec = _roll_logged(-1.0)
     _, noise = calibrate(m, [rec])
     assert noise.parameters["Lda"]["calibrated"] == pytest.approx(0.0, abs=1e-6)
     assert noise.note.startswith("calibrating the declared parameters: Lda = ") and "sits on its lower bound 0" in noise.note
     assert "Lp" not in noise.note
+
+
+def test_a_declared_parameter_calibrated_orders_of_magnitude_away_points_at_the_units():
+    """The aileron logged in milliradians: Lda calibrates to 0.015 for the 15 declared; the
+    diagnosis says so first and points at the units (a PWM command in µs put a thrust constant at
+    0.0084 for 18 without a word). Within 10× of the declared value, nothing is said."""
+    m, rec = _roll_logged(1e3)
+    _, noise = calibrate(m, [rec])
+    assert noise.note.startswith("calibrating the declared parameters: Lda = 0.015") and \
+        "for the 15 declared (0.001" in noise.note and "check the units of the inputs and outputs" in noise.note
+    m, rec = _roll_logged(0.5)
+    assert calibrate(m, [rec])[1].note == ""              # Lda 30: twice the declared

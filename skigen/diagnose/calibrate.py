@@ -86,6 +86,23 @@ def block_starts(model: Model, rec: Recording, pieces: list[Recording]) -> list 
     return [None if a == 0 else (prior[a][0][:nx], prior[a][1][:nx, :nx]) for a in at]
 
 
+FAR = 10.0     # a declared parameter calibrated this many times larger or smaller than declared: said
+
+
+def _far_notes(parameters: dict) -> list[str]:
+    """Declared parameters the calibration moved FAR-fold or more from their declared values: a
+    unit or scaling slip in what they multiply is likelier than a datasheet that far off (a PWM
+    command in µs where the model wants a fraction put a thrust constant at 0.0084 for 18)."""
+    out = []
+    for name, p in parameters.items():
+        a, b = p["initial"], p["value"]
+        if a and b and np.isfinite(b) and max(abs(a / b), abs(b / a)) >= FAR:
+            out.append(f"{name} = {b:.4g} ± {p['std']:.2g} for the {a:g} declared ({abs(b / a):.3g}×"
+                       f"{', its sign flipped' if a * b < 0 else ''}): check the units of the inputs and outputs "
+                       f"it acts through before reading the rest")
+    return out
+
+
 def calibrate(model: Model, recs: list[Recording], show_progress: bool = False,
               max_samples: int = MAX_SAMPLES, noise_from=None) -> tuple[Model, Noise]:
     """(``model`` with its calibrated Q and R, the :class:`Noise` record). A recording longer than
@@ -112,7 +129,8 @@ def calibrate(model: Model, recs: list[Recording], show_progress: bool = False,
     except FitError as exc:
         kind = NoiseNotIdentifiable if isinstance(exc, NotIdentifiable) else DiagnosisError
         raise kind(f"could not calibrate the noise of '{model.name}' on this recording: {exc}") from None
-    note = "; ".join(filter(None, [note, *(f"calibrating the declared parameters: {n}" for n in _bound_notes(res.parameters))]))
+    said = _bound_notes(res.parameters) + _far_notes(res.parameters)
+    note = "; ".join(filter(None, [note, *(f"calibrating the declared parameters: {n}" for n in said)]))
     noise = res.noise
     params = {n: {"declared": p["initial"], "calibrated": p["value"], "std": p["std"]} for n, p in res.parameters.items()}
     return res.model, Noise(noise["declared"], noise["calibrated"], noise["scales"], res.seconds, params, note)
