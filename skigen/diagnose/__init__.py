@@ -340,10 +340,14 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
             caveats.append(f"the corrected model free-runs worse than the nominal on {worse}: its findings improve "
                            "the one-step predictions, not the simulation; weigh them with care")
         w, regime = windows_where_it_acts(calibrated, after, rec, loc.equations, loc.states)
-        data["located"].update(windows=[[float(a), float(b)] for a, b in w], regime=regime or loc.regime,
-                               windows_from="where the found terms add at least 20 % of their 99th-percentile "
-                                            "rate (along the corrected model's filtered trajectory)")
-        loc.windows, loc.regime = w, regime or loc.regime
+        if w:                                   # else the disturbance's (a delay whose rates were not compared)
+            data["located"].update(windows=[[float(a), float(b)] for a, b in w], regime=regime or loc.regime,
+                                   windows_from="where the found terms add at least 20 % of their 99th-percentile "
+                                                "rate (along the corrected model's filtered trajectory)")
+            loc.windows, loc.regime = w, regime or loc.regime
+        else:
+            data["located"]["windows_from"] = ("where the random-walk disturbance was significant (the found terms "
+                                               "change no located rate measurably)")
         stage("testing what remains")
         data["remaining"] = remaining(T.constants(corrected), rec, after.run, eqs, alpha, out if figures else None,
                                       set(nominal.state_names + nominal.input_names), additive)
