@@ -227,6 +227,7 @@ def _diagnose(args) -> int:
         print("what remains: " + ("a mismatch remains" + (f"; {rem['tried']}" if rem.get("tried") else "")
                                   + (f"; it follows {rem['explained_by']}{' outside those' if rem.get('tried') else ''}: "
                                      f"try --candidate '{rem['suggested_candidate']}'" if rem.get("explained_by") else "")
+                                  + (f"; {rem['note']}" if rem.get("changes_at") is not None else "")
                                   if rem["mismatch"] else "the corrected model is consistent"))
     if (d["remaining"] or {}).get("noise_covers"):
         print(f"consistent only with {noise_covers_sentence(d['remaining']['noise_covers'])}")

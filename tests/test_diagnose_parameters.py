@@ -443,6 +443,27 @@ def test_what_remains_is_suggested_in_the_user_s_names_with_three_periods_at_lea
     assert suggest.explain(None, None, loc, names={"th", "om", "i"})["explained_by"] == "th"
 
 
+def test_what_remains_that_steps_in_time_is_said_to_change_over_time(monkeypatch):
+    """A thrust that sags at t = 30 s of 60: what the constant correction leaves is a step in time;
+    the best shape of a state (a cosine of the command, R² 0.32 once) was suggested as a candidate.
+    A step at 30 s now explains it best and is said; a leftover that follows a state still gets
+    its candidate."""
+    import types
+    from skigen.diagnose import suggest
+    rng = np.random.default_rng(2)
+    t = np.arange(3000) * 0.02
+    pwm = 0.5 + 0.05 * rng.standard_normal(3000)
+    d = np.where(t > 30, -0.4, 0.4) + 0.1 * rng.standard_normal(3000)
+    loc = types.SimpleNamespace(equations=["vz"], disturbance={"vz": (d, np.full(3000, 0.1))}, states=None)
+    monkeypatch.setattr(suggest, "features", lambda model, rec, states: {"pwm": (pwm, None)})
+    out = suggest.explain(None, types.SimpleNamespace(t=t), loc)
+    assert out["suggested_candidate"] is None and abs(out["changes_at"] - 30) < 0.1, out
+    assert out["note"].startswith("what remains in vz changes over time: a step at t = 30") and "apart" in out["note"]
+    d = 2.0 * pwm + 0.02 * rng.standard_normal(3000)
+    loc.disturbance["vz"] = (d, np.full(3000, 0.1))
+    assert suggest.explain(None, types.SimpleNamespace(t=t), loc)["suggested_candidate"] == "remaining:vz:pwm"
+
+
 def test_what_remains_is_not_suggested_in_the_shape_of_a_candidate_already_tried(monkeypatch):
     """What remains of a cylinder against its end stops followed x best: the suggestion
     'remaining:v:x', run, was judged as the catalog's linear stiffness and came back. A shape a

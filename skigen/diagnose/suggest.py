@@ -13,7 +13,9 @@ noise, or dynamics of another order), and the report says so instead. A shape
 that is a candidate the diagnosis already tried on that equation (|r| ≥ SAME
 along the trajectory: x is the catalog's linear stiffness) is not suggested —
 run, it was "judged as the catalog's" and the same suggestion came back — but
-said, beside the best shape outside them.
+said, beside the best shape outside them. Where a single step in time explains it better than
+any shape of a state or input, the system changed during the recording (a battery that sags
+partway): that is said instead of a candidate.
 """
 from __future__ import annotations
 
@@ -41,6 +43,17 @@ def _shapes(name: str, x: np.ndarray):
     for L in span / np.array([3, 5, 8, 12, 20]):
         for fn, f in (("sin", np.sin), ("cos", np.cos)):
             yield f"{fn}(2*pi*{name}/{_num(L)})", f(2 * np.pi * x / L)
+
+
+def _step(t: np.ndarray, d: np.ndarray, w: np.ndarray, n: int = 40) -> tuple[float, float]:
+    """(R², time): the best single step in time for ``d``: breakpoints at n quantiles from 5 % to
+    95 % of the recording, then at every sample between the best one's neighbours."""
+    grid = np.quantile(t, np.linspace(0.05, 0.95, n))
+    score = lambda at: (_r2(d, w, (t > at).astype(float))[0], float(at))
+    best = max(map(score, grid))
+    k = int(np.searchsorted(grid, best[1]))
+    near = t[(t > grid[max(k - 1, 0)]) & (t < grid[min(k + 1, n - 1)])]
+    return max([best, *map(score, near)])
 
 
 def _r2(d: np.ndarray, w: np.ndarray, phi: np.ndarray) -> tuple[float, np.ndarray]:
@@ -95,6 +108,13 @@ def explain(model, rec, loc: Location, out_dir=None, names=None, tried=None) -> 
             if r2 > best[0] and not _already(phi, known):
                 best = (r2, name, formula, phi, coef)
     said = {}
+    step_r2, at = _step(rec.t, d, w) if rec is not None else (-np.inf, 0.0)
+    if step_r2 >= HINT_R2 and step_r2 > max(best[0], closest[0]):      # the system changed during the recording
+        return {"explained_by": None, "r2": None, "suggested_candidate": None, "changes_at": at,
+                "note": f"what remains in {eq} changes over time: a step at t = {at:.4g} s explains it best (R² "
+                        f"{step_r2:.2g}; the best shape of a state or input, {closest[2]}, {closest[0]:.2g}): the "
+                        f"system changed during the recording (a battery, a payload, a failure); diagnose the "
+                        f"stretches before and after it apart"}
     if catalog and closest[0] >= HINT_R2:
         said["tried"] = (f"what remains in {eq} follows {closest[2]} best (R² {closest[0]:.2g}), the shape of the "
                          f"{catalog} the diagnosis tried there and did not adopt")
