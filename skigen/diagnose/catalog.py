@@ -272,13 +272,13 @@ def input_term(model: Model, eq: str, u: str) -> Additive:
     sym = T.symbols(model)[u]
     if ca.jacobian(model.rhs[eq], sym).is_constant():
         return plain
-    values = {p.sym.name(): p.value for p in model.parameters}       # at the declared values
     zero = lambda e: ca.substitute(e, sym, 0.0)
     share = sum((e if _vanishes(zero(e)) else e - zero(e) for e in summands(model.rhs[eq]) if ca.depends_on(e, sym)),
                 ca.SX(0))
     share = share / model.dt if model.discretization == "discrete" else share
-    if values:
-        share = ca.substitute(share, ca.vertcat(*[p.sym for p in model.parameters]), ca.DM(list(values.values())))
+    if model.parameters:                                             # at the declared values
+        share = ca.substitute(share, ca.vertcat(*[p.sym for p in model.parameters]),
+                              ca.DM([p.value for p in model.parameters]))
     if {s.name() for s in ca.symvar(share)} - set(T.symbols(model)) or not _finite(share):
         return plain
     return Additive("input_gain", eq, to_python(share).replace("ca.", ""), READINGS["input_gain"], f"its {u} term",
