@@ -805,20 +805,22 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
         again = redelayed(nominal, corr, earlier, rec, alpha, rms, size)
         if again is not corr:
             corr, current = again, cv_loglik(nominal, again, rec, folds, rms, size)
-    if revision := _revised(first, corr, current, rounds, rec, folds, rms, size, alpha, noise_from):
+    if revision := _revised(first, corr, current, rounds, rec, folds, rms, size, alpha, states, noise_from):
         history.append(revision)
         corr, nominal, current = revision.correction, revision.noise, revision.folds
     return corr, history, rms, size, nominal
 
 
 def _revised(first: Model, corr: Correction, current, rounds: list, rec, folds, rms, size, alpha: float,
-             noise_from=None) -> "Proposal | None":
+             states: np.ndarray, noise_from=None) -> "Proposal | None":
     """The best of the rounds' ties, each in the correction it was a tie in (without the terms its
     round's adoption dropped as not significant, and without the later rounds' findings), under
     the noise calibrated with it: within what a finding must add of the final correction
     ``current`` (cross-validated) where it leaves later findings out (fewer numbers for the same
-    evidence), ahead of it where it leaves none (as many numbers, better under its own noise).
-    A proposal whose ``noise`` is that model; None if there is none. (KT·pwm² 10 % low on a
+    evidence), ahead of it where it leaves none (as many numbers, better under its own noise);
+    none whose terms a round would set aside as compensating (an anti-drag 1.3 ahead of a heavier
+    cart's damping constant replaced it, then was dropped, and the damping with it). A proposal
+    whose ``noise`` is that model; None if there is none. (KT·pwm² 10 % low on a
     closed-loop hover: a rate offset was chosen over the thrust term, 0.6 ahead, and a lidar gain
     of 0.93 was named to make up the rest; the thrust term alone was 0.7 behind both. On another
     flight a linear gain on pwm won its round, and the pwm² term, under its own noise, was 3.3
@@ -834,8 +836,9 @@ def _revised(first: Model, corr: Correction, current, rounds: list, rec, folds, 
             except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):
                 continue
             noise = recalibrated(first, alt, rec, noise_from)
-            if (scored := _scored(noise, alt, rec, folds, rms, size)) is None:
-                continue
+            if (scored := _scored(noise, alt, rec, folds, rms, size)) is None or any(
+                    compensating(noise, c, coef, states, rec) for c, coef, _ in scored[0].found[len(before.found):]):
+                continue                       # a term a round would set aside is no revision
             short = -_gain(scored[1], current)
             if (short < evidence_threshold(alpha) if later else short < 0) and (
                     best is None or np.sum(scored[1]) > np.sum(best[1][1])):
