@@ -260,6 +260,8 @@ def test_an_input_that_drives_two_equations_is_offered_terms_added_to_it():
         ("bias", "v"), ("input_gain", "v"),
         *((e, q) for e in ("viscous_damping", "quadratic_drag", "coulomb_friction") for q in ("v", "w"))}
     assert all(c.through == "F" for c in cands)
+    assert {c.effect: c.text for c in cands if c.effect in ("input_gain", "bias")} == {
+        "input_gain": "F·(1 + c)", "bias": "1, added to F"}          # not "F, added to F"
     assert {c.formula for c in cands if c.effect == "coulomb_friction"} == {   # ∂v̇/∂F > 0, ∂ω̇/∂F < 0 upright
         "-tanh(v/0.0015)", "-tanh(v/0.006)", "-tanh(v/0.024)", "tanh(w/0.002)", "tanh(w/0.008)", "tanh(w/0.032)"}
     assert {c.formula for c in cands if c.effect == "viscous_damping"} == {"-v", "w"}

@@ -462,6 +462,12 @@ def test_what_remains_that_steps_in_time_is_said_to_change_over_time(monkeypatch
     d = 2.0 * pwm + 0.02 * rng.standard_normal(3000)
     loc.disturbance["vz"] = (d, np.full(3000, 0.1))
     assert suggest.explain(None, types.SimpleNamespace(t=t), loc)["suggested_candidate"] == "remaining:vz:pwm"
+    temp = np.where(t > 30, 1.0, 0.0) + 0.3 * rng.standard_normal(3000)     # a state that steps too: a tie
+    d = temp + 0.3 * rng.standard_normal(3000)
+    loc.disturbance["vz"] = (d, np.full(3000, 0.1))
+    monkeypatch.setattr(suggest, "features", lambda model, rec, states: {"T2": (temp, None)})
+    out = suggest.explain(None, types.SimpleNamespace(t=t), loc)
+    assert "changes_at" not in out and out["suggested_candidate"] == "remaining:vz:T2", out
 
 
 def test_what_remains_is_not_suggested_in_the_shape_of_a_candidate_already_tried(monkeypatch):

@@ -99,7 +99,10 @@ class Additive:
 
     @property
     def text(self) -> str:
-        """The term as a person reads it: its formula, and the input it is added to."""
+        """The term as a person reads it: its formula, and the input it is added to (an input's own
+        gain: the input times 1 + c)."""
+        if self.through and self.formula == self.through:
+            return f"{self.through}·(1 + c)"
         return f"{self.formula}, added to {self.through}" if self.through else self.formula
 
     def sx(self, model: Model) -> ca.SX:

@@ -14,8 +14,9 @@ that is a candidate the diagnosis already tried on that equation (|r| ≥ SAME
 along the trajectory: x is the catalog's linear stiffness) is not suggested —
 run, it was "judged as the catalog's" and the same suggestion came back — but
 said, beside the best shape outside them. Where a single step in time explains it better than
-any shape of a state or input, the system changed during the recording (a battery that sags
-partway): that is said instead of a candidate.
+any shape of a state or input (by STEP_MARGIN of R²: a tie at 0.48 was taken for a change), the
+system changed during the recording (a battery that sags partway): that is said instead of a
+candidate. (HINT_R2 was 0.05: a cubic of a capacitor's voltage at R² 0.07 was suggested.)
 """
 from __future__ import annotations
 
@@ -28,7 +29,8 @@ from .locate import Location, features
 
 __all__ = ["explain"]
 
-HINT_R2 = 0.05      # a shape explaining less than 5 % of what remains is not worth suggesting
+HINT_R2 = 0.2       # a shape explaining less than a fifth of what remains is not worth suggesting
+STEP_MARGIN = 0.1   # a step in time must explain this much more (R²) than any shape to be said
 SAME = 0.999        # |correlation| along the trajectory at which a shape is a candidate already tried
 
 
@@ -109,7 +111,7 @@ def explain(model, rec, loc: Location, out_dir=None, names=None, tried=None) -> 
                 best = (r2, name, formula, phi, coef)
     said = {}
     step_r2, at = _step(rec.t, d, w) if rec is not None else (-np.inf, 0.0)
-    if step_r2 >= HINT_R2 and step_r2 > max(best[0], closest[0]):      # the system changed during the recording
+    if step_r2 >= HINT_R2 and step_r2 > max(best[0], closest[0]) + STEP_MARGIN:    # the system changed
         return {"explained_by": None, "r2": None, "suggested_candidate": None, "changes_at": at,
                 "note": f"what remains in {eq} changes over time: a step at t = {at:.4g} s explains it best (R² "
                         f"{step_r2:.2g}; the best shape of a state or input, {closest[2]}, {closest[0]:.2g}): the "
