@@ -27,7 +27,7 @@ from .source import to_python
 
 __all__ = ["Additive", "Structural", "EFFECTS", "READINGS", "evaluate", "additive_candidates",
            "structural_candidates", "output_candidates", "user_candidates", "declared_candidates", "rate_equations",
-           "kinematic_equations", "pairs", "COULOMB_WIDTHS", "channel", "channel_candidates"]
+           "kinematic_equations", "pairs", "COULOMB_WIDTHS", "channel", "channel_candidates", "limit"]
 
 VELOCITY_ROLES = ("velocity", "rate")
 POSITION_ROLES = ("position", "angle", "altitude")
@@ -370,9 +370,7 @@ def additive_candidates(model: Model, equations, scale: dict[str, float],
                 x = states[:, model.state_names.index(q)]
                 for side, qs in (("upper", LIMIT_QUANTILES), ("lower", [1 - a for a in LIMIT_QUANTILES])):
                     for b in sorted({float(_num(v)) for v in np.quantile(x, qs)}):
-                        formula = f"-fmax({q} - {_num(b)}, 0)" if side == "upper" else f"fmax({_num(b)} - {q}, 0)"
-                        add("physical_limit", formula, f"{q} {'≤' if side == 'upper' else '≥'} {_num(b)} {units[q]}".rstrip(),
-                            (("bound", b), ("side", side), ("state", q)), sign=1)
+                        out.append(limit(eq, q, side, b, units[q]))
         for u in _inputs_of(model, eq):
             add("input_gain", u)
             if (term := input_term(model, eq, u)).expr is not None:
@@ -385,6 +383,15 @@ def additive_candidates(model: Model, equations, scale: dict[str, float],
                     add("ground_effect", f"exp(-{z}/{_num(h * per_m)})*{u}", f"h = {_num(h * per_m)} {units[z]}",
                         (("height", float(_num(h * per_m))),))
     return out
+
+
+def limit(eq: str, q: str, side: str, bound: float, unit: str = "") -> Additive:
+    """The physical limit on ``eq`` of state ``q`` at ``bound`` on ``side`` ('upper': q ≤ bound)."""
+    b = _num(bound)
+    formula = f"-fmax({q} - {b}, 0)" if side == "upper" else f"fmax({b} - {q}, 0)"
+    return Additive("physical_limit", eq, formula, READINGS["physical_limit"],
+                    f"{q} {'≤' if side == 'upper' else '≥'} {b} {unit}".rstrip(),
+                    shape=(("bound", float(b)), ("side", side), ("state", q)), sign=1)
 
 
 CHANNEL_SIGN_SHARE = 0.95    # a velocity an input pushes one way on this share of the samples
