@@ -55,8 +55,8 @@ from ..library import term
 from ..model import Model
 from ..recording import Recording
 from ..runtime import parallel
-from . import transform as T
 from . import catalog as C
+from . import transform as T
 from .catalog import Additive, Structural, feedthrough, rate_readers
 from .cv import Folds, ekf_priors, ekf_run, fit_without, fits_without, fold_loglik, loglik
 from .errors import DiagnosisError
