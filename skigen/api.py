@@ -17,10 +17,10 @@ def run(model: Model, data, *, filter: str = "ukf", backend: str = "python", col
 
     data: a CSV, Parquet or PX4 ULog path, a pandas DataFrame (a time column, or a numeric or
     datetime index), or a :class:`~skigen.recording.Recording` already on the model's grid (a
-    window of one: ``load_recording(path, model).slice(a, b)``). columns: model input/output name -> column. time: the time column (default
-    t, time or timestamp). time_unit: s, ms, us, ns or auto. max_gap: seconds without a sample
-    reported as a hole (``result.holes``). backend: python, c (``real`` double or float) or casadi
-    (no guard policy: see :mod:`skigen.runtime`).
+    window of one: ``load_recording(path, model).slice(a, b)``). columns: model input/output
+    name -> column. time: the time column (default t, time or timestamp). time_unit: s, ms, us,
+    ns or auto. max_gap: seconds without a sample reported as a hole (``result.holes``). backend:
+    python, c (``real`` double or float) or casadi (no guard policy: see :mod:`skigen.runtime`).
     guard: outlier gate and recovery settings (a :class:`skigen.guard.Guard`; default its defaults).
     options: the filter's :class:`~skigen.derive.FilterOptions` (sigma-point alpha, second-order EKF, ARD).
     show_progress: a progress line on stderr, where progress is shown (a terminal, or

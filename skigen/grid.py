@@ -150,8 +150,9 @@ def coarse(ts) -> bool:
 def _refuse_coarse(samples, name, ts, dt) -> None:
     if coarse(ts):
         apart = np.diff(np.unique(ts))
+        where = f"column '{samples.time_column}'" if samples.time_column else "the time"
         raise RecordingError(
-            f"{samples.source}, " + (f"column '{samples.time_column}'" if samples.time_column else "the time") + f": {_repeats(ts)[0]} of the {len(ts)} samples of "
+            f"{samples.source}, {where}: {_repeats(ts)[0]} of the {len(ts)} samples of "
             f"'{samples.columns[name]}' repeat the time stamp before them, whose distinct values are "
             f"{np.median(apart) if len(apart) else 0:.3g} s apart (the model's dt is {dt:g} s): the time is "
             f"written too coarsely (too few digits?); write it with more digits, or name a finer time column "

@@ -333,7 +333,8 @@ class RunSummary:
         """Which states' prior std the guard held at its bound, on how many samples, and what to do."""
         aug = self.filter.aug
         sd = np.sqrt(np.diag(aug.P0))
-        held = ", ".join(f"{aug.names[i]} on {self.held[i]} (declared std {sd[i]:.3g})" for i in np.flatnonzero(self.held))
+        held = ", ".join(f"{aug.names[i]} on {self.held[i]} (declared std {sd[i]:.3g})"
+                         for i in np.flatnonzero(self.held))
         return (f"prior std held at its bound (std_scale × the declared std; 100 by default): {held} of "
                 f"{self.samples} samples: there the filter is surer of the state than its model and the weights' "
                 f"prior make it, and may gate readings it should use. A broad weight prior beside a tight state "

@@ -94,8 +94,8 @@ def _cell(x) -> str:
 
 def write_summary(path, rows: list[dict], moved: list[dict], mode: str = "run") -> Path:
     """``summary.csv``: the fixed columns, the NIS (a run, a diagnosis; a run's ``verdict`` on it:
-    consistent, inconsistent, conservative) or each output's ``rmse_`` (a fit), each quantity and its ``std_``, then ``moved`` (the quantities that moved
-    at this log), and for a diagnosis ``mismatch`` (detected in the nominal), ``findings`` and
+    consistent, inconsistent, conservative) or each output's ``rmse_`` (a fit), each quantity and
+    its ``std_``, then ``moved`` (the quantities that moved at this log), and for a diagnosis ``mismatch`` (detected in the nominal), ``findings`` and
     ``remains`` (a mismatch remains after the correction)."""
     qs = quantities(rows)
     diag = mode == "diagnose"
