@@ -148,4 +148,6 @@ def test_a_heavier_cart_is_named_as_a_gain_on_the_force(tmp_path):
     damping = value * cart_pole.B if effect == "constant" else cart_pole.B + value
     assert (effect, eq, through) in {("constant", "v+w", None), ("viscous_damping", "v", "F")}, rep.findings
     assert damping == pytest.approx(cart_pole.B / 1.3, abs=0.02)
+    # an anti-drag (a drag with the sign physics forbids) was said "not told apart" from the damping
+    assert not any(a["effect"] == "quadratic_drag" for f in rep.findings for a in f.get("as_good", [])), rep.findings
     assert not rep.data["remaining"]["mismatch"]

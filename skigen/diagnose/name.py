@@ -345,12 +345,14 @@ def _ties(current: Correction, new: Correction, score, tried: list, alpha: float
     well as ``new`` with no more terms (cross-validated log-likelihood within what a finding must
     add), as report items with how far behind they are (a roll-damping change scored a quadratic
     drag 0.24 ahead of the true viscous damping, and was named without a word of it), and the
-    corrections they come from."""
+    corrections they come from. A set with a term whose sign physics forbids is no tie (an
+    anti-drag was said "not told apart" from a heavier cart's damping)."""
     mine = added(current, new)
     out, seen, whole = [], {_said(a) for a in mine}, []
     for trial, trial_score in sorted(tried, key=lambda t: -np.sum(t[1])):
         behind = -_gain(trial_score, score)       # +inf where a fold cannot be scored
-        if len(trial.additive) > len(new.additive) or not 0 <= behind < evidence_threshold(alpha):
+        if len(trial.additive) > len(new.additive) or not 0 <= behind < evidence_threshold(alpha) \
+                or _unphysical(current, trial):
             continue
         theirs = added(current, trial)
         instead = [list(acts(a)) for a in mine if _said(a) not in {_said(b) for b in theirs}]
@@ -400,7 +402,7 @@ def _ties_under(nominal: Model, recal: Model, corr: Correction, new: Correction,
                 continue
             trial = Correction(trial.additive, corr.structural)
             scored = _scored(recal, trial, rec, folds, rms, size)
-            if scored is None:
+            if scored is None or _unphysical(corr, scored[0]):
                 continue
             behind = -_gain(scored[1], score)
             if evidence_threshold(alpha) <= behind < TIE_MARGIN * evidence_threshold(alpha):
@@ -421,6 +423,11 @@ def _ties_under(nominal: Model, recal: Model, corr: Correction, new: Correction,
                 out += [a | {"cv_loglik_behind": behind, "instead_of": instead} for a in added(corr, scored[0])]
                 whole.append(scored[0])
     return out, whole
+
+
+def _unphysical(before: Correction, after: Correction) -> bool:
+    """Whether a term ``after`` adds fits only with a sign physics forbids (an anti-drag): no tie."""
+    return any(c.sign > 0 and coef < 0 for c, coef, _ in after.found[len(before.found):])
 
 
 def acts(item: dict) -> tuple:
