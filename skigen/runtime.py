@@ -303,7 +303,6 @@ class RunSummary:
                     + ". Check the units and mapping of the inputs and outputs; `skigen diagnose` says where and "
                       "what is missing")
         if mean > hi:
-            gated = self.events[Status.OUTLIER_REJECTED]
             return (f"inconsistent: the innovations are {mean:.3g} times their predicted variance ({band}): the "
                     f"model or its declared noise does not explain the recording, and the ± 2σ above are too "
                     f"small" + (f"; the {gated} gated readings may be that mismatch, not outliers" if gated else "")

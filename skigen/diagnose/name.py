@@ -60,7 +60,7 @@ from . import transform as T
 from .catalog import Additive, Structural, feedthrough, rate_readers
 from .cv import Folds, ekf_priors, ekf_run, fit_without, fits_without, fold_loglik, loglik
 from .errors import DiagnosisError
-from .plausible import compensating, significant, term_item
+from .plausible import compensating, forbidden_sign, significant, term_item
 
 __all__ = ["Correction", "Proposal", "name_terms", "refit", "basis_rms", "distinct", "start_priors",
            "focus_window", "recalibrated", "significant", "best_cv_loglik"]
@@ -387,8 +387,7 @@ def _ties_under(nominal: Model, recal: Model, corr: Correction, new: Correction,
     said = adopted | {_said(a) for a in chosen.as_good}
     instead = [list(acts(a)) for a in chosen.adopted]
     mine = loglik(new.build(recal), rec)
-    kept = {a[0] for a in new.additive}
-    lost = [a[0] for a in chosen.correction.additive if a[0] not in kept]   # dropped as not significant
+    lost = _dropped(chosen, new)
     out, whole = [], []
     for p in proposals:
         if p.kind != "additive":
@@ -427,7 +426,13 @@ def _ties_under(nominal: Model, recal: Model, corr: Correction, new: Correction,
 
 def _unphysical(before: Correction, after: Correction) -> bool:
     """Whether a term ``after`` adds fits only with a sign physics forbids (an anti-drag): no tie."""
-    return any(c.sign > 0 and coef < 0 for c, coef, _ in after.found[len(before.found):])
+    return any(forbidden_sign(c, coef) for c, coef, _ in after.found[len(before.found):])
+
+
+def _dropped(p: Proposal, adopted: Correction) -> list[Additive]:
+    """The terms proposal ``p`` proposed that its adoption (``adopted``) dropped as not significant."""
+    kept = {a[0] for a in adopted.additive}
+    return [a[0] for a in p.correction.additive if a[0] not in kept]
 
 
 def acts(item: dict) -> tuple:
@@ -871,8 +876,7 @@ def _revised(first: Model, corr: Correction, current, rounds: list, rec, folds, 
     best = None
     for (p, before), after in zip(rounds, [r[1] for r in rounds[1:]] + [corr]):
         later = added(after, corr)
-        kept = {a[0] for a in after.additive}
-        lost = [a[0] for a in p.correction.additive if a[0] not in kept]    # not significant when adopted
+        lost = _dropped(p, after)
         for alt in p.alternatives:
             try:                               # its coefficients as the noise before naming has them
                 alt = refit(first, alt.without(*lost), rec, rms, size)

@@ -30,7 +30,7 @@ from scipy import stats
 from ..model import Model
 from ..recording import Recording
 
-__all__ = ["screen", "nominal_damping", "compensating", "significant", "term_item"]
+__all__ = ["screen", "nominal_damping", "compensating", "forbidden_sign", "significant", "term_item"]
 
 
 def significant(coef: float, std: float, alpha: float) -> bool:
@@ -65,10 +65,15 @@ def term_item(c, coef: float, std: float, note: str) -> dict:
             "std": std, "note": note} | ({"through": c.through} if c.through else {})
 
 
+def forbidden_sign(c, coef: float) -> bool:
+    """Whether additive term ``c`` fits with a sign physics forbids (a drag that pushes the motion)."""
+    return c.sign > 0 and coef < 0
+
+
 def compensating(model: Model, c, coef: float, states: np.ndarray, rec: Recording) -> str | None:
     """Why additive term ``c`` at ``coef`` is compensating for something else, or None: a sign
     physics forbids, or a viscous damping that makes the equation's total damping negative."""
-    if c.sign > 0 and coef < 0:
+    if forbidden_sign(c, coef):
         return ("fits only with a sign physics forbids (it would push the motion instead of opposing it): "
                 "compensating for something else")
     if c.effect == "viscous_damping":
