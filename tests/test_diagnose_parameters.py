@@ -146,7 +146,8 @@ def test_a_finding_not_needed_that_the_refit_corrects_as_a_nominal_term_is_not_s
     gain = Additive("input_gain", "r", "delta", "")
     f = dict(effect="input_gain", equation="r", expression="delta", kind="additive", coefficient=0.0025,
              std=0.0012, cv_coefficient=-0.0044, cv_std=0.00015)
-    lifted = {"loglik": 100.0, "lifted": [dict(effect="input_gain", equation="r", formula="delta")],
+    lifted = {"loglik": 100.0, "lifted": [dict(effect="input_gain", equation="r", formula="delta",
+                                                         parameter="input_gain_r_correction")],
               "parameters": {"input_gain_r_correction": dict(value=0.00248, std=0.0012)}}
     (item,) = _not_needed([f], [gain], {"loglik": 100.0}, lifted, alpha=0.01)
     assert item["note"].endswith("not a finding: the corrected model refits the nominal's own input gain on r "
@@ -161,8 +162,10 @@ def test_the_nominal_terms_the_joint_refit_corrects_are_said_where_findings_are(
     report said "no candidate explains the mismatch" and nothing of either. Both are now said in
     section 4 and on the terminal's refit line; a refit without lifted corrections says nothing."""
     from skigen.diagnose.report import lifted
-    refit = {"lifted": [dict(effect="viscous_damping", equation="u", formula="-u"),
-                        dict(effect="input_gain", equation="u", formula="0.2 * n * fabs(n)")],
+    refit = {"lifted": [dict(effect="viscous_damping", equation="u", formula="-u",
+                             parameter="viscous_damping_u_correction"),
+                        dict(effect="input_gain", equation="u", formula="0.2 * n * fabs(n)",
+                             parameter="input_gain_u_correction")],
              "parameters": {"viscous_damping_u_correction": dict(value=-0.01767, std=0.004),
                             "input_gain_u_correction": dict(value=-0.1238, std=0.0098)}}
     said = lifted({"refit": refit})

@@ -601,13 +601,14 @@ def _kept_as(finding: dict, refit: dict) -> str:
     """Where a finding not needed went: out of the corrected model, or, where that refit corrects
     the nominal's own term of the same kind (a lifted correction), into that correction."""
     effect, eq = finding["effect"], finding["equation"]
-    if any((d["effect"], d["equation"]) == (effect, eq) for d in refit.get("lifted", [])):
-        name = f"{effect}_{eq}_correction"
-        p = refit.get("parameters", {}).get(name)
-        value = f" ({name} = {p['value']:.4g} ± {p['std']:.2g})" if p else ""
-        return (f"not a finding: the corrected model refits the nominal's own {effect.replace('_', ' ')} on "
-                f"{eq} instead{value}")
-    return "left out of the corrected model"
+    own = next((d for d in refit.get("lifted", []) if (d["effect"], d["equation"]) == (effect, eq)), None)
+    if own is None:
+        return "left out of the corrected model"
+    name = own["parameter"]
+    p = refit.get("parameters", {}).get(name)
+    value = f" ({name} = {p['value']:.4g} ± {p['std']:.2g})" if p else ""
+    return (f"not a finding: the corrected model refits the nominal's own {effect.replace('_', ' ')} on "
+            f"{eq} instead{value}")
 
 
 def _flag_one_step_only(findings: list[dict], free_all: float, noise: float = 0.0) -> None:

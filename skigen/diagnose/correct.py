@@ -264,7 +264,8 @@ def refit_jointly(nominal: Model, calibrated: Model, corr: Correction, rec, equa
         info.update(parameters=res.parameters, noise=res.noise.get("scales"), converged=res.converged,
                     loglik=-res.objective,
                     seconds=res.seconds, iterations=res.iterations,
-                    lifted=[dict(effect=c.effect, equation=c.equation, formula=c.formula) for c in attempt])
+                    lifted=[dict(effect=c.effect, equation=c.equation, formula=c.formula, parameter=n)
+                            for c, n in zip(attempt, [n for n, c in names.items() if c is None])])
         return _polished(res.model, rec, pieces, names, notes, info, window)
     info["note"] += "coefficients from the cross-validated search"
     model, names, notes = parametrised(calibrated, corr, [])

@@ -72,7 +72,7 @@ def lifted(data: dict) -> str | None:
     refit = data.get("refit") or {}
     said = []
     for d in refit.get("lifted", []):
-        p = (refit.get("parameters") or {}).get(f"{d['effect']}_{d['equation']}_correction")
+        p = (refit.get("parameters") or {}).get(d["parameter"])
         if p and p.get("std"):
             said.append(f"its {d['effect'].replace('_', ' ')} on `{d['equation']}` (`{d['formula']}`) by "
                         f"{p['value']:.4g} ± {p['std']:.2g} ({abs(p['value']) / p['std']:.1f} std from 0)")
