@@ -62,14 +62,19 @@ def _read_options(args) -> dict:
     return dict(time=args.time, time_unit=args.time_unit, columns=columns or None, max_gap=args.max_gap)
 
 
-def _filter_options(args):
-    """FilterOptions from --alpha and --second-order."""
-    from .derive import FilterOptions
+def _derived(args, model):
+    """The filter of ``skigen run`` and ``generate``: --filter with FilterOptions from --alpha and
+    --second-order, and the --estimate parameters augmented into the state."""
+    from .derive import FilterOptions, derive
     if not (0 < args.alpha <= 1):
         raise CliError(f"--alpha must be in (0, 1], got {args.alpha}")
     if args.second_order and args.filter != "ekf":
         raise CliError(f"--second-order is the EKF's (its prediction's second-order terms); --filter is {args.filter}")
-    return FilterOptions(alpha=args.alpha, second_order=args.second_order)
+    try:
+        return derive(model, args.filter, FilterOptions(alpha=args.alpha, second_order=args.second_order),
+                      estimate=args.estimate)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
 
 
 def _add_filter_options(p) -> None:
@@ -80,6 +85,9 @@ def _add_filter_options(p) -> None:
     p.add_argument("--second-order", action="store_true",
                    help="EKF: predict with the transition's second-order terms (honest error bars on a "
                         "strongly nonlinear term, where the first-order EKF is overconfident)")
+    p.add_argument("--estimate", action="append", default=[], metavar="NAME",
+                   help="a declared parameter to estimate online, augmented into the state with its std as "
+                        "prior (repeatable)")
 
 
 def _run(args) -> int:
@@ -91,7 +99,6 @@ def _run(args) -> int:
     backwards, a grid it cannot bound), the file is read whole, which names it. Parquet, ULog (read
     whole by their libraries) and the other commands (``diagnose`` and ``fit`` need the whole
     record) read the recording whole."""
-    from .derive import derive
     from .recording import TableWriter, load_recording, stream_recording
     from .runtime import RunSummary, iter_run, iter_run_stream
     from .sources import NotStreamable, is_csv
@@ -101,7 +108,7 @@ def _run(args) -> int:
     out, filt = Path(args.out), None
     if is_csv(args.data):
         grid = stream_recording(args.data, model, real=args.real, **options)
-        filt = derive(model, args.filter, _filter_options(args))
+        filt = _derived(args, model)
         summary = RunSummary(filt)
         try:
             with TableWriter(out, background=True) as w:
@@ -122,7 +129,7 @@ def _run(args) -> int:
         raise
     for line in rec.notes:
         print(line)
-    filt = filt or derive(model, args.filter, _filter_options(args))
+    filt = filt or _derived(args, model)
     summary = RunSummary(filt)
     with TableWriter(out, background=True) as w:
         for part in iter_run(filt, rec, backend=args.backend, real=args.real, guard=_guard(args)):
@@ -154,14 +161,13 @@ def _ran(args, model, n, t0, t1, summary) -> int:
 
 
 def _generate(args) -> int:
-    from .derive import derive
     from .emit.c import check_prefix, choose_style, emit_c, float_precision
 
     model = load_model(args.model)
     try:
         if args.prefix is not None:
             check_prefix(args.prefix)                # before the derivation, which may take a while
-        filt = derive(model, args.filter, _filter_options(args))
+        filt = _derived(args, model)
         style = choose_style(filt, args.style)
         files = emit_c(filt, args.out, real=args.real, style=style, prefix=args.prefix)
     except ValueError as exc:

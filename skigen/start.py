@@ -24,13 +24,17 @@ The declared start is kept unless the vague one is more likely by MARGIN nat, th
 user's declaration, and in a recording's first samples a sensor offset or a model
 error can look like another start (a position sensor reading 20 mm high on a
 mass-spring at rest moved its start by 0.4 nat, and a force bias was named instead
-of the offset). Where the declared start loses, filters start from the vague prior,
+of the offset). Where the declared start loses, filters start from a vague prior,
 the declared mean with DIFFUSE² P₀: they learn the start from the data as they go,
 where a point estimate would be fixed by the nominal model for every later candidate
 (an ambient temperature with a 300 s time constant, smoothed over the head with a
-loss the model leaves out, was 17 of its std off). The vague filter over the head
-smoothed back to the first sample (:mod:`skigen.smoother`) says where the recording
-starts.
+loss the model leaves out, was 17 of its std off). A state that starts beyond BEYOND
+of the vague std from the declared mean starts where the recording does (its first
+innovation would outweigh the rest: a motor log starting at 426 rad, 4·10⁴ declared
+std away, had its encoder noise fitted at 6·10⁷× its variance). The vague
+filter over the head smoothed back to the first sample (:mod:`skigen.smoother`), with
+P₀, Q and R in their declared ratio, says where the recording starts; the dispersion
+widens only its std (scaling R alone let the vague prior pull that start to 235 rad).
 """
 from __future__ import annotations
 
@@ -50,6 +54,7 @@ __all__ = ["DIFFUSE", "MARGIN", "RecordedStart", "recorded_start", "vague_covari
 
 DIFFUSE = 100.0     # the declared initial std widened this much: the start "not known"
 MARGIN = 0.5 * float(stats.chi2.isf(0.01, 1))    # nat the vague start must win by (3.3)
+BEYOND = 3.0        # vague std: a state the recording starts further than this from declared starts there
 _FAILED = (FloatingPointError, ArithmeticError, ValueError, RuntimeError, np.linalg.LinAlgError)
 
 
@@ -70,6 +75,21 @@ class RecordedStart:
     @property
     def consistent(self) -> bool:
         return self.gain <= MARGIN
+
+    @property
+    def vague_mean(self) -> np.ndarray:
+        """The vague prior's mean: the declared one, but where the recording starts for each state
+        beyond BEYOND of the vague prior's std from it (its first innovation would outweigh the rest
+        of the recording; nearer, the declared mean keeps a nonlinear model in its domain)."""
+        far = np.abs(self.mean - self.declared) > BEYOND * DIFFUSE * self.declared_std
+        return np.where(far, self.mean, self.declared)
+
+    def starting(self, who: str) -> str:
+        """'<who> start(s) from the declared mean with 100× the declared std', and which states start
+        where the recording does (:attr:`vague_mean`)."""
+        moved = [n for n, a, b in zip(self.names, self.vague_mean, self.declared) if a != b]
+        return (f"{who} from the declared mean with {DIFFUSE:g}× the declared std"
+                + (f" ({', '.join(moved)} where the recording starts, beyond {BEYOND:g} of that std)" if moved else ""))
 
     def note(self, path: str, what: str) -> str:
         """A sentence naming the states furthest off the declared start, ending in ``what``."""
@@ -95,12 +115,13 @@ def recorded_start(model: Model, rec: Recording) -> RecordedStart | None:
         settled = np.all(std <= np.maximum(declared_std, 2 * std[-1]), axis=1)
         head = rec.slice(0, max(int(np.argmax(settled)) if settled.any() else len(rec.t) - 1, 1) + 1)
         dispersion = np.nansum(whole.nis) / max(int(np.isfinite(rec.outputs).sum()), 1)
-        if dispersion > 1:
+        where = smooth(filt, head, vague)       # the start's mean as the data say: P₀, Q, R in their
+        if dispersion > 1:                      # declared ratio (the dispersion scales only its spread)
             filt, vague = _vague(_noise_times(model, dispersion))
-        sm = smooth(filt, head, vague)
+        sm = smooth(filt, head, vague) if dispersion > 1 else where
     except _FAILED:
         return None
-    x, P = sm.mean[0, :nx], sm.first[:nx, :nx]
+    x, P = where.mean[0, :nx], max(dispersion, 1.0) * where.first[:nx, :nx]
     if not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
         return None
     try:

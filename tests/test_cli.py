@@ -268,3 +268,40 @@ def test_a_float_build_of_a_state_far_from_its_origin_is_noted(tmp_path, origin,
         assert r.returncode == 0, r.stderr
         said = "note: in float, 'x' starts more than 1000 declared std from 0 ('x' at 5e+05 with std 1)" in r.stderr
         assert said == (noted and real == "float"), r.stderr
+
+
+def test_run_and_generate_estimate_a_declared_parameter_online(tmp_path):
+    """--estimate augments a declared parameter into the state (the batch command had it; run and
+    generate refused it as an unknown argument): a first-order lag's rate a = 2 (declared 1 ± 1)
+    is read within its error bars, the C build of the same filter writes the same table, and a
+    parameter without a std, or without a name, is a one-line error."""
+    rng = np.random.default_rng(4)
+    t = np.arange(1500) * 0.01
+    u = np.sign(np.sin(2 * np.pi * t / 3))
+    x, xs = 0.0, []
+    for uk in u:
+        xs.append(x)
+        x += 0.01 * (-2.0 * x + uk)
+    write_recording(tmp_path / "lag.csv", t, {"u": u}, {"y": np.array(xs) + 0.01 * rng.standard_normal(len(t))})
+    (tmp_path / "lag.py").write_text(
+        "from skigen import Model\nmodel = Model('lag', dt=0.01, discretization='euler')\n"
+        "x = model.state('x', unit='V', std=0.1, process_std=1e-4)\nu = model.input('u', unit='V')\n"
+        "a = model.parameter('a', 1.0, unit='1/s', std=1.0)\nb = model.parameter('b', 1.0, unit='1/s')\n"
+        "model.dynamics({x: -a * x + b * u})\nmodel.output('y', x, unit='V', noise_std=0.01)\n")
+    lag, data = str(tmp_path / "lag.py"), str(tmp_path / "lag.csv")
+    tables = {}
+    for backend in ("python", "c"):
+        out = tmp_path / f"{backend}.csv"
+        r = skigen("run", lag, data, "--filter", "ukf", "--estimate", "a", "--backend", backend, "--out", str(out))
+        assert r.returncode == 0, r.stderr
+        assert "(estimated online)" in r.stdout
+        tables[backend] = np.genfromtxt(out, delimiter=",", names=True)
+    a, std = tables["python"]["a"][-1], tables["python"]["std_a"][-1]
+    assert abs(a - 2.0) < 3 * std < 0.1, (a, std)
+    np.testing.assert_allclose(tables["c"]["a"], tables["python"]["a"], rtol=1e-9)
+    r = skigen("generate", lag, "--filter", "ekf", "--estimate", "a", "--out", str(tmp_path / "gen"))
+    assert r.returncode == 0 and "#define LAG_EKF_Z_A 1" in (tmp_path / "gen" / "lag_ekf.h").read_text(), r.stderr
+    for name, said in (("b", "parameter 'b' is estimated online but declares no std"),
+                       ("c", "model 'lag' has no parameter 'c' (parameters: a, b)")):
+        r = skigen("run", lag, data, "--filter", "ukf", "--estimate", name, "--out", str(tmp_path / "x.csv"))
+        assert r.returncode != 0 and said in r.stderr and "Traceback" not in r.stderr, r.stderr

@@ -711,6 +711,21 @@ def test_filter_error_leaves_the_noise_basin_of_a_wrong_start(monkeypatch, resta
         assert cal["measurement_std"]["T_meas"] < 0.01
 
 
+def test_a_parameter_fitted_far_from_its_starting_value_is_said():
+    """A heater's power logged in mW where the model wants W: K came out 0.0015 for the 0.5
+    declared (its prior 0.5 ± 0.2 holding it above the 0.0005 the data want), with no note (the diagnosis said it; the fit did not). A fit that moves a
+    parameter 10× or more says so and points at the units; one that does not says nothing."""
+    rng = np.random.default_rng(2)
+    P = np.repeat(rng.uniform(0, 100, 30), 100)
+    _, Y = simulate(_heater(0.5), P[:, None], np.array([20.0]), rng, q_std=(0.005,))
+    for power, far in ((P, False), (1000 * P, True)):
+        res = fit(_heater(0.5), [recording(_heater(0.5), power, Y)], show_progress=False)
+        said = [n for n in res.notes if n.startswith("K = ") and "check the units" in n]
+        assert bool(said) == far, res.notes
+    assert res.parameters["K"]["value"] < 0.05 and "for the 0.5 declared (0.00" in said[0], said
+    assert said[0].endswith("×): check the units of the inputs and outputs it acts through before reading the rest")
+
+
 def test_an_input_hole_cuts_the_recording_into_parts_fitted_apart():
     """An input without a sample for longer than max_gap is not its held value: the fit takes the
     stretches on either side as two recordings (each with its own initial state), says so, and

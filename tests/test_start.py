@@ -166,3 +166,48 @@ def test_the_fit_figure_counts_the_rms_as_the_report_does(monkeypatch):
     expected = np.sqrt(np.mean(y[3:, 0] ** 2))
     assert axes[1].get_title(loc="right") == f"RMS {expected:.4g} from t = 0.03 s"
     assert axes[1].get_ylim()[1] < 1.0 and axes[3].get_title(loc="right") == "never measured"
+
+
+def _motor_far(n: int = 1200):
+    """A DC motor (J ω' = 0.05 V − b ω − 0.005 tanh(ω/0.5), J 3e-4, b 1.2e-3) at 6 V, logged from
+    θ ≈ 426 rad and ω ≈ 243 rad/s — 4·10⁴ and 2·10³ declared std from the declared rest — encoder
+    2 mrad, tachometer 0.2 rad/s; the model declares b = 1e-3 (its steady speed 295 rad/s)."""
+    import casadi as ca
+    dt, rng = 0.005, np.random.default_rng(5)
+    f = lambda x: np.array([x[1], (0.05 * 6.0 - 1.2e-3 * x[1] - 0.005 * np.tanh(x[1] / 0.5)) / 3e-4])
+    x, X = np.array([425.85, 243.3]), []
+    for _ in range(n):
+        X.append(x.copy())
+        k1 = f(x); k2 = f(x + dt / 2 * k1); k3 = f(x + dt / 2 * k2); k4 = f(x + dt * k3)
+        x = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4) + [0, 1e-3 * rng.standard_normal()]
+    X = np.array(X)
+    y = X + rng.standard_normal(X.shape) * [2e-3, 0.2]
+    rec = Recording("motor.csv", 2 + np.arange(n) * dt, np.full((n, 1), 6.0), y, ("V",), ("enc", "tach"))
+    m = Model("motor", dt=dt, discretization="rk4")
+    th = m.state("theta", unit="rad", std=0.01, process_std=1e-5)
+    w = m.state("omega", unit="rad/s", std=0.1, process_std=1e-3)
+    V = m.input("V", unit="V")
+    b = m.parameter("b", 1e-3, unit="N m s", bounds=(0, 1))
+    m.dynamics({th: w, w: (0.05 * V - b * w - 0.005 * ca.tanh(w / 0.5)) / 3e-4})
+    m.output("enc", th, unit="rad", noise_std=2e-3)
+    m.output("tach", w, unit="rad/s", noise_std=0.2)
+    return m, rec, X[0]
+
+
+def test_a_log_that_starts_ten_thousand_std_away_is_fitted_from_where_it_starts():
+    """From the declared mean the first innovation (426 rad against the vague prior's 1 rad)
+    outweighed the rest: the encoder's noise was fitted 6·10⁷× its declared variance and the
+    start put at 235 rad, because the smoothed start scaled R by the head's dispersion (8·10⁵) and
+    not the prior. Centred where the recording starts, the fit is the one from a start declared
+    there (measured: encoder noise scale 1.05, θ's process noise 130 ± 100 where it was 7·10¹⁰,
+    b within 1σ, the start within 1σ, ± 0.011 rad and 0.78 rad/s)."""
+    m, rec, truth = _motor_far()
+    rs = recorded_start(m, rec)
+    assert not rs.consistent and np.all(np.abs(rs.mean - truth) < rs.std), (rs.mean, rs.std)
+    res = fit(m, [rec], method="filter-error", show_progress=False)
+    scale = res.noise["scales"]
+    assert 0.85 < scale["R_scale_enc"]["value"] < 1.25 and scale["Q_scale_theta"]["value"] < 1e3, scale
+    assert abs(res.parameters["b"]["value"] - 1.2e-3) < 3 * res.parameters["b"]["std"], res.parameters["b"]
+    start = res.initial_states[0]
+    for name, value, wide in zip(("theta", "omega"), truth, (0.03, 1.0)):   # by the fitted model: not
+        assert abs(start[name]["value"] - value) < 3 * start[name]["std"] < 3 * wide, start  # 0.42 rad, 9.8 rad/s

@@ -142,8 +142,8 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         caveats = list(rec.notes) + caveats               # what reading it decided (a truncated log)
         nominal = T.copy_model(user, unknowns=False)
         check(nominal, rec, folds)
-        nominal, moved = started(nominal, rec, "every filter of the diagnosis starts from the declared mean with "
-                                 f"{DIFFUSE:g}× the declared std; the corrected model file declares the user's start")
+        nominal, moved = started(nominal, rec, "every filter of the diagnosis starts",
+                                 "; the corrected model file declares the user's start")
         caveats += moved
         start_note = moved[0] if moved else None
         others = []
@@ -415,17 +415,18 @@ def _worse(before: dict, after: dict) -> str:
                      if None not in (a[k], b.get(k)) and a[k] > b[k] and not a[k] <= (noise.get(k) or 0.0))
 
 
-def started(model: Model, rec, what: str) -> tuple[Model, list[str]]:
+def started(model: Model, rec, who: str, then: str = "") -> tuple[Model, list[str]]:
     """``model``, or where ``rec`` rejects its declared start (:func:`skigen.start.recorded_start`)
-    a copy starting from the vague prior (the declared mean, DIFFUSE times the declared std), with
-    a note ending in ``what``."""
+    a copy starting from the vague prior (:attr:`~skigen.start.RecordedStart.vague_mean`, DIFFUSE
+    times the declared std), with a note saying how ``who`` starts, and ``then``."""
     rs = recorded_start(model, rec)
     if rs is None or rs.consistent:
         return model, []
     vague = T.copy_model(model)
+    vague.x0 = [float(v) for v in rs.vague_mean]
     vague.x_std = [DIFFUSE * s for s in model.x_std]
     vague.P0 = None if model.P0 is None else DIFFUSE ** 2 * model.P0
-    return vague, [rs.note(rec.path, what)]
+    return vague, [rs.note(rec.path, rs.starting(who) + then)]
 
 
 def _start_as(model: Model, like: Model) -> Model:
@@ -443,7 +444,7 @@ def _compared(nominal: Model, corrected: Model | None, rec, user: Model, notes: 
     """A held-out recording's statistics, nominal and corrected, on the nominal's free-run window;
     both started from ``user``'s declared start, or from the vague prior where the recording
     rejects it (:func:`started`, noted in ``notes``)."""
-    nominal, moved = started(_start_as(nominal, user), rec, "both models start from the vague prior on it")
+    nominal, moved = started(_start_as(nominal, user), rec, "both models start")
     notes += moved
     if corrected is not None:
         corrected = _start_as(corrected, nominal)
@@ -643,7 +644,8 @@ CONVERSIONS = {180 / np.pi: "degrees where the model declares radians", np.pi / 
                1e3: "a unit 1000× smaller (mm for m, mV for V?)", 1e-3: "a unit 1000× larger (m for mm, kV for V?)",
                1e2: "a unit 100× smaller (cm for m, % for a fraction?)", 1e-2: "a unit 100× larger (a fraction for %?)",
                3.6: "km/h where the model declares m/s", 1 / 3.6: "m/s where the model declares km/h",
-               1 / 0.3048: "feet where the model declares metres", 0.3048: "metres where the model declares feet"}
+               1 / 0.3048: "feet where the model declares metres", 0.3048: "metres where the model declares feet",
+               30 / np.pi: "rpm where the model declares rad/s", np.pi / 30: "rad/s where the model declares rpm"}
 
 
 def unit_hints(nominal: Model, rec) -> list[str]:

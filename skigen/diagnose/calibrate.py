@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..fit import FitError, NotIdentifiable, _bound_notes, fit
+from ..fit import FitError, NotIdentifiable, _bound_notes, _far_notes, fit
 from ..model import Model
 from ..recording import Recording
 from .catalog import kinematic_equations
@@ -86,21 +86,6 @@ def block_starts(model: Model, rec: Recording, pieces: list[Recording]) -> list 
     return [None if a == 0 else (prior[a][0][:nx], prior[a][1][:nx, :nx]) for a in at]
 
 
-FAR = 10.0     # a declared parameter calibrated this many times larger or smaller than declared: said
-
-
-def _far_notes(parameters: dict) -> list[str]:
-    """Declared parameters the calibration moved FAR-fold or more from their declared values: a
-    unit or scaling slip in what they multiply is likelier than a datasheet that far off (a PWM
-    command in µs where the model wants a fraction put a thrust constant at 0.0084 for 18)."""
-    out = []
-    for name, p in parameters.items():
-        a, b = p["initial"], p["value"]
-        if a and b and np.isfinite(b) and max(abs(a / b), abs(b / a)) >= FAR:
-            out.append(f"{name} = {b:.4g} ± {p['std']:.2g} for the {a:g} declared ({abs(b / a):.3g}×"
-                       f"{', its sign flipped' if a * b < 0 else ''}): check the units of the inputs and outputs "
-                       f"it acts through before reading the rest")
-    return out
 
 
 def calibrate(model: Model, recs: list[Recording], show_progress: bool = False,

@@ -26,7 +26,7 @@ from ..grid import clock
 from ..model import Model, ModelError
 from ..progress import note
 from ..recording import Recording, load_recording, resolution
-from ..start import DIFFUSE, recorded_start, vague_covariance
+from ..start import recorded_start, vague_covariance
 from ..simulate import AMPLIFICATION, growth_rate, simulation_window
 from .problem import LOG_SCALE_BOUND, METHODS, Problem, build_problem, data_matrix
 from .uncertainty import covariance, unidentified
@@ -222,9 +222,10 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     convergence tolerance. starts: filter error only, per recording the filter's state before its
     first sample, (mean (nx,), covariance (nx, nx)), or None for the model's initial state and
     covariance — unless the recording rejects it (:mod:`skigen.start`: a log that begins in
-    motion), then the declared mean with 100² times that covariance, and a note (the default for
-    every recording; ``initial_states`` gives where such a recording starts, smoothed from that
-    vague start by the model as declared); ``"declared"``: the model's initial state for every
+    motion), then the declared mean with 100² times that covariance (a state further than 3 of
+    those std off: where the recording starts), and a note (the default for
+    every recording; ``initial_states`` gives where such a recording starts, smoothed by the
+    fitted model); ``"declared"``: the model's initial state for every
     recording, untested. A recording cut from a longer one starts where a filter run over that one stood. time, time_unit, columns, max_gap: how to read recordings
     given as paths or DataFrames (see :func:`skigen.recording.load_recording`). noise_from:
     filter error only, another (Q, R) to start the noise from as well, the more likely optimum
@@ -353,14 +354,16 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     for i, side in _flat_sides(prob, xi, inputs, std / scale, info["information"], fitted_at).items():
         ({**result.parameters, **result.weights})[V.names[i]]["flat"] = side
     if method == "filter-error":
+        fitted_start = _fitted_starts(result.model, recs, tested)
+        back = [fs.consistent for fs in fitted_start if fs is not None]   # all: judged off at wrong values
         result.initial_states = [{} if rs is None or rs.consistent else
                                  {n: dict(value=float(v), std=float(s)) for n, v, s in zip(rs.names, rs.mean, rs.std)}
-                                 for rs in tested]
+                                 for rs in fitted_start]
         for report, rec, Yr, rs in zip(result.recordings, recs, result.predictions, tested):
             if rs is not None and not rs.consistent:    # the head, where the filter learns the start, left out
                 e = rec.outputs[rs.head:] - Yr[rs.head:]
                 report.update(rmse={o: rms(e[:, j]) for j, o in enumerate(model.output_names)}, rmse_from=rs.head)
-    result.notes = (notes + _unseen_notes(result) + _bound_notes(result.parameters)
+    result.notes = (notes + _unseen_notes(result) + _bound_notes(result.parameters) + _far_notes(result.parameters)
                     + _prior_notes(model, result.parameters, fisher_std)
                     + _correlated(result.correlation, {*result.parameters, *result.weights})
                     + _unequal_residuals(result.recordings, model.output_names))
@@ -375,7 +378,7 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     if method == "output-error" and (params := list(result.parameters) + list(result.weights)):
         result.notes += _unexplained_residuals(model, recs, result.predictions, params)
     result.fitted_recordings = recs
-    if method == "filter-error" and _starts_at_the_fit(result.model, recs, tested):
+    if method == "filter-error" and back and all(back):
         again = fit(model, recs, method=method, estimate=estimate, max_iter=max_iter, tol=tol, starts="declared",
                     show_progress=show_progress, noise_from=noise_from, noise_caps=noise_caps)
         again.notes.append(f"filter error: the recordings' start, judged against the declared one at the starting "
@@ -386,15 +389,14 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     return result
 
 
-def _starts_at_the_fit(fitted: Model, recs, tested) -> bool:
-    """Every recording whose start was judged off the declared one (at the starting values) starts on
-    it at the fitted values: the wrong values, not the recording, moved the start (an epidemic
-    from β = 0.3 for 0.4 was given a vague start and an initial S 4σ off the true one)."""
-    off = [r for r, rs in enumerate(tested) if rs is not None and not rs.consistent]
-    if not off:
-        return False
-    again = [recorded_start(fitted, recs[r]) for r in off]
-    return all(rs is not None and rs.consistent for rs in again)
+def _fitted_starts(fitted: Model, recs, tested) -> list:
+    """Each recording judged off the declared start (at the starting values) judged again by the
+    fitted model: where it now starts, smoothed by that model (its noise calibrated: at the starting
+    values a motor's start was ± 1.1 rad, by the fit ± 2 mrad), or consistent with the declared one —
+    then the wrong values, not the recording, moved the start (an epidemic from β = 0.3 for 0.4
+    was given a vague start and an initial S 4σ off the true one). None elsewhere."""
+    return [None if rs is None or rs.consistent else recorded_start(fitted, rec) or rs
+            for rs, rec in zip(tested, recs)]
 
 
 ELSEWHERE = [2.0 ** -k for k in range(1, 11)] + [2.0 ** k for k in range(1, 11)]   # factors of a start tried
@@ -434,6 +436,23 @@ ON_BOUND = 1e-6     # × its size (at least 1): a std of 6.6e4 put 1.64 'on' a b
 VAGUE = 10.0        # a std this many times the value: the data hardly determine it
 PRIOR_CONFLICT = 3.0   # stds of the shift a right prior allows: a shift beyond says they disagree
 COLOURED = 1.5         # output error: a reported std this many times the white one outweighs a prior
+
+
+FAR = 10.0     # a parameter fitted this many times larger or smaller than its starting value: said
+
+
+def _far_notes(parameters: dict) -> list[str]:
+    """Declared parameters the fit moved FAR-fold or more from their declared values: a
+    unit or scaling slip in what they multiply is likelier than a datasheet that far off (a PWM
+    command in µs where the model wants a fraction put a thrust constant at 0.0084 for 18)."""
+    out = []
+    for name, p in parameters.items():
+        a, b = p["initial"], p["value"]
+        if a and b and np.isfinite(b) and max(abs(a / b), abs(b / a)) >= FAR:
+            out.append(f"{name} = {b:.4g} ± {p['std']:.2g} for the {a:g} declared ({abs(b / a):.3g}×"
+                       f"{', its sign flipped' if a * b < 0 else ''}): check the units of the inputs and outputs "
+                       f"it acts through before reading the rest")
+    return out
 
 
 def _bound_notes(parameters: dict) -> list[str]:
@@ -816,9 +835,8 @@ def _starts(model: Model, recs: list[Recording], starts, declared: bool, notes: 
         if st is None and not declared:
             tested[r] = rs = recorded_start(model, rec)
             if rs is not None and not rs.consistent:
-                P = vague_covariance(model)
-                notes.append(rs.note(rec.path, f"its filter starts from the declared mean with {DIFFUSE:g}× the "
-                                               "declared std"))
+                x, P = rs.vague_mean, vague_covariance(model)
+                notes.append(rs.note(rec.path, rs.starting("its filter starts")))
         if np.shape(x) != (nx,) or np.shape(P) != (nx, nx) or not (np.all(np.isfinite(x)) and np.all(np.isfinite(P))):
             raise ValueError(f"starts for '{rec.path}': a finite mean of {nx} states ({', '.join(model.state_names)}) "
                              f"and a {nx}×{nx} covariance are needed")
