@@ -726,6 +726,22 @@ def test_a_parameter_fitted_far_from_its_starting_value_is_said():
     assert said[0].endswith("×): check the units of the inputs and outputs it acts through before reading the rest")
 
 
+def test_a_parameter_used_nowhere_is_held_by_default_and_refused_when_named():
+    """A declared parameter no equation uses blocked the whole fit with "'g' has no effect on the
+    likelihood ... record richer excitation": it is held with a note saying why, and refused by
+    name when asked for."""
+    rng = np.random.default_rng(2)
+    P = np.repeat(rng.uniform(0, 100, 10), 100)
+    _, Y = simulate(_heater(0.5), P[:, None], np.array([20.0]), rng, q_std=(0.005,))
+    m = _heater(0.4)
+    m.parameter("g", 2.0, unit="1")
+    res = fit(m, [recording(m, P, Y)], show_progress=False)
+    assert list(res.parameters) == ["K"] and abs(res.parameters["K"]["value"] - 0.5) < 0.005      # measured 0.4993
+    assert "parameter(s) 'g' used in no equation or output of 'heater': held at the declared value" in res.notes
+    with pytest.raises(ModelError, match="cannot estimate 'g': declared in model 'heater' but used in no equation"):
+        fit(m, [recording(m, P, Y)], estimate=["K", "g"], show_progress=False)
+
+
 def test_an_input_hole_cuts_the_recording_into_parts_fitted_apart():
     """An input without a sample for longer than max_gap is not its held value: the fit takes the
     stretches on either side as two recordings (each with its own initial state), says so, and
@@ -834,6 +850,7 @@ def test_a_value_is_printed_to_its_std_s_second_digit():
     from skigen.fit import plus_minus
     assert plus_minus(78.5037, 1.2) == "78.5 ± 1.2"
     assert plus_minus(0.300634, 0.00097) == "0.30063 ± 0.00097" and plus_minus(2399.812, 0.6) == "2399.81 ± 0.6"
+    assert plus_minus(2.9999957e-4, 2.6e-8) == "0.000300000 ± 2.6e-08"       # not '0.0003 ± 2.6e-08'
     assert plus_minus(5.0, float("nan")) == "5 (no error bar)"
 
 

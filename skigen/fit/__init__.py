@@ -119,7 +119,9 @@ def _problem(model, lengths, method, estimate, shooting, max_iter, tol=1e-8) -> 
     return _CACHE[key][:3]
 
 
-def _check_estimate(model: Model, estimate) -> list[str]:
+def _check_estimate(model: Model, estimate, notes: list[str]) -> list[str]:
+    """The names to estimate (default: every parameter and weight), each checked; a declared
+    parameter that enters no equation is refused when named, and held with a note by default."""
     known = model.parameter_names + model.weight_names
     names = known if estimate is None else list(dict.fromkeys(estimate))
     for n in names:
@@ -127,7 +129,16 @@ def _check_estimate(model: Model, estimate) -> list[str]:
             raise ModelError(f"cannot estimate '{n}': model '{model.name}' has no parameter or weight of "
                              f"that name (parameters: {', '.join(model.parameter_names) or 'none'}; "
                              f"weights: {', '.join(model.weight_names) or 'none'})")
-    return names
+    exprs = ca.vertcat(*model.rhs.values(), *[v.sym for v in model.outputs],
+                       *[ca.vec(t.expr) for _, _, t, _ in model.weights()])
+    unused = [p.name for p in model.parameters if p.name in names and not ca.depends_on(exprs, p.sym)]
+    if unused and estimate is not None:
+        raise ModelError(f"cannot estimate {', '.join(map(repr, unused))}: declared in model '{model.name}' but "
+                         f"used in no equation or output")
+    if unused:
+        notes.append(f"parameter(s) {', '.join(map(repr, unused))} used in no equation or output of "
+                     f"'{model.name}': held at the declared value")
+    return [n for n in names if n not in unused]
 
 
 def _check_recording(model: Model, rec: Recording):
@@ -253,7 +264,7 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     twice = _repeated(recs)
     recs, starts, notes = _usable(recs, None if declared else starts)
     notes += twice
-    estimate = _check_estimate(model, estimate)
+    estimate = _check_estimate(model, estimate, notes)
     if shooting is not None and (method != "output-error" or int(shooting) < 2):
         raise ValueError("shooting applies to output error and needs at least 2 samples per interval")
     lengths = [len(r.t) for r in recs]
@@ -1092,7 +1103,8 @@ def plus_minus(value, std) -> str:
     if value is None or std is None or not (math.isfinite(value) and math.isfinite(std)) or value == 0 or std <= 0:
         return f"{text(value)} ± {text(std, '.2g')}"
     digits = math.floor(math.log10(abs(value))) - math.floor(math.log10(std)) + 2
-    return f"{format(value, f'.{min(max(digits, 4), 15)}g')} ± {text(std, '.2g')}"
+    zeros = "#" if digits > 4 else ""        # trailing zeros the std resolves are digits: 0.000300000
+    return f"{format(value, f'{zeros}.{min(max(digits, 4), 15)}g').rstrip('.')} ± {text(std, '.2g')}"
 
 
 def per_output(values: dict, fmt: str = ".4g") -> str:
