@@ -15,7 +15,8 @@ declares Mα, Mq and Mδ as parameters at the given values (a grey box to refit)
 :func:`simulate` flies the truth (ten RK4 sub-steps per sample, the elevator held over the
 sample, noise drawn as the model states it, so that with ``effect=None`` the nominal is right);
 it may add one effect the nominal leaves out: a pitch break near stall, +M3·α³, felt only in the
-large manoeuvres, or an elevator that follows its command late (a delay of whole samples).
+large manoeuvres, an elevator that follows its command late (a delay of whole samples), or a
+lift offset on α̇.
 """
 from dataclasses import dataclass
 
@@ -32,6 +33,7 @@ DAMPER = 0.1                       # pitch damper gain (rad of elevator per rad/
 EFFECTS = {   # name: (default parameter, what it means)
     "cubic_moment": (80.0, "pitch break M3 (s⁻² rad⁻²): q̇ += M3·α³"),
     "elevator_delay": (3, "the elevator follows its command this many samples late"),
+    "lift_offset": (0.02, "a lift the nominal leaves out (rad/s): α̇ += b"),
 }
 
 
@@ -102,13 +104,14 @@ def simulate(seconds: float = 60.0, *, effect: str | None = None, parameter=None
     n = len(stick)
     lag = int(par) if effect == "elevator_delay" else 0
     m3 = float(par) if effect == "cubic_moment" else 0.0
+    lift = float(par) if effect == "lift_offset" else 0.0
     rng = np.random.default_rng(seed)
     gyro_noise, vane_noise = rng.normal(0.0, Q_NOISE, n), rng.normal(0.0, ALPHA_NOISE, n)
     turbulence = rng.normal(0.0, 1.0, (n, 2)) * [ALPHA_STD, Q_STD]
 
     def f(x, d):
         a, q = x
-        return np.array([ZA * a + q + ZDE * d, MA * a + MQ * q + MDE * d + m3 * a ** 3])
+        return np.array([ZA * a + q + ZDE * d + lift, MA * a + MQ * q + MDE * d + m3 * a ** 3])
 
     x, h = np.zeros(2), DT / substeps
     de, alpha, q, acc, gyro = (np.empty(n) for _ in range(5))

@@ -450,7 +450,7 @@ def test_what_remains_that_steps_in_time_is_said_to_change_over_time(monkeypatch
     """A thrust that sags at t = 30 s of 60: what the constant correction leaves is a step in time;
     the best shape of a state (a cosine of the command, R² 0.32 once) was suggested as a candidate.
     A step at 30 s now explains it best and is said; a leftover that follows a state still gets
-    its candidate."""
+    its candidate; a step within the disturbance's band (under 3 of its std) is not said."""
     import types
     from skigen.diagnose import suggest
     rng = np.random.default_rng(2)
@@ -471,6 +471,10 @@ def test_what_remains_that_steps_in_time_is_said_to_change_over_time(monkeypatch
     monkeypatch.setattr(suggest, "features", lambda model, rec, states: {"T2": (temp, None)})
     out = suggest.explain(None, types.SimpleNamespace(t=t), loc)
     assert "changes_at" not in out and out["suggested_candidate"] == "remaining:vz:T2", out
+    d = np.where(t > 30, -0.01, 0.01) + 0.001 * rng.standard_normal(3000)   # within its ±0.1: unresolved
+    loc.disturbance["vz"] = (d, np.full(3000, 0.1))                      # (a time-invariant aircraft's
+    out = suggest.explain(None, types.SimpleNamespace(t=t), loc)          # R² 0.56 for 2e-7 against 9e-4)
+    assert "changes_at" not in out and out["suggested_candidate"] is None, out
 
 
 def test_what_remains_is_not_suggested_in_the_shape_of_a_candidate_already_tried(monkeypatch):

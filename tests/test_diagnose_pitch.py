@@ -55,3 +55,21 @@ def test_clean_flight_is_no_mismatch(diagnosed):
     d = diagnosed("pitch_clean")["data"]
     assert not d["mismatch_detected"] and not d["findings"]
     assert d["consistency"]["independence_pvalue"] > d["consistency"]["alpha"] / 3
+
+
+def test_a_lift_offset_on_the_angle_of_attack_is_named_there(tmp_path):
+    """α of role angle holds the lift, α̇ = Zα·α + q + Zδ·δe: only the identities ṗ = v are exact by
+    definition, yet every equation of a position-type role went untested. A lift offset of 0.02
+    rad/s on α̇ was "a step at t = 13 s" on q; it is a bias on α (measured 0.0208 ± 0.0006)."""
+    from pathlib import Path
+    from skigen.diagnose import diagnose
+    from skigen.recording import write_recording
+    flight = pitch.simulate(30.0, effect="lift_offset", seed=2)
+    write_recording(tmp_path / "f.csv", flight.t, flight.inputs(), flight.outputs())
+    rep = diagnose(str(Path(pitch.__file__)), tmp_path / "f.csv", tmp_path / "out", show_progress=False,
+                   figures=False, emit=False)
+    top = rep.findings[0]
+    assert (top["effect"], top["equation"]) == ("bias", "alpha"), rep.findings
+    assert abs(top["coefficient"] - 0.02) < 3 * top["std"] < 0.002, top
+    assert not rep.data["remaining"]["mismatch"]
+

@@ -209,17 +209,14 @@ class Structural:
 
 
 def rate_equations(model: Model) -> list[str]:
-    """States whose equation holds the forces: role velocity or rate, and those without a role
-    (a motor's current, a temperature) whose equation is neither a pure kinematic identity
-    (dx/dt = another state) nor 0 (a constant carried as a state); without velocity roles, every
-    equation that is not an identity or 0. (A motor's current, beside its speed of role rate, was
-    never tested: a driver gain 15 % low on the voltage was named as two sensor gains.)"""
+    """States whose equation holds the forces: role velocity or rate, and every other whose
+    equation is neither a pure kinematic identity (dx/dt = another state) nor 0 (a constant
+    carried as a state). (A motor's current beside its speed of role rate was never tested: a
+    driver gain 15 % low on the voltage was named as two sensor gains; nor an angle of attack of
+    role angle, α̇ = Zα·α + q + Zδ·δe: a bias on it went unnamed, a step in time said instead.)"""
     names = set(model.state_names)
-    plain = [n for n in model.state_names if not (
-        (model.rhs[n].is_symbolic() and model.rhs[n].name() in names) or ca.SX(model.rhs[n]).is_zero())]
-    if not any(v.role in VELOCITY_ROLES for v in model.states):
-        return plain
-    return [v.name for v in model.states if v.role in VELOCITY_ROLES or (v.role is None and v.name in plain)]
+    return [v.name for v in model.states if v.role in VELOCITY_ROLES or not (
+        (model.rhs[v.name].is_symbolic() and model.rhs[v.name].name() in names) or ca.SX(model.rhs[v.name]).is_zero())]
 
 
 def kinematic_equations(model: Model) -> list[str]:
