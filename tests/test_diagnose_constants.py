@@ -123,3 +123,36 @@ def test_an_accelerometer_whose_formula_repeats_the_dynamics_reads_what_is_found
     d = diagnose(m, frame, tmp_path, figures=False, emit=False, show_progress=False).data
     (f,) = d["findings"]
     assert (f["effect"], f["equation"]) == ("coulomb_friction", "zd") and abs(f["coefficient"] - 0.5) < 0.03, f
+
+
+def test_a_number_written_once_in_an_output_formula_is_a_candidate(tmp_path):
+    """A Li-ion cell (1-RC circuit) whose series resistance is 1.5× the 0.05 Ω written in its
+    voltage, 3.5 + 0.7·soc − 0.05·I − v1, under current pulses: no catalog term stands in for a
+    number of an output's formula, and the cell was named a voltage sensor of gain 1.5 (its state
+    of charge driven to −0.63 to make up the rest; the free run worse). Now the constant, measured
+    1.4995 ± 0.0005 (free run 0.097 → 0.002 V on the user's recording); the 3.5 added stays a sensor
+    offset's.""""""
+    rng = np.random.default_rng(21)
+    n = 3000
+    I = 1.0 + np.repeat(rng.choice([-1.0, -0.3, 0.3, 1.0], n // 50 + 1) * 3, 50)[:n]
+    x, X = np.array([0.9, 0.0]), []
+    f = lambda x, i: np.array([-i / 7200.0, -x[1] / 40.0 + i / 2000.0])
+    for i in I:
+        X.append(x)
+        k1 = f(x, i); k2 = f(x + k1 / 2, i); k3 = f(x + k2 / 2, i); k4 = f(x + k3, i)
+        x = x + (k1 + 2 * k2 + 2 * k3 + k4) / 6 + rng.normal(0, [1e-6, 1e-4])
+    X = np.array(X)
+    volts = 3.5 + 0.7 * X[:, 0] - 0.075 * I - X[:, 1] + rng.normal(0, 0.002, n)
+    m = Model("cell", dt=1.0, discretization="rk4")
+    soc = m.state("soc", unit="1", initial=0.9, std=0.01, process_std=1e-6)
+    v1 = m.state("v1", unit="V", std=0.005, process_std=1e-4)
+    cur = m.input("I", unit="A")
+    m.dynamics({soc: -cur / 7200.0, v1: -v1 / 40.0 + cur / 2000.0})
+    m.output("V_term", 3.5 + 0.7 * soc - 0.05 * cur - v1, unit="V", noise_std=0.002)
+    assert {c.target for c in C.constant_candidates(m, [], ["V_term"])} == {"0.7·soc", "0.05·I"}
+    frame = pd.DataFrame({"t": np.arange(n) * 1.0, "I": I, "V_term": volts})
+    rep = diagnose(m, frame, tmp_path, figures=False, emit=False, show_progress=False)
+    (top,) = rep.findings
+    assert (top["effect"], top["input"]) == ("constant", "0.05·I"), rep.findings
+    assert abs(top["coefficient"] - 1.5) < 4 * top["std"] < 0.01, top
+    assert not rep.data["remaining"]["mismatch"]

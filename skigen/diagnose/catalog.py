@@ -609,8 +609,10 @@ def constant_candidates(model: Model, equations, outputs) -> list[Structural]:
     factor (CONSTANT_FACTORS, log scale, on past an end while it is best) wherever it is written
     so. Not 0 or ±1, nor a power's exponent; a number and its negative are one; the same number
     beside something else is another (a pendulum's length 0.5 and its cart's damping 0.5). Written
-    once, a catalog term on that equation stands in for it. Declared parameters are the
-    calibration's, not candidates."""
+    once in an equation, a catalog term on it stands in for it; in an output's formula, only a
+    sensor's offset can, for a number added (a cell's R0 in 3.5 + 0.7·soc − 0.05·I − v1, 1.5×,
+    was named as a sensor gain of 1.5, the state of charge driven to −0.63 to make up the rest).
+    Declared parameters are the calibration's, not candidates."""
     places = {("", e): T.literals(model.rhs[e]) for e in model.state_names}
     places |= {("output ", v.name): T.literals(v.sym) for v in model.outputs}
     wanted = {("", e) for e in equations} | {("output ", y) for y in outputs}
@@ -619,7 +621,7 @@ def constant_candidates(model: Model, equations, outputs) -> list[Structural]:
     for c, where in keys:
         written = tuple(kind + name for (kind, name), lits in places.items()
                         if any(np.isclose(abs(x), c, rtol=1e-12, atol=0) and w == where for x, w in lits))
-        if len(written) < 2:
+        if len(written) < 2 and not (written[0].startswith("output ") and not where.startswith("+")):
             continue
         text = _num(c) if float(_num(c)) == c else f"{c:.6g}"
         out.append(Structural(
