@@ -131,7 +131,7 @@ def test_a_number_written_once_in_an_output_formula_is_a_candidate(tmp_path):
     number of an output's formula, and the cell was named a voltage sensor of gain 1.5 (its state
     of charge driven to −0.63 to make up the rest; the free run worse). Now the constant, measured
     1.4995 ± 0.0005 (free run 0.097 → 0.002 V on the user's recording); the 3.5 added stays a sensor
-    offset's.""""""
+    offset's."""
     rng = np.random.default_rng(21)
     n = 3000
     I = 1.0 + np.repeat(rng.choice([-1.0, -0.3, 0.3, 1.0], n // 50 + 1) * 3, 50)[:n]
