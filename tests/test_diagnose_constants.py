@@ -156,3 +156,36 @@ def test_a_number_written_once_in_an_output_formula_is_a_candidate(tmp_path):
     assert (top["effect"], top["input"]) == ("constant", "0.05·I"), rep.findings
     assert abs(top["coefficient"] - 1.5) < 4 * top["std"] < 0.01, top
     assert not rep.data["remaining"]["mismatch"]
+
+
+def test_a_number_written_once_on_a_shape_of_the_states_is_a_candidate(tmp_path):
+    """A pendulum whose g/L, written once as 19.62·sin θ, is 1.163× off (L 0.43 m for 0.5), under
+    a chirp: a number written once in an equation was left to the catalog's terms, and the
+    linear stiffness −3.03·θ was named, "consistent", 5σ from what sin θ gives it. A number that
+    multiplies a shape of the states no catalog term draws is now a candidate: measured
+    1.1632 ± 0.0017."""
+    rng = np.random.default_rng(600)
+    n, dt = 3000, 0.01
+    t = np.arange(n) * dt
+    u = 0.5 * np.sin(2 * np.pi * (0.1 * t + 1.4 * t ** 2 / (2 * t[-1])))
+    f = lambda x, uk: np.array([x[1], -19.62 * 0.5 / 0.43 * np.sin(x[0]) - 0.3 * x[1] + 5 * uk])
+    x, X = np.zeros(2), []
+    for uk in u:
+        X.append(x)
+        k1 = f(x, uk); k2 = f(x + dt / 2 * k1, uk); k3 = f(x + dt / 2 * k2, uk); k4 = f(x + dt * k3, uk)
+        x = x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4) + [0, 0.005 * rng.standard_normal()]
+    X = np.array(X) + rng.normal(0, [0.002, 0.01], (n, 2))
+    m = Model("pendulum", dt=dt, discretization="rk4")
+    th = m.state("th", unit="rad", role="angle", std=0.02)
+    w = m.state("w", unit="rad/s", role="rate", std=0.05, process_std=0.005)
+    torque = m.input("u", unit="N*m")
+    m.dynamics({th: w, w: -19.62 * ca.sin(th) - 0.3 * w + 5.0 * torque})
+    m.output("th_enc", th, unit="rad", noise_std=0.002)
+    m.output("gyro_w", w, unit="rad/s", noise_std=0.01)
+    assert [c.target for c in C.constant_candidates(m, ["w"], [])] == ["19.62·sin(th)"]   # not 0.3·w, 5·u
+    frame = pd.DataFrame({"t": t, "u": u, "th_enc": X[:, 0], "gyro_w": X[:, 1]})
+    rep = diagnose(m, frame, tmp_path, figures=False, emit=False, show_progress=False)
+    top = rep.findings[0]
+    assert (top["effect"], top["input"]) == ("constant", "19.62·sin(th)"), rep.findings
+    assert abs(top["coefficient"] - 0.5 / 0.43) < 4 * top["std"] < 0.01, top
+    assert not rep.data["remaining"]["mismatch"]

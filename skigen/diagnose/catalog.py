@@ -609,10 +609,12 @@ def constant_candidates(model: Model, equations, outputs) -> list[Structural]:
     factor (CONSTANT_FACTORS, log scale, on past an end while it is best) wherever it is written
     so. Not 0 or ±1, nor a power's exponent; a number and its negative are one; the same number
     beside something else is another (a pendulum's length 0.5 and its cart's damping 0.5). Written
-    once in an equation, a catalog term on it stands in for it; in an output's formula, only a
-    sensor's offset can, for a number added (a cell's R0 in 3.5 + 0.7·soc − 0.05·I − v1, 1.5×,
-    was named as a sensor gain of 1.5, the state of charge driven to −0.63 to make up the rest).
-    Declared parameters are the calibration's, not candidates."""
+    once in an equation, a catalog term on it stands in for it — unless it is the factor of a shape
+    of the states (:func:`_shaped`: a pendulum's g/L on sin θ, 1.16× off, was named a linear
+    stiffness, 5σ from what the truth gives it); in an output's formula, only a sensor's offset can,
+    for a number added (a cell's R0 in 3.5 + 0.7·soc − 0.05·I − v1, 1.5×, was named as a sensor
+    gain of 1.5, the state of charge driven to −0.63 to make up the rest). Declared parameters are
+    the calibration's, not candidates."""
     places = {("", e): T.literals(model.rhs[e]) for e in model.state_names}
     places |= {("output ", v.name): T.literals(v.sym) for v in model.outputs}
     wanted = {("", e) for e in equations} | {("output ", y) for y in outputs}
@@ -621,7 +623,8 @@ def constant_candidates(model: Model, equations, outputs) -> list[Structural]:
     for c, where in keys:
         written = tuple(kind + name for (kind, name), lits in places.items()
                         if any(np.isclose(abs(x), c, rtol=1e-12, atol=0) and w == where for x, w in lits))
-        if len(written) < 2 and not (written[0].startswith("output ") and not where.startswith("+")):
+        if len(written) < 2 and not (written[0].startswith("output ") and not where.startswith("+")) \
+                and not _shaped(where, model.input_names):
             continue
         text = _num(c) if float(_num(c)) == c else f"{c:.6g}"
         out.append(Structural(
@@ -630,6 +633,15 @@ def constant_candidates(model: Model, equations, outputs) -> list[Structural]:
             lambda f, c=c, text=text: f"{text} × {f:.4g} = {c * f:.4g}", READINGS["constant"],
             beyond=2.0, equations=written))
     return out
+
+
+def _shaped(where: str, inputs) -> bool:
+    """Whether a number stands as the factor of a shape of the states no catalog term draws: not a
+    bare state (a damping, a stiffness) nor anything of an input (its gain on its own terms)."""
+    op, _, rest = where.partition("(")
+    other = rest[:-1]
+    return op == "*" and not re.fullmatch(r"\w+", other) and \
+        not any(re.search(rf"\b{re.escape(u)}\b", other) for u in inputs)
 
 
 def _written(text: str, where: str, most: int = 24) -> str:
