@@ -565,3 +565,23 @@ def test_a_declared_parameter_calibrated_orders_of_magnitude_away_points_at_the_
         "for the 15 declared (0.001" in noise.note and "check the units of the inputs and outputs" in noise.note
     m, rec = _roll_logged(0.5)
     assert calibrate(m, [rec])[1].note == ""              # Lda 30: twice the declared
+
+
+def test_a_lifted_correction_near_zero_is_weak_beside_one_that_is_not():
+    """A pendulum's exact nominal beside a gyro's 1.08 gain: the joint refit corrected its stiffness,
+    damping and input gain by 3.0, 0.3 and 2.9 std and kept all three because one passed 2.58 (the
+    test was "every one within"). Each is now judged on its own, Bonferroni over the three (2.94):
+    the damping and the 2.9 std input gain are weak, and are left out where together they are not
+    significant."""
+    import types
+    from skigen.diagnose.correct import _lift_z, _weak_lifts
+    stiff, damp, gain, found = (object() for _ in range(4))
+    names = {"linear_stiffness_w_correction": None, "viscous_damping_w_correction": None,
+             "input_gain_w_correction": None, "bias_w": found}
+    res = types.SimpleNamespace(parameters={
+        "linear_stiffness_w_correction": dict(value=0.1226, std=0.041),
+        "viscous_damping_w_correction": dict(value=0.002942, std=0.011),
+        "input_gain_w_correction": dict(value=0.03435, std=0.012), "bias_w": dict(value=1e-9, std=1.0)})
+    assert _lift_z([stiff, damp, gain], 0.01) == pytest.approx(2.935, abs=1e-3)
+    assert _weak_lifts(res, names, [stiff, damp, gain], 0.01) == [damp, gain]
+    assert _weak_lifts(res, names, [], 0.01) == []
