@@ -585,3 +585,23 @@ def test_a_lifted_correction_near_zero_is_weak_beside_one_that_is_not():
     assert _lift_z([stiff, damp, gain], 0.01) == pytest.approx(2.935, abs=1e-3)
     assert _weak_lifts(res, names, [stiff, damp, gain], 0.01) == [damp, gain]
     assert _weak_lifts(res, names, [], 0.01) == []
+
+
+def test_a_tie_that_is_another_finding_is_not_said_as_a_tie():
+    """A heater whose efficiency drops partway: the input gain was said "not told apart from
+    input_saturation min(P, 90.3)" beside a finding that is that saturation (at 92.8 W). A tie
+    acting as another finding does is that finding; one acting as the finding it would replace,
+    another way, stays."""
+    import types
+    from skigen.diagnose import _as_good
+    gain = dict(effect="input_gain", equation="T1", input="P", expression="P")
+    sat = dict(effect="input_saturation", equation="T1", input="P", expression="min(P, 92.8)")
+    tie_sat = dict(sat, expression="min(P, 90.3)", cv_loglik_behind=0.4)
+    tie_bias = dict(effect="bias", equation="T1", expression="1", cv_loglik_behind=1.0)
+    round_one = types.SimpleNamespace(adopted=[dict(gain)], as_good=[tie_sat, tie_bias])
+    findings = [dict(gain), dict(sat)]
+    _as_good(findings, [round_one])
+    assert findings[0]["as_good"] == [tie_bias] and "as_good" not in findings[1]
+    alone = [dict(gain)]
+    _as_good(alone, [round_one])
+    assert alone[0]["as_good"] == [tie_sat, tie_bias]

@@ -745,13 +745,16 @@ def _as_good(findings: list[dict], history) -> None:
     """Each finding that a naming round adopted over a finalist explaining the recording as well
     (cross-validated log-likelihood within what a finding must add) lists it under ``as_good``: the
     recording cannot tell them apart (a constant force on a linear spring and an offset of its
-    position sensor)."""
+    position sensor). A tie that acts as another finding does is that finding, not a tie (a heater's
+    saturation at 90.3 W was said not told apart from the finding beside it, a saturation at 92.8)."""
+    found = {acts(f) for f in findings}
     for p in history:
         adopted = {acts(a) for a in p.adopted}
         for f in findings:
             if p.as_good and acts(f) in adopted:          # a tie said of the finding it would replace,
                 ties = [a for a in p.as_good if ("instead_of" not in a or list(acts(f)) in a["instead_of"])
-                        and (a["effect"], a["expression"]) != (f["effect"], f["expression"])]   # not itself
+                        and (a["effect"], a["expression"]) != (f["effect"], f["expression"])   # not itself
+                        and acts(a) not in found - {acts(f)}]
                 if ties:
                     f["as_good"] = ties
 

@@ -569,7 +569,7 @@ def structural_candidates(model: Model, equations, inputs: np.ndarray) -> list[S
             "actuator_lag", u, "tau", "s", tuple(dt * 2.0 ** np.arange(0, 6)), False, True,
             lambda m, tau, u=u, first=first, s=float(np.std(x)) + 1e-9:
                 T.actuator_lag(m, u, tau, initial=first, std=s),
-            lambda tau, u=u: f"{u} through 1/({_num(tau)} s·s + 1)", READINGS["actuator_lag"], beyond=2.0,
+            lambda tau, u=u: f"{u} through 1/(τs + 1), τ = {_num(tau)} s", READINGS["actuator_lag"], beyond=2.0,
             least=dt / model.substeps))
         out += _saturations(u, unit, x, both)
         widths = filled([float(q) for q in np.unique(np.quantile(dev, [0.05, 0.1, 0.2, 0.3, 0.45])) if q > 0], True)
