@@ -237,6 +237,8 @@ def _diagnose(args) -> int:
                                   if rem["mismatch"] else "the corrected model is consistent"))
     if (d["remaining"] or {}).get("noise_covers"):
         print(f"consistent only with {noise_covers_sentence(d['remaining']['noise_covers'])}")
+    for r in d["fit"].get("recordings", []):
+        print(f"validation {Path(r['before']['recording']).name}: " + _held_out_line(r))
     for line in d.get("validation_disagrees", []):
         print(f"validation: {line}")
     if (d["remaining"] or {}).get("integration"):
@@ -247,6 +249,15 @@ def _diagnose(args) -> int:
         print(f"corrected model: {d['corrected_model']}")
     print(f"report: {Path(args.out) / 'report.md'} ({report.seconds:.1f} s)")
     return 0
+
+
+def _held_out_line(r: dict) -> str:
+    """A held-out recording's statistics, nominal -> corrected: mean NIS and free-run RMSE."""
+    b, a = r["before"], r["after"] or {}
+    arrow = lambda x, y: f"{x:.4g}" + (f" -> {y:.4g}" if y is not None else "")
+    rmse = [f"{k} {arrow(v, (a.get('free_run_rmse') or {}).get(k))}" for k, v in b["free_run_rmse"].items()
+            if v is not None]
+    return f"mean NIS {arrow(b['nis_mean'], a.get('nis_mean'))}" + (f", free-run RMSE {', '.join(rmse)}" if rmse else "")
 
 
 def _fit(args) -> int:

@@ -249,7 +249,7 @@ def test_a_validation_recording_the_model_does_not_explain_is_said(tmp_path, cap
     """A clean recording diagnosed (no mismatch), validated on one with Coulomb friction: the
     headline and the command line say that recording disagrees (a user's motor read only 'no
     significant mismatch', its validation at mean NIS 126 in a table); a clean validation
-    recording says nothing."""
+    recording says nothing there; each has its line of statistics."""
     clean, other = _cart_csv(tmp_path / "clean.csv"), tmp_path / "coulomb.csv"
     make("cart_coulomb", 10.0, SEED).write_csv(other)
     again = tmp_path / "again.csv"
@@ -260,6 +260,9 @@ def test_a_validation_recording_the_model_does_not_explain_is_said(tmp_path, cap
     assert code == 0 and "no significant mismatch" in out
     said = [line for line in out.splitlines() if line.startswith("validation: ")]
     assert len(said) == 1 and "coulomb.csv: the nominal model does not explain it (mean NIS" in said[0], out
+    each = {line.split(":")[0]: line for line in out.splitlines() if line.startswith("validation ")}
+    assert set(each) == {"validation coulomb.csv", "validation again.csv"}, out       # agreeing or not
+    assert each["validation again.csv"].startswith("validation again.csv: mean NIS 1.07, free-run RMSE p_meas 0.00")
     assert "**A validation recording disagrees** — " in (tmp_path / "out" / "report.md").read_text()
 
 
