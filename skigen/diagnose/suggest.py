@@ -3,9 +3,12 @@ candidate term to try (``--candidate NAME:EQUATION:FORMULA``).
 
 The smoothed disturbance d(t) of the located equation is regressed on simple
 shapes of each state and input x along the filtered trajectory — x, x·|x|,
-x³, tanh(x/s), and sin/cos(2πx/L) for periods L from a third of the range of x
-down to 1/20 of it (three cycles at least: one or two over the range are any
-smooth curve, and read as a period that is not there) — each with an intercept, weighted by d's precision; the shape with
+x³, tanh(x/s), and sin(2πx/L + φ) for periods L from a third of the range of x
+down to 1/40 of it, 25 of them and the best refined between its neighbours, each at
+the phase φ that fits best (three cycles at
+least: one or two over the range are any smooth curve, and read as a period that is
+not there; a road's grade every 400 m of a 3 km drive fell between the five periods
+once tried) — each with an intercept, weighted by d's precision; the shape with
 the largest weighted R² names the feature and the suggested formula. It is a
 hint for a person, not a finding: it is not cross-validated. Below an R² of
 ``HINT_R2`` no shape of one state or input explains the leftover (coloured
@@ -25,6 +28,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+from scipy.optimize import minimize_scalar
 
 from .catalog import _num
 from .locate import Location, features
@@ -35,19 +39,39 @@ HINT_R2 = 0.2       # a shape explaining less than a fifth of what remains is no
 STEP_MARGIN = 0.1   # a step in time must explain this much more (R²) than any shape to be said
 STEP_Z = 3.0        # a step in time or a shape must span this many of the disturbance's (median) std
 SAME = 0.999        # |correlation| along the trajectory at which a shape is a candidate already tried
+PERIODS = np.geomspace(3, 40, 25)   # cycles over a state's range: a road's grade every 400 m of 3 km
 
 
-def _shapes(name: str, x: np.ndarray):
-    """(formula, values) of each shape of feature ``name`` (a state or an input, not |x|)."""
+def _shapes(name: str, x: np.ndarray, d: np.ndarray, w: np.ndarray):
+    """(formula, values) of each shape of feature ``name`` (a state or an input, not |x|); the
+    periodic ones at PERIODS, each at the phase that fits ``d`` best (weights ``w``)."""
     s = float(np.std(x)) or 1.0
     yield name, x
     yield f"{name}*abs({name})", x * np.abs(x)
     yield f"{name}**3", x ** 3
     yield f"tanh({name}/{_num(0.05 * s)})", np.tanh(x / (0.05 * s))
     span = float(np.ptp(x)) or 1.0
-    for L in span / np.array([3, 5, 8, 12, 20]):
-        for fn, f in (("sin", np.sin), ("cos", np.cos)):
-            yield f"{fn}(2*pi*{name}/{_num(L)})", f(2 * np.pi * x / L)
+    grid = span / PERIODS
+    fits = [_periodic(x, d, w, L) for L in grid]
+    k = int(np.argmax([r2 for r2, _ in fits]))             # the best, refined between its neighbours
+    lo, hi = grid[min(k + 1, len(grid) - 1)], grid[max(k - 1, 0)]
+    best = minimize_scalar(lambda logL: -_periodic(x, d, w, np.exp(logL))[0], bounds=(np.log(lo), np.log(hi)),
+                           method="bounded", options={"xatol": 1e-4})
+    for L in [*grid, float(np.exp(best.x))]:
+        phase = _periodic(x, d, w, L)[1]
+        shift = f" {'+' if phase > 0 else '-'} {_num(abs(phase))}" if phase else ""
+        yield (f"sin(2*pi*{name}/{_num(L)}{shift})",
+               np.sin(2 * np.pi * x / L + phase))
+
+
+def _periodic(x: np.ndarray, d: np.ndarray, w: np.ndarray, L: float) -> tuple[float, float]:
+    """(weighted R², phase φ) of the best sin(2πx/L + φ) with an intercept for ``d``."""
+    arg = 2 * np.pi * x / L
+    A = np.column_stack([np.ones_like(x), np.sin(arg), np.cos(arg)]) * np.sqrt(w)[:, None]
+    b = d * np.sqrt(w)
+    coef, *_ = np.linalg.lstsq(A, b, rcond=None)
+    res, tot = b - A @ coef, b - np.sqrt(w) * np.average(d, weights=w)
+    return float(1 - res @ res / max(tot @ tot, 1e-300)), float(np.arctan2(coef[2], coef[1]))
 
 
 def _step(t: np.ndarray, d: np.ndarray, sd: np.ndarray, w: np.ndarray, n: int = 40) -> tuple[float, float]:
@@ -118,7 +142,7 @@ def explain(model, rec, loc: Location, out_dir=None, names=None, tried=None) -> 
     for name, (x, _) in features(model, rec, loc.states).items():
         if name.startswith("|") or np.ptp(x) == 0 or (names is not None and name not in names):
             continue
-        for formula, phi in _shapes(name, x):
+        for formula, phi in _shapes(name, x, d, w):
             r2, coef = _r2(d, w, phi)
             if not _resolved(coef, phi, sd):
                 continue
