@@ -833,3 +833,46 @@ def test_a_limit_s_bound_is_refined_between_its_grid_of_quantiles():
     bound = dict(c.shape)["bound"]
     assert abs(bound - 0.7) < 0.01 and abs(bound - 0.7) < min(abs(b - 0.7) for b in grid), (bound, grid)
     assert abs(k - 40) < 3 * sd, (k, sd)
+
+
+def test_a_coulomb_friction_s_width_is_refined_between_the_grid_s(tmp_path):
+    """A mass-spring (no roles) with a dry friction 1.5·tanh(v/0.01) under a PRBS force. On a
+    user's recording the widths tried were 4× apart (0.0044 and 0.0175) and 0.0044 was taken:
+    1.316 ± 0.073, "a mismatch remains"; the width is now refined between its neighbours, as a
+    limit's bound is (there: 0.0077, 1.38 ± 0.12, consistent). On this one the friction, adopted,
+    scored −13 547 cross-validated under the process noise it left (two folds' refitted
+    coefficients the filter could not follow), every other set read as 28 000 ahead, and a viscous
+    damping 2.63 replaced it, "a mismatch remains"; an adoption now keeps the noise before it
+    where that cross-validates better (measured: width 0.0053, 1.356 ± 0.027 beside a viscous
+    correction +0.30 ± 0.04 that takes part of it — 5σ low: the width is not refitted jointly —
+    consistent). coulomb_width rebuilds the term."""
+    from skigen import Model
+    from skigen.diagnose import diagnose
+    from skigen.diagnose.catalog import Additive, coulomb_width
+    c = Additive("coulomb_friction", "v", "-tanh(v/0.02)", "", "width 0.02 m/s", shape=(("width", 0.02),), sign=1)
+    moved = coulomb_width(c, 0.0123456)
+    assert (moved.formula, moved.variant, moved.shape) == ("-tanh(v/0.0123)", "width 0.0123 m/s", (("width", 0.0123),))
+    rng = np.random.default_rng(52)
+    n, dt = 4000, 0.01
+    F = np.repeat(rng.choice([-4.0, -2.0, 0.0, 2.0, 4.0], n // 60 + 1), 60)[:n]
+    f = lambda x, u: np.array([x[1], -40 * x[0] - 0.8 * x[1] + u - 1.5 * np.tanh(x[1] / 0.01)])
+    x, X = np.zeros(2), []
+    for u in F:
+        X.append(x)
+        for _ in range(4):                         # the truth's friction is stiff: RK4 at dt/4
+            h = dt / 4
+            k1 = f(x, u); k2 = f(x + h / 2 * k1, u); k3 = f(x + h / 2 * k2, u); k4 = f(x + h * k3, u)
+            x = x + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        x = x + [1e-6, 5e-3] * rng.standard_normal(2)
+    m = Model("springmass", dt=dt, discretization="rk4")
+    p = m.state("x", unit="m", std=0.01, process_std=1e-6)
+    v = m.state("v", unit="m/s", std=0.05, process_std=5e-3)
+    force = m.input("F", unit="N")
+    m.dynamics({p: v, v: -40.0 * p - 0.8 * v + 1.0 * force})
+    m.output("x_meas", p, unit="m", noise_std=2e-3)
+    frame = pd.DataFrame({"t": np.arange(n) * dt, "F": F, "x_meas": np.array(X)[:, 0] + 2e-3 * rng.standard_normal(n)})
+    rep = diagnose(m, frame, tmp_path, figures=False, emit=False, show_progress=False)
+    top = rep.findings[0]
+    assert top["effect"] == "coulomb_friction" and abs(top["coefficient"] - 1.5) < 0.2, rep.findings
+    width = float(top["expression"].split("/")[1].rstrip(")"))
+    assert 0.004 < width < 0.016 and not rep.data["remaining"]["mismatch"], (width, rep.data["remaining"])

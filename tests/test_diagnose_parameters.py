@@ -464,6 +464,7 @@ def test_what_remains_that_steps_in_time_is_said_to_change_over_time(monkeypatch
     out = suggest.explain(None, types.SimpleNamespace(t=t), loc)
     assert out["suggested_candidate"] is None and abs(out["changes_at"] - 30) < 0.1, out
     assert out["note"].startswith("what remains in vz changes over time: a step at t = 30") and "apart" in out["note"]
+    assert "None" not in out["note"] and "-inf" not in out["note"], out["note"]   # every shape within the band
     d = 2.0 * pwm + 0.02 * rng.standard_normal(3000)
     loc.disturbance["vz"] = (d, np.full(3000, 0.1))
     assert suggest.explain(None, types.SimpleNamespace(t=t), loc)["suggested_candidate"] == "remaining:vz:pwm"

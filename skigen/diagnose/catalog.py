@@ -14,6 +14,7 @@ each has one parameter searched over a grid.
 """
 from __future__ import annotations
 
+import dataclasses
 import re
 from dataclasses import dataclass, field
 from typing import Callable
@@ -380,6 +381,14 @@ def additive_candidates(model: Model, equations, scale: dict[str, float],
                     add("ground_effect", f"exp(-{z}/{_num(h * per_m)})*{u}", f"h = {_num(h * per_m)} {units[z]}",
                         (("height", float(_num(h * per_m))),))
     return out
+
+
+def coulomb_width(c: Additive, width: float) -> Additive:
+    """Coulomb friction ``c`` (``±tanh(q/w)``) with the smoothing width ``width``."""
+    w = _num(width)
+    unit = c.variant.split(" ", 2)[2] if c.variant.count(" ") >= 2 else ""
+    return dataclasses.replace(c, formula=re.sub(r"tanh\((\w+)/[^)]*\)", rf"tanh(\1/{w})", c.formula),
+                               variant=f"width {w} {unit}".rstrip(), shape=(("width", float(w)),))
 
 
 def limit(eq: str, q: str, side: str, bound: float, unit: str = "") -> Additive:

@@ -153,11 +153,12 @@ def explain(model, rec, loc: Location, out_dir=None, names=None, tried=None) -> 
     said = {}
     step_r2, at = _step(rec.t, d, sd, w) if rec is not None else (-np.inf, 0.0)
     if step_r2 >= HINT_R2 and step_r2 > max(best[0], closest[0]) + STEP_MARGIN:    # the system changed
+        shape = f"the best shape of a state or input, {closest[2]}, {closest[0]:.2g}" if closest[2] else \
+            "no shape of a state or input spans its band"
         return {"explained_by": None, "r2": None, "suggested_candidate": None, "changes_at": at,
                 "note": f"what remains in {eq} changes over time: a step at t = {at:.4g} s explains it best (R² "
-                        f"{step_r2:.2g}; the best shape of a state or input, {closest[2]}, {closest[0]:.2g}): the "
-                        f"system changed during the recording (a battery, a payload, a failure); diagnose the "
-                        f"stretches before and after it apart"}
+                        f"{step_r2:.2g}; {shape}): the system changed during the recording (a battery, a "
+                        f"payload, a failure); diagnose the stretches before and after it apart"}
     if catalog and closest[0] >= HINT_R2:
         said["tried"] = (f"what remains in {eq} follows {closest[2]} best (R² {closest[0]:.2g}), the shape of the "
                          f"{catalog} the diagnosis tried there and did not adopt")
