@@ -876,3 +876,19 @@ def test_a_coulomb_friction_s_width_is_refined_between_the_grid_s(tmp_path):
     assert top["effect"] == "coulomb_friction" and abs(top["coefficient"] - 1.5) < 0.2, rep.findings
     width = float(top["expression"].split("/")[1].rstrip(")"))
     assert 0.004 < width < 0.016 and not rep.data["remaining"]["mismatch"], (width, rep.data["remaining"])
+
+
+def test_terms_on_an_equation_that_is_no_velocity_read_as_losses():
+    """A hydraulic leak on a pressure's equation was named "viscous_damping ... viscous friction,
+    linear drag": the engineer was pointed at a bearing. On an equation that is no velocity (and
+    drives no position) the same terms read as losses; on a velocity, as friction and drag."""
+    from skigen import Model
+    from skigen.diagnose.catalog import additive_candidates
+    m = Model("actuator", dt=0.01)
+    y, v, p = m.state("y", unit="m"), m.state("v", unit="m/s"), m.state("p", unit="bar")
+    u = m.input("u")
+    m.dynamics({y: v, v: 2.0 * p - 0.5 * v, p: 10.0 * u - 3.0 * v})
+    reading = {(c.equation, c.effect): c.reading for c in additive_candidates(m, ["v", "p"], {"v": 1.0, "p": 1.0})}
+    assert reading[("p", "viscous_damping")].startswith("a loss proportional to the state (a leak")
+    assert reading[("v", "viscous_damping")].startswith("damping proportional to the rate (viscous friction")
+    assert reading[("p", "coulomb_friction")] == "a constant loss opposing the sign of the state"

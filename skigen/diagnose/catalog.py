@@ -66,6 +66,16 @@ READINGS = {
                 "written takes the same factor",
 }
 EFFECTS = tuple(READINGS)
+# the same terms on an equation that is no velocity (a pressure, a temperature, a current, a charge)
+LOSS_READINGS = {
+    "bias": "a constant offset in the rate (a source or sink the model leaves out: a leak at a constant rate, "
+            "a heat input, an offset)",
+    "viscous_damping": "a loss proportional to the state (a leak, a heat loss, a resistance or conductance "
+                       "the model misjudges)",
+    "quadratic_drag": "a loss growing with the state times its magnitude (a turbulent flow or leak)",
+    "cubic_damping": "a loss growing with the cube of the state",
+    "coulomb_friction": "a constant loss opposing the sign of the state",
+}
 
 
 def evaluate(model: Model, formula: str) -> ca.SX:
@@ -346,11 +356,13 @@ def additive_candidates(model: Model, equations, scale: dict[str, float],
     units = {v.name: v.unit for v in model.states}
     out = []
     for eq in equations:
+        moves = eq in [v.name for v in model.states if v.role in VELOCITY_ROLES] or bool(driven(model, eq))
+        readings = READINGS if moves else READINGS | LOSS_READINGS      # a pressure's leak is no friction
+
         def add(effect, formula, variant="", shape=(), sign=0):
-            out.append(Additive(effect, eq, formula, READINGS[effect], variant, shape=shape, sign=sign))
+            out.append(Additive(effect, eq, formula, readings[effect], variant, shape=shape, sign=sign))
         add("bias", "1")
-        rate_like = (eq in [v.name for v in model.states if v.role in VELOCITY_ROLES] or not pairs(model, eq)
-                     or bool(driven(model, eq)))      # the rate of a position: friction and drag act on it
+        rate_like = moves or not pairs(model, eq)      # the rate of a position: friction and drag act on it
         if rate_like:
             add("viscous_damping", f"-{eq}")
             add("quadratic_drag", f"-{eq}*abs({eq})", sign=1)
