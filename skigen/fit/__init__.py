@@ -59,7 +59,12 @@ class FitError(ValueError):
 
 
 class NotIdentifiable(FitError):
-    """The recordings cannot identify every quantity to estimate; the message names them."""
+    """The recordings cannot identify every quantity to estimate; the message names them, and
+    ``lost`` says which, one sentence per set the data cannot tell apart."""
+
+    def __init__(self, message: str, lost: list[str] = ()):
+        super().__init__(message)
+        self.lost = list(lost)
 
 
 @dataclass
@@ -439,7 +444,7 @@ def _not_identifiable(model: Model, lost: list[str]) -> NotIdentifiable:
     return NotIdentifiable(f"the recordings cannot identify every quantity of '{model.name}': " + "; ".join(lost)
                            + ". Hold some at their declared values (estimate only the others: estimate=[...] in "
                            "Python, --estimate NAME for each on the command line), give them a prior std, or "
-                           "record richer excitation")
+                           "record richer excitation", lost)
 
 
 AT_BOUND = 1e-3     # standard errors: an estimate this close to a bound sits on it, if also within
