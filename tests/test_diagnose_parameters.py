@@ -224,7 +224,8 @@ def test_a_refitted_value_is_written_to_its_std_second_digit():
     from skigen.diagnose.report import _pm
     assert _pm(2399.81, 0.60) == "2399.81 ± 0.6"
     assert _pm(1.60015, 0.0056) == "1.6001 ± 0.0056"
-    assert _pm(6.002, 0.0085) == "6.002 ± 0.0085"            # at least four significant digits
+    assert _pm(6.002, 0.0085) == "6.0020 ± 0.0085"           # a zero the std resolves is a digit
+    assert _pm(6.0, 0.3) == "6.00 ± 0.3" and _pm(6.1234, 0.3) == "6.123 ± 0.3"   # at least four significant
     assert _pm(0.0, 0.1) == "0 ± 0.1" and _pm(None, None) == "– ± –"
     assert _pm(0.103, float("nan")) == "0.103 (no error bar)"   # a width not identifiable: was "0.103 ± nan"
     from skigen.diagnose.report import finding_line             # the CLI's line: a whole delay was "1 ± nan"

@@ -14,6 +14,7 @@ import copy
 import functools
 import math
 import os
+import re
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from time import perf_counter
@@ -1108,8 +1109,10 @@ def plus_minus(value, std) -> str:
     if value is None or std is None or not (math.isfinite(value) and math.isfinite(std)) or value == 0 or std <= 0:
         return f"{text(value)} ± {text(std, '.2g')}"
     digits = math.floor(math.log10(abs(value))) - math.floor(math.log10(std)) + 2
-    zeros = "#" if digits > 4 else ""        # trailing zeros the std resolves are digits: 0.000300000
-    return f"{format(value, f'{zeros}.{min(max(digits, 4), 15)}g').rstrip('.')} ± {text(std, '.2g')}"
+    plain = format(value, f".{min(max(digits, 4), 15)}g")
+    if len(re.sub(r"^[-0.]+|e.*$|\.", "", plain)) < digits:   # zeros the std resolves are digits:
+        plain = format(value, f"#.{min(digits, 15)}g").rstrip(".")   # 0.000300000 ± 2.6e-08, not 0.0003
+    return f"{plain} ± {text(std, '.2g')}"
 
 
 def per_output(values: dict, fmt: str = ".4g") -> str:
