@@ -20,7 +20,6 @@ every log and tracks θ and φ; ``out/fleet/summary.csv`` and ``summary.png`` ar
 from __future__ import annotations
 
 import argparse
-import csv
 import datetime
 import hashlib
 import sys

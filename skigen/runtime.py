@@ -373,8 +373,8 @@ class RunSummary:
         elif self.gate:
             out.append("events: none (no outlier, stuck reading, bad input, rejection or restart)")
         if not self.gate:
-            out.append(f"ungated run (the casadi backend, which neither gates nor tests for a stuck sensor "
-                       f"outside a part redone after a non-finite step; or a guard with gate 0): "
+            out.append("ungated run (the casadi backend, which neither gates nor tests for a stuck sensor "
+                       "outside a part redone after a non-finite step; or a guard with gate 0): "
                        + (f"{self.beyond} sample(s) used a reading beyond {Guard.gate:g}σ of its prediction, "
                           f"which the default gate would not, first at t = {clock(self.first_beyond)} s"
                           if self.beyond else f"no reading was beyond {Guard.gate:g}σ of its prediction"))

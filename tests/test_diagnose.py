@@ -9,7 +9,6 @@ tests read its report.
 import json
 import subprocess
 import sys
-from pathlib import Path
 
 import casadi as ca
 import numpy as np

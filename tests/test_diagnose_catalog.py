@@ -338,7 +338,6 @@ def test_a_grid_goes_on_past_a_best_end():
     """_profile past the ends of a grid (Structural.beyond): a lag whose likelihood peaks at 45 s
     beyond a grid ending at 32 s, a width peaking at 0.5 below a grid starting at 0.92, an offset
     peaking at -2.4 beyond -1; without ``beyond`` the end is kept, with no std."""
-    import dataclasses
     from skigen.diagnose.catalog import Structural
     from skigen.diagnose.name import _profile
     def grid(values, beyond, log=True):

@@ -10,7 +10,6 @@ import json
 import casadi as ca
 import numpy as np
 import pandas as pd
-import pytest
 
 from models import two_tanks as tanks
 from skigen import Model

@@ -8,10 +8,8 @@ two things used to go wrong. Asserted from report.json:
   break, and the joint refit, which took the calibration's std as its prior, stayed there (Mα
   −7.51, the break −55.7 instead of −8 and −80); it now keeps only the user's prior.
 """
-import numpy as np
 import pytest
 
-from benchmarks.scenarios import make
 from models import short_period as pitch
 from tests.scenario_cache import diagnosis_cache
 

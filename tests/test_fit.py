@@ -626,7 +626,8 @@ def test_unidentifiable_parameters_are_named(method):
     assert abs(res.parameters["a"]["value"] - 2.0) < 4 * res.parameters["a"]["std"]
 
     m, y, v, u = _linear(f"unused_{method[0]}e")
-    k, c = m.parameter("k", 4.0), m.parameter("c", 1.0)
+    k = m.parameter("k", 4.0)
+    m.parameter("c", 1.0)
     m.dynamics({y: v, v: -k * y - 0.5 * v + u})                  # c appears nowhere
     m.output("pos", y, noise_std=0.01)                           # held, and said (it was refused)
     assert list(fit(m, [_excited(m)], method=method, show_progress=False).parameters) == ["k"]

@@ -631,7 +631,8 @@ def test_px4_takeoff_log_vertical_channel():
     m = skigen.Model("vertical", dt=0.02)
     h = m.state("h", std=0.1, process_std=1e-3)
     v = m.state("v", std=0.1, process_std=1e-2)
-    motors = [m.input(f"m{i}") for i in range(4)]
+    for i in range(4):
+        m.input(f"m{i}")
     m.dynamics({h: v, v: 0 * v})
     m.output("alt", h, noise_std=0.1)
     cols = {f"m{i}": f"actuator_motors.control[{i}]" for i in range(4)}

@@ -3,7 +3,6 @@ import math
 import re
 
 import casadi as ca
-import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st

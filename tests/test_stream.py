@@ -9,9 +9,8 @@ import pytest
 
 import skigen
 from skigen.cli import main
-from skigen.grid import to_grid
 from skigen.recording import load_recording, stream_recording
-from skigen.sources import NotStreamable, read_samples
+from skigen.sources import NotStreamable
 
 
 def small_model(hold="zoh"):

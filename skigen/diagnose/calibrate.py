@@ -86,8 +86,6 @@ def block_starts(model: Model, rec: Recording, pieces: list[Recording]) -> list 
     return [None if a == 0 else (prior[a][0][:nx], prior[a][1][:nx, :nx]) for a in at]
 
 
-
-
 def calibrate(model: Model, recs: list[Recording], show_progress: bool = False,
               max_samples: int = MAX_SAMPLES, noise_from=None) -> tuple[Model, Noise]:
     """(``model`` with its calibrated Q and R, the :class:`Noise` record). A recording longer than

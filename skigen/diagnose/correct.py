@@ -241,7 +241,7 @@ def refit_jointly(nominal: Model, calibrated: Model, corr: Correction, rec, equa
             res = fit(model, pieces, method="filter-error", starts=block_starts(model, rec, pieces),
                       show_progress=False, noise_from=noise_from)
         except FitError as exc:          # the fit's advice (--estimate …) is not the diagnosis's to give
-            why = f"it cannot tell apart {'; '.join(exc.lost)}" if isinstance(exc, NotIdentifiable) else str(exc)
+            why = "; ".join(exc.lost) if isinstance(exc, NotIdentifiable) else str(exc)
             info["note"] += (f"joint refit with {len(attempt)} lifted corrections"
                              + (", the calibration's std as prior," if start is anchored else "")
                              + f" failed: {why}. ")
@@ -311,7 +311,7 @@ def polish_for_simulation(fitted: Model, rec, pieces, window: int | None = None)
     recalibrated with them, and they are kept when the free run over the whole recording — most
     of it outside the pieces — has the lower RMSE (relative to each output's spread). Returns
     (model, what was done)."""
-    from ..fit import FitError, NotIdentifiable, fit
+    from ..fit import FitError, fit
     from .fit import evaluate_fit
     names = [p.name for p in fitted.parameters]
     start = T.copy_model(fitted).set_parameters({}, std={n: None for n in names})

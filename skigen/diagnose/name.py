@@ -58,7 +58,7 @@ from ..runtime import parallel
 from . import catalog as C
 from . import transform as T
 from .catalog import Additive, Structural, feedthrough, rate_readers
-from .cv import Folds, ekf_priors, ekf_run, fit_without, fits_without, fold_loglik, loglik
+from .cv import Folds, ekf_priors, fit_without, fits_without, fold_loglik, loglik
 from .errors import DiagnosisError
 from .plausible import compensating, forbidden_sign, significant, term_item
 
