@@ -835,16 +835,11 @@ def test_a_limit_s_bound_is_refined_between_its_grid_of_quantiles():
 
 
 def test_a_coulomb_friction_s_width_is_refined_between_the_grid_s(tmp_path):
-    """A mass-spring (no roles) with a dry friction 1.5·tanh(v/0.01) under a PRBS force. On a
-    user's recording the widths tried were 4× apart (0.0044 and 0.0175) and 0.0044 was taken:
-    1.316 ± 0.073, "a mismatch remains"; the width is now refined between its neighbours, as a
-    limit's bound is (there: 0.0077, 1.38 ± 0.12, consistent). On this one the friction, adopted,
-    scored −13 547 cross-validated under the process noise it left (two folds' refitted
-    coefficients the filter could not follow), every other set read as 28 000 ahead, and a viscous
-    damping 2.63 replaced it, "a mismatch remains"; an adoption now keeps the noise before it
-    where that cross-validates better (measured: width 0.0053, 1.356 ± 0.027 beside a viscous
-    correction +0.30 ± 0.04 that takes part of it — 5σ low: the width is not refitted jointly —
-    consistent). coulomb_width rebuilds the term."""
+    """A mass-spring (no roles) with a dry friction 1.5·tanh(v/0.01) under a PRBS force: the widths
+    tried are 4× apart and the grid's nearest took 0.019, 1.642 ± 0.020 (7σ high; on a user's
+    recording 0.0044, 1.316 ± 0.073 and "a mismatch remains"). The width is now refined between
+    its neighbours, as a limit's bound is (measured: 0.0114, 1.504 ± 0.068, consistent; the
+    user's: 0.0077, 1.38 ± 0.12); coulomb_width rebuilds the term."""
     from skigen import Model
     from skigen.diagnose import diagnose
     from skigen.diagnose.catalog import Additive, coulomb_width
@@ -853,7 +848,7 @@ def test_a_coulomb_friction_s_width_is_refined_between_the_grid_s(tmp_path):
     assert (moved.formula, moved.variant, moved.shape) == ("-tanh(v/0.0123)", "width 0.0123 m/s", (("width", 0.0123),))
     rng = np.random.default_rng(52)
     n, dt = 4000, 0.01
-    F = np.repeat(rng.choice([-4.0, -2.0, 0.0, 2.0, 4.0], n // 60 + 1), 60)[:n]
+    F = np.concatenate([np.full(rng.integers(30, 151), rng.choice([-4.0, -2.0, 0.0, 2.0, 4.0])) for _ in range(60)])[:n]
     f = lambda x, u: np.array([x[1], -40 * x[0] - 0.8 * x[1] + u - 1.5 * np.tanh(x[1] / 0.01)])
     x, X = np.zeros(2), []
     for u in F:
@@ -872,9 +867,9 @@ def test_a_coulomb_friction_s_width_is_refined_between_the_grid_s(tmp_path):
     frame = pd.DataFrame({"t": np.arange(n) * dt, "F": F, "x_meas": np.array(X)[:, 0] + 2e-3 * rng.standard_normal(n)})
     rep = diagnose(m, frame, tmp_path, figures=False, emit=False, show_progress=False)
     top = rep.findings[0]
-    assert top["effect"] == "coulomb_friction" and abs(top["coefficient"] - 1.5) < 0.2, rep.findings
+    assert top["effect"] == "coulomb_friction" and abs(top["coefficient"] - 1.5) < 3 * top["std"], rep.findings
     width = float(top["expression"].split("/")[1].rstrip(")"))
-    assert 0.004 < width < 0.016 and not rep.data["remaining"]["mismatch"], (width, rep.data["remaining"])
+    assert 0.007 < width < 0.015 and not rep.data["remaining"]["mismatch"], (width, rep.data["remaining"])
 
 
 def test_terms_on_an_equation_that_is_no_velocity_read_as_losses():

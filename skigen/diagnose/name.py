@@ -830,9 +830,7 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
                 got = _adopt(nominal, corr, p, rec, rms, size, alpha, states, noise_from)
             except DiagnosisError:         # no noise calibrates under it: not adopted
                 got = None
-            if got is not None:
-                got, score = _better_noise(got, nominal, rec, folds, rms, size)
-            if got is not None and _gain(score, 0.0) > -np.inf:
+            if got is not None and _gain(score := cv_loglik(got[1], got[0], rec, folds, rms, size), 0.0) > -np.inf:
                 adopted.append(got + (score, p))
         if not adopted:                    # its terms compensating: the next round searches without them
             new_aside = {(a["effect"], a["equation"], a.get("through", "")) for p in passing for a in p.set_aside}
@@ -978,19 +976,6 @@ def _label(s: Structural) -> str:
     if s.effect == "constant":
         return f"the constant {s.target}"
     return f"{s.effect} of {s.target}" + (f" ({s.side})" if s.side else "")
-
-
-def _better_noise(got: tuple[Correction, Model], before: Model, rec, folds, rms, size):
-    """((an adopted correction, the noise it is kept under), its cross-validated log-likelihood):
-    the noise recalibrated under it, or the noise ``before`` it where that cross-validates better.
-    (A dry friction tanh(v/0.0067) under the process noise it left, 6× smaller, scored −6 436 and
-    −7 581 on two folds whose refitted coefficient the filter could not follow: 13 547 below
-    none, where the noise before it gave +516; every other set then read as 28 000 ahead, and a
-    viscous damping replaced the friction.)"""
-    corr, recal = got
-    score = cv_loglik(recal, corr, rec, folds, rms, size)
-    kept = cv_loglik(before, corr, rec, folds, rms, size)
-    return ((corr, before), kept) if np.sum(kept) > np.sum(score) else ((corr, recal), score)
 
 
 def _adopt(nominal: Model, corr: Correction, p: Proposal, rec: Recording, rms: dict, size: dict,
