@@ -234,6 +234,7 @@ def _diagnose(args) -> int:
                                   + (f"; it follows {rem['explained_by']}{' outside those' if rem.get('tried') else ''}: "
                                      f"try --candidate '{rem['suggested_candidate']}'" if rem.get("explained_by") else "")
                                   + (f"; {rem['note']}" if rem.get("changes_at") is not None else "")
+                                  + (f"; {rem['periodic']['note']}" if rem.get("periodic") else "")
                                   if rem["mismatch"] else "the corrected model is consistent"))
     if (d["remaining"] or {}).get("noise_covers"):
         print(f"consistent only with {noise_covers_sentence(d['remaining']['noise_covers'])}")

@@ -629,3 +629,28 @@ def test_what_remains_periodic_in_a_state_is_suggested_at_its_period_and_phase(m
     assert abs(float(re.search(r"x/([0-9.]+)", out["shape"]).group(1)) - 400) < 20, out
     assert re.fullmatch(r"sin\(2\*pi\*x/[0-9.]+ [+-] [0-9.]+\)", out["shape"]), out     # not '+ -1.25'
 
+
+
+def test_a_line_in_the_innovations_spectrum_is_found_against_its_local_level():
+    """Waves at 9 s on a ship's yaw: no shape of a state or input, and "a mismatch remains" was all
+    a user was told. A spectral line of the innovations, against the local level of their spectrum
+    (coloured under any mismatch: a white-noise null would call a slow drift periodic), gives the
+    period; white noise and a strongly coloured AR(1) give none."""
+    from skigen.diagnose.detect import periodic, periodic_line
+    rng = np.random.default_rng(7)
+    n, dt = 3000, 0.1
+    t = np.arange(n) * dt
+    white = rng.standard_normal(n)
+    period, p, share = periodic(white + 0.4 * np.sin(2 * np.pi * t / 9.0), dt)
+    assert abs(period - 9.0) < 0.2 and p < 1e-10 and 0.05 < share < 0.1, (period, p, share)
+    assert periodic(white, dt)[1] > 0.01
+    red = np.zeros(n)
+    for k in range(1, n):
+        red[k] = 0.98 * red[k - 1] + white[k]
+    assert periodic(red, dt)[1] > 0.01
+    import types
+    run = types.SimpleNamespace(innovation=np.c_[white + 0.4 * np.sin(2 * np.pi * t / 9.0)],
+                                innovation_var=np.ones((n, 1)))
+    said = periodic_line({}, run, ["r_meas"], dt, 0.01)["periodic"]
+    assert said["output"] == "r_meas" and said["note"].startswith("the innovations of r_meas carry a line at a period of 9")
+    assert periodic_line({"explained_by": "psi"}, run, ["r_meas"], dt, 0.01) == {}

@@ -114,6 +114,32 @@ def independence(eps: np.ndarray, Z: np.ndarray) -> tuple[float, int]:
     return float(stats.chi2.sf(stat, q.shape[1])), q.shape[1]
 
 
+PEAK_NEIGHBOURS = 20   # frequencies each side whose mean sets the local spectral level
+
+
+def periodic(eps: np.ndarray, dt: float) -> tuple[float, float, float]:
+    """(period in s, p-value, share of the variance) of the strongest spectral line of one output's
+    normalised innovations, against the local level of their spectrum (an ordinate over the mean of
+    the PEAK_NEIGHBOURS each side, F(2, 4·PEAK_NEIGHBOURS) where the spectrum is smooth there),
+    Bonferroni over the frequencies; periods of three cycles at least over the recording. A mismatch's innovations are coloured, so the white-noise null of Fisher's test
+    would call any slow drift periodic; a line stands above its neighbours."""
+    e = np.where(np.isfinite(eps), eps, 0.0)
+    e = e - e.mean()
+    n = len(e)
+    power = np.abs(np.fft.rfft(e)) ** 2
+    k = np.arange(len(power))
+    usable = np.flatnonzero((k >= 3) & (k < len(power) - 1))
+    if len(usable) < 2 * PEAK_NEIGHBOURS + 1 or not power[usable].sum() > 0:
+        return float("nan"), 1.0, 0.0
+    around = [np.r_[power[max(j - PEAK_NEIGHBOURS, 1):j - 1], power[j + 2:j + PEAK_NEIGHBOURS + 1]] for j in usable]
+    ratio = power[usable] / np.maximum([a.mean() for a in around], 1e-300)
+    i = int(np.argmax(ratio))
+    j = usable[i]
+    share = float(power[j - 1:j + 2].sum() / power[1:].sum())        # the line and its two neighbours
+    p = stats.f.sf(ratio[i], 2, 2 * len(around[i]))                  # an ordinate over its neighbours' mean
+    return float(n * dt / j), float(min(1.0, len(usable) * p)), share
+
+
 def consistency(res: RunResult, output_names, alpha: float = 0.01) -> Consistency:
     """The two tests on a nominal run (see the module docstring)."""
     eps = normalised_innovations(res)
@@ -196,4 +222,25 @@ def remaining(model, rec, run: RunResult, equations, alpha: float, out_dir=None,
     out["where"] = {"equations": loc.equations, "windows": [[float(a), float(b)] for a, b in loc.windows],
                     "regime": loc.regime}
     out.update(explain(model, rec, loc, out_dir, names, tried))
-    return out
+    return out | periodic_line(out, run, model.output_names, model.dt, alpha)
+
+
+def periodic_line(said: dict, run: RunResult, outputs, dt: float, alpha: float) -> dict:
+    """{"periodic": {output, period, pvalue, share, note}} where what remains has no shape of a
+    state or input (nor a step in time) and an output's innovations carry a spectral line
+    (:func:`periodic`, at α over the outputs): a disturbance periodic in time the model has no
+    input for (waves at 9 s on a ship's yaw left "a mismatch remains" and nothing else); {}
+    otherwise."""
+    if said.get("explained_by") or said.get("changes_at") is not None:
+        return {}
+    eps = normalised_innovations(run)
+    lines = [(name, *periodic(eps[:, i], dt)) for i, name in enumerate(outputs)]
+    lines = [x for x in lines if x[2] < alpha / len(outputs)]
+    if not lines:
+        return {}
+    name, period, p, share = max(lines, key=lambda x: x[3])
+    return {"periodic": {"output": name, "period": period, "pvalue": p, "share": share,
+                         "note": f"the innovations of {name} carry a line at a period of {period:.3g} s ({100 * share:.0f} % of "
+                    f"their variance, p = {p:.2g} against their spectrum's local level): a disturbance periodic in "
+                    f"time the model has no input for (waves, a vibration, an imbalance), or an oscillation it "
+                    f"misses"}}

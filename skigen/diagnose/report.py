@@ -292,6 +292,8 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
                          f"`{rem['shape']}`); to test it: `--candidate '{rem['suggested_candidate']}'`.")
             if rem.get("note"):
                 L.append(rem["note"] + ".")
+            if rem.get("periodic"):
+                L.append(rem["periodic"]["note"][0].upper() + rem["periodic"]["note"][1:] + ".")
             if rem.get("integration"):
                 L.append(f"Integration: {rem['integration']}.")
         L.append("")
