@@ -644,8 +644,7 @@ def constant_candidates(model: Model, equations, outputs) -> list[Structural]:
     for c, where in keys:
         written = tuple(kind + name for (kind, name), lits in places.items()
                         if any(np.isclose(abs(x), c, rtol=1e-12, atol=0) and w == where for x, w in lits))
-        if len(written) < 2 and not (written[0].startswith("output ") and not where.startswith("+")) \
-                and not _shaped(where, model.input_names):
+        if len(written) < 2 and _stood_in(written[0], where, model.input_names):
             continue
         text = _num(c) if float(_num(c)) == c else f"{c:.6g}"
         out.append(Structural(
@@ -654,6 +653,13 @@ def constant_candidates(model: Model, equations, outputs) -> list[Structural]:
             lambda f, c=c, text=text: f"{text} × {f:.4g} = {c * f:.4g}", READINGS["constant"],
             beyond=2.0, equations=written))
     return out
+
+
+def _stood_in(place: str, where: str, inputs) -> bool:
+    """Whether a number written once, at ``place`` beside ``where``, has a stand-in: a catalog term
+    on its equation, unless it is the factor of a shape of the states (:func:`_shaped`); in an
+    output's formula, a sensor offset for a number added, and nothing for any other."""
+    return where.startswith("+") if place.startswith("output ") else not _shaped(where, inputs)
 
 
 def _shaped(where: str, inputs) -> bool:

@@ -121,8 +121,9 @@ def periodic(eps: np.ndarray, dt: float) -> tuple[float, float, float]:
     """(period in s, p-value, share of the variance) of the strongest spectral line of one output's
     normalised innovations, against the local level of their spectrum (an ordinate over the mean of
     the PEAK_NEIGHBOURS each side, F(2, 4·PEAK_NEIGHBOURS) where the spectrum is smooth there),
-    Bonferroni over the frequencies; periods of three cycles at least over the recording. A mismatch's innovations are coloured, so the white-noise null of Fisher's test
-    would call any slow drift periodic; a line stands above its neighbours."""
+    Bonferroni over the frequencies; periods of three cycles at least over the recording. A
+    mismatch's innovations are coloured, so the white-noise null of Fisher's test would call any
+    slow drift periodic; a line stands above its neighbours."""
     e = np.where(np.isfinite(eps), eps, 0.0)
     e = e - e.mean()
     n = len(e)
@@ -239,8 +240,7 @@ def periodic_line(said: dict, run: RunResult, outputs, dt: float, alpha: float) 
     if not lines:
         return {}
     name, period, p, share = max(lines, key=lambda x: x[3])
-    return {"periodic": {"output": name, "period": period, "pvalue": p, "share": share,
-                         "note": f"the innovations of {name} carry a line at a period of {period:.3g} s ({100 * share:.0f} % of "
-                    f"their variance, p = {p:.2g} against their spectrum's local level): a disturbance periodic in "
-                    f"time the model has no input for (waves, a vibration, an imbalance), or an oscillation it "
-                    f"misses"}}
+    note = (f"the innovations of {name} carry a line at a period of {period:.3g} s ({100 * share:.0f} % of their "
+            f"variance, p = {p:.2g} against their spectrum's local level): a disturbance periodic in time the model "
+            f"has no input for (waves, a vibration, an imbalance), or an oscillation it misses")
+    return {"periodic": {"output": name, "period": period, "pvalue": p, "share": share, "note": note}}

@@ -51,27 +51,24 @@ def _shapes(name: str, x: np.ndarray, d: np.ndarray, w: np.ndarray):
     yield f"{name}**3", x ** 3
     yield f"tanh({name}/{_num(0.05 * s)})", np.tanh(x / (0.05 * s))
     span = float(np.ptp(x)) or 1.0
-    grid = span / PERIODS
+    grid = list(span / PERIODS)
     fits = [_periodic(x, d, w, L) for L in grid]
     k = int(np.argmax([r2 for r2, _ in fits]))             # the best, refined between its neighbours
     lo, hi = grid[min(k + 1, len(grid) - 1)], grid[max(k - 1, 0)]
     best = minimize_scalar(lambda logL: -_periodic(x, d, w, np.exp(logL))[0], bounds=(np.log(lo), np.log(hi)),
                            method="bounded", options={"xatol": 1e-4})
-    for L in [*grid, float(np.exp(best.x))]:
-        phase = _periodic(x, d, w, L)[1]
+    grid.append(float(np.exp(best.x)))
+    fits.append(_periodic(x, d, w, grid[-1]))
+    for L, (_, phase) in zip(grid, fits):
         shift = f" {'+' if phase > 0 else '-'} {_num(abs(phase))}" if phase else ""
-        yield (f"sin(2*pi*{name}/{_num(L)}{shift})",
-               np.sin(2 * np.pi * x / L + phase))
+        yield f"sin(2*pi*{name}/{_num(L)}{shift})", np.sin(2 * np.pi * x / L + phase)
 
 
 def _periodic(x: np.ndarray, d: np.ndarray, w: np.ndarray, L: float) -> tuple[float, float]:
     """(weighted R², phase φ) of the best sin(2πx/L + φ) with an intercept for ``d``."""
     arg = 2 * np.pi * x / L
-    A = np.column_stack([np.ones_like(x), np.sin(arg), np.cos(arg)]) * np.sqrt(w)[:, None]
-    b = d * np.sqrt(w)
-    coef, *_ = np.linalg.lstsq(A, b, rcond=None)
-    res, tot = b - A @ coef, b - np.sqrt(w) * np.average(d, weights=w)
-    return float(1 - res @ res / max(tot @ tot, 1e-300)), float(np.arctan2(coef[2], coef[1]))
+    r2, (_, a, b) = _r2(d, w, np.column_stack([np.sin(arg), np.cos(arg)]))
+    return r2, float(np.arctan2(b, a))
 
 
 def _step(t: np.ndarray, d: np.ndarray, sd: np.ndarray, w: np.ndarray, n: int = 40) -> tuple[float, float]:
@@ -98,7 +95,8 @@ def _resolved(coef: np.ndarray, phi: np.ndarray, sd: np.ndarray) -> bool:
 
 
 def _r2(d: np.ndarray, w: np.ndarray, phi: np.ndarray) -> tuple[float, np.ndarray]:
-    A = np.column_stack([np.ones_like(phi), phi]) * np.sqrt(w)[:, None]
+    """(weighted R², [intercept, coefficients]) of ``d`` on the shape(s) ``phi`` (one or columns)."""
+    A = np.column_stack([np.ones(len(d)), phi]) * np.sqrt(w)[:, None]
     b = d * np.sqrt(w)
     coef, *_ = np.linalg.lstsq(A, b, rcond=None)
     res = b - A @ coef
