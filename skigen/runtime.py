@@ -105,7 +105,7 @@ class RunResult:
     next_prior: tuple | None = None   # (z, C): the prior for the sample after the last (C as in Trace)
     gate: float = Guard.gate  # the innovation gate the run had, in std (0: none, as on the casadi backend)
     failure: str | None = None   # where the model is not finite at the first failed step (failure.explain)
-    held: np.ndarray | None = None   # (N, n) True where the prior std was held at Guard's std_max (python backend)
+    held: np.ndarray | None = None   # (N, n) True where the prior std was held at Guard's std_max (python, c)
 
     def __post_init__(self):
         if self.measured is None:

@@ -690,6 +690,17 @@ def _delay_plant(prior_variance: float):
     return m, pd.DataFrame({"t": np.arange(1500) * 0.02, "u": us, "xm": xs + 0.02 * rng.standard_normal(1500)})
 
 
+def test_the_c_backend_counts_the_prior_stds_it_held():
+    """The generated C counts its bound on the prior std (``bounded``) as the Python step marks it:
+    the same states on the same samples, and the same summary line."""
+    m, frame = _delay_plant(1e4)
+    python = skigen.run(m, frame, filter="ski", show_progress=False)
+    c = skigen.run(m, frame, filter="ski", show_progress=False, backend="c")
+    assert python.held.sum() == 8 and np.array_equal(c.held, python.held)
+    held = [line for line in c.summary().lines() if line.startswith("prior std held")]
+    assert held == [line for line in python.summary().lines() if line.startswith("prior std held")]
+
+
 def test_a_prior_std_held_at_its_bound_is_said_with_the_remedy(tmp_path, capsys):
     """A weight prior of 10⁴ beside a state std of 0.5: the first predictions put x's std above its
     bound (100 × 0.5), the filter grows surer of x than it should be, gates a quarter of the readings

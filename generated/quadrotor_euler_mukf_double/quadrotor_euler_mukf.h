@@ -120,6 +120,7 @@ typedef struct {
     long reinits; /* restarts of the physical states (recovery), in total */
     long reject_run[6]; /* readings in a row rejected (gated or a failed step), per output */
     long since_update; /* samples since a measurement was last used */
+    long bounded[8]; /* prior stds held at settings.std_max, per state, in total */
     int iw[1]; /* kernel work */
     quadrotor_euler_mukf_real w[1]; /* kernel work */
 } quadrotor_euler_mukf_state;

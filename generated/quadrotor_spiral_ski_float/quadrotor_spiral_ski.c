@@ -165,7 +165,8 @@ static void reinit(quadrotor_spiral_ski_state* st)
         }
 }
 
-/* Every prior std at most settings.std_max: a state's row of S (row and column of P) scaled. */
+/* Every prior std at most settings.std_max: a state's row of S (row and column of P) scaled,
+   counted in bounded[i]. */
 static void bound_std(quadrotor_spiral_ski_state* st)
 {
     real d[QUADROTOR_SPIRAL_SKI_N];
@@ -177,7 +178,11 @@ static void bound_std(quadrotor_spiral_ski_state* st)
         else
             v = st->C_next[i + i * QUADROTOR_SPIRAL_SKI_N];
         sd = v > 0 ? sqrtf(v) : 0;
-        d[i] = sd > st->settings.std_max[i] ? st->settings.std_max[i] / sd : 1;
+        d[i] = 1;
+        if (sd > st->settings.std_max[i]) {
+            d[i] = st->settings.std_max[i] / sd;
+            count(&st->bounded[i]);
+        }
     }
     for (j = 0; j < QUADROTOR_SPIRAL_SKI_N; ++j)
         for (i = 0; i < QUADROTOR_SPIRAL_SKI_N; ++i)
@@ -265,6 +270,7 @@ int quadrotor_spiral_ski_reset(quadrotor_spiral_ski_state* st, const real* z_sta
     zero_l(&st->reinits, 1);
     zero_l(st->reject_run, 3);
     zero_l(&st->since_update, 1);
+    zero_l(st->bounded, 14);
     if (z_start) copy_n(st->z, z_start, n);
     if (C_start) copy_n(st->C, C_start, n * n);
     copy_n(st->z_post, st->z, n);

@@ -125,6 +125,7 @@ typedef struct {
     long reinits; /* restarts of the physical states (recovery), in total */
     long reject_run[3]; /* readings in a row rejected (gated or a failed step), per output */
     long since_update; /* samples since a measurement was last used */
+    long bounded[14]; /* prior stds held at settings.std_max, per state, in total */
     int iw[1]; /* kernel work */
     quadrotor_spiral_ukf_real w[1577]; /* kernel work */
 } quadrotor_spiral_ukf_state;

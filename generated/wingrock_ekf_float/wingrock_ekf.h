@@ -113,6 +113,7 @@ typedef struct {
     long reinits; /* restarts of the physical states (recovery), in total */
     long reject_run[1]; /* readings in a row rejected (gated or a failed step), per output */
     long since_update; /* samples since a measurement was last used */
+    long bounded[8]; /* prior stds held at settings.std_max, per state, in total */
     int iw[1]; /* kernel work */
     wingrock_ekf_real w[1]; /* kernel work */
 } wingrock_ekf_state;

@@ -128,7 +128,8 @@ static void reinit(wingrock_ski_state* st)
         }
 }
 
-/* Every prior std at most settings.std_max: a state's row of S (row and column of P) scaled. */
+/* Every prior std at most settings.std_max: a state's row of S (row and column of P) scaled,
+   counted in bounded[i]. */
 static void bound_std(wingrock_ski_state* st)
 {
     real d[WINGROCK_SKI_N];
@@ -140,7 +141,11 @@ static void bound_std(wingrock_ski_state* st)
         else
             v = st->C_next[i + i * WINGROCK_SKI_N];
         sd = v > 0 ? sqrtf(v) : 0;
-        d[i] = sd > st->settings.std_max[i] ? st->settings.std_max[i] / sd : 1;
+        d[i] = 1;
+        if (sd > st->settings.std_max[i]) {
+            d[i] = st->settings.std_max[i] / sd;
+            count(&st->bounded[i]);
+        }
     }
     for (j = 0; j < WINGROCK_SKI_N; ++j)
         for (i = 0; i < WINGROCK_SKI_N; ++i)
@@ -228,6 +233,7 @@ int wingrock_ski_reset(wingrock_ski_state* st, const real* z_start, const real* 
     zero_l(&st->reinits, 1);
     zero_l(st->reject_run, 1);
     zero_l(&st->since_update, 1);
+    zero_l(st->bounded, 8);
     if (z_start) copy_n(st->z, z_start, n);
     if (C_start) copy_n(st->C, C_start, n * n);
     copy_n(st->z_post, st->z, n);

@@ -140,13 +140,14 @@ def _settings(filt: DerivedFilter) -> list[tuple[str, str, tuple, str]]:
 
 def _health(filt: DerivedFilter) -> list[tuple[str, tuple, str]]:
     """The counters (``long``) of ``<prefix>_state`` after its settings: (name, shape, comment)."""
-    ny = filt.aug.shapes["ny"]
+    ny, n = filt.aug.shapes["ny"], filt.aug.n
     return [("rejected", (ny,), "measurements rejected by the gate, per output, in total"),
             ("stuck", (ny,), "readings not used as stuck, per output, in total"),
             ("repeats", (ny,), "identical readings in a row so far, per output"),
             ("reinits", (), "restarts of the physical states (recovery), in total"),
             ("reject_run", (ny,), "readings in a row rejected (gated or a failed step), per output"),
-            ("since_update", (), "samples since a measurement was last used")]
+            ("since_update", (), "samples since a measurement was last used"),
+            ("bounded", (n,), "prior stds held at settings.std_max, per state, in total")]
 
 
 def _size(shape: tuple) -> int:
@@ -639,19 +640,21 @@ class CFilter:
     def run_many(self, inputs, outputs) -> dict[str, np.ndarray]:
         """Step over rows of ``inputs`` and ``outputs`` in one C call (libraries from :func:`load_c`):
         per sample the posterior mean ``z_post`` and ``std``, innovation ``e``, diagonal of ``Pyy``,
-        ``nis``, ``loglik``, ARD variances ``s`` (SKI), the outputs ``used`` and the status ``code``."""
+        ``nis``, ``loglik``, ARD variances ``s`` (SKI), the outputs ``used``, the status ``code`` and the
+        states whose prior std was ``held`` at its bound."""
         count, d = len(inputs), {k: self.shapes[k] for k in ("e", "z_post")}
         u = np.ascontiguousarray(inputs, self.dtype).reshape(count, -1)
         y = np.ascontiguousarray(outputs, self.dtype).reshape(count, -1)
         nw = _size(self.shapes["s"]) if "s" in self.shapes else 0
         out = dict(z_post=(self.n,), std=(self.n,), e=d["e"], pyy=d["e"], nis=(), loglik=(), s=(nw,), used=d["e"])
         out = {k: np.empty((count, *shape), self.dtype) for k, shape in out.items()}
-        out["code"] = np.empty(count, np.intc)
+        out["code"], out["held"] = np.empty(count, np.intc), np.empty((count, self.n), np.intc)
         ptr = lambda a: a.ctypes.data_as(ctypes.c_void_p)
         fn = getattr(self.lib, f"{self.prefix}_run_many")
         fn.restype = None
         fn(ctypes.byref(self._st), ctypes.c_size_t(count), ptr(u), ptr(y),
-           *(ptr(out[k]) for k in ("z_post", "std", "e", "pyy", "nis", "loglik", "s", "used", "code")))
+           *(ptr(out[k]) for k in ("z_post", "std", "e", "pyy", "nis", "loglik", "s", "used", "code", "held")))
+        out["held"] = out["held"] != 0
         return out
 
     def run(self, inputs, outputs) -> dict[str, np.ndarray]:
