@@ -136,6 +136,7 @@ class Proposal:
     as_good: list = field(default_factory=list)     # another finalist the recording cannot tell from it
     tried: list = field(default_factory=list)       # additive: the swaps and simpler sets scored, (correction, folds)
     alternatives: list = field(default_factory=list)   # the corrections of its ties (as_good), whole
+    rivals: list = field(default_factory=list)   # finalists behind it beyond a tie (within TIE_MARGIN), whole
     noise: Model | None = None          # a revision: the nominal with the noise calibrated under it
 
 
@@ -848,6 +849,9 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
                 items = [item | {"cv_loglik_behind": behind} for item in added(corr, other) if _said(item) not in same]
                 chosen.as_good += items
                 chosen.alternatives += [other] if items else []
+            elif p is not chosen and behind < TIE_MARGIN * evidence_threshold(alpha) and \
+                    any(_said(item) not in same for item in added(corr, other)):
+                chosen.rivals.append(other)
         items, whole = _ties_under(nominal, recal, corr, new, chosen, score, proposals, rec, folds, rms, size,
                                    alpha, noise_from)
         chosen.as_good += items
@@ -874,50 +878,106 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
 
 def _revised(first: Model, corr: Correction, current, rounds: list, rec, folds, rms, size, alpha: float,
              states: np.ndarray, noise_from=None) -> "Proposal | None":
-    """The best of the rounds' ties, each in the correction it was a tie in (without the terms its
-    round's adoption dropped as not significant, and without the later rounds' findings), under
-    the noise calibrated with it: within what a finding must add of the final correction
-    ``current`` (cross-validated) where it leaves later findings out (fewer numbers for the same
-    evidence), ahead of it where it leaves none (as many numbers, better under its own noise);
-    none whose terms a round would set aside as compensating (an anti-drag 1.3 ahead of a heavier
-    cart's damping constant replaced it, then was dropped, and the damping with it). A proposal
-    whose ``noise`` is that model; None if there is none. (KT·pwm² 10 % low on a
+    """The best of the rounds' ties and rivals, each in the correction it was scored in (without
+    the terms its round's adoption dropped as not significant), under the noise calibrated with
+    it: a tie without the later rounds' findings, a tie or a rival with those of them it still
+    needs (:func:`_pruned`). Taken when it explains the recording within what a finding must add
+    of the final correction ``current`` (cross-validated) with fewer numbers, or better with as
+    many; none whose terms a round would set aside as compensating (an anti-drag 1.3 ahead of a
+    heavier cart's damping constant replaced it, then was dropped, and the damping with it). A
+    proposal whose ``noise`` is that model; None if there is none. (KT·pwm² 10 % low on a
     closed-loop hover: a rate offset was chosen over the thrust term, 0.6 ahead, and a lidar gain
-    of 0.93 was named to make up the rest; the thrust term alone was 0.7 behind both. On another
-    flight a linear gain on pwm won its round, and the pwm² term, under its own noise, was 3.3
-    ahead of it.)"""
-    best = None
+    of 0.93 was named to make up the rest; the thrust term alone was 0.7 behind both. A wheel
+    speed sensor reading 4 % high on a car whose GPS reads position: a GPS gain of 0.96 won the
+    first round, 22 ahead, and needed a 4 % force gain and a drag change beside it; the wheel gain
+    with the rolling resistance alone explains as well with two numbers fewer.)"""
+    best, final = None, _numbers(corr)
     for (p, before), after in zip(rounds, [r[1] for r in rounds[1:]] + [corr]):
-        later = added(after, corr)
         lost = _dropped(p, after)
-        for alt in p.alternatives:
-            try:                               # its coefficients as the noise before naming has them
-                alt = refit(first, alt.without(*lost), rec, rms, size)
-            except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):
-                continue
-            noise = recalibrated(first, alt, rec, noise_from)
-            if (scored := _scored(noise, alt, rec, folds, rms, size)) is None or any(
-                    compensating(noise, c, coef, states, rec) for c, coef, _ in scored[0].found[len(before.found):]):
+        later = [a for a in corr.additive if a[0] not in {b[0] for b in after.additive}] + \
+                [s for s in corr.structural if s[0] not in {b[0] for b in after.structural}]
+        trials = [alt.without(*lost) for alt in p.alternatives]
+        trials += [_joined(alt.without(*lost), later) for alt in (p.alternatives + p.rivals) if later]
+        for trial in trials:
+            got = _pruned(first, trial, [t[0] for t in later if _in(t[0], trial)], rec, folds, rms, size,
+                          alpha, noise_from)
+            if got is None or any(compensating(got[0], c, coef, states, rec)
+                                  for c, coef, _ in got[1][0].found[len(before.found):]):
                 continue                       # a term a round would set aside is no revision
-            short = -_gain(scored[1], current)
-            if (short < evidence_threshold(alpha) if later else short < 0) and (
-                    best is None or np.sum(scored[1]) > np.sum(best[1][1])):
-                best = (noise, scored, short, added(before, scored[0]), added(before, after), later)
+            short, fewer = -_gain(got[1][1], current), _numbers(got[1][0]) < final
+            if (short < evidence_threshold(alpha) if fewer else short < 0 and _numbers(got[1][0]) == final) \
+                    and (best is None or np.sum(got[1][1]) > np.sum(best[1][1])):
+                best = (*got, short, before, after)
     if best is None:
         return None
-    noise, (fewer, score), short, mine, replaced, later = best
-    revision = Proposal("revision", -short, len(mine) - len(replaced) - len(later), fewer,
+    noise, (revised, score), short, before, after = best
+    keys = lambda c: {k for k, _ in _keyed(before, c)}
+    mine = [a for k, a in _keyed(before, revised) if k not in keys(corr)]
+    replaced = [a for k, a in _keyed(before, after) if k not in keys(revised)]
+    later = [a for k, a in _keyed(after, corr) if k not in keys(revised)]
+    revision = Proposal("revision", -short, _numbers(revised) - final, revised,
                         ", ".join(map(_text, mine)) + " in place of " + ", ".join(map(_text, replaced))
                         + (", leaving out " + ", ".join(map(_text, later)) if later else ""), score)
     revision.noise, revision.adopted = noise, mine
-    revision.note = ("a tie of an earlier round that leaves the later findings unneeded: fewer numbers for the "
-                     "same evidence" if later else "a tie that explains the recording better under the noise "
-                     "calibrated with it")
+    revision.note = ("a tie or rival of an earlier round that leaves later findings unneeded: fewer numbers "
+                     "for the same evidence" if later else "a tie that explains the recording better under "
+                     "the noise calibrated with it")
     instead, others = [list(acts(b)) for b in mine], replaced + later
     revision.as_good = [a | {"cv_loglik_behind": -short, "instead_of": instead,
                              "with": [_text(b) for b in others if b is not a]} for a in others
                         if -short < evidence_threshold(alpha)]           # what it replaced, if still a tie
     return revision
+
+
+def _keyed(before: Correction, after: Correction) -> list[tuple]:
+    """What ``after`` adds to ``before``: (candidate key, report item) per term."""
+    terms = after.found[len(before.found):] + after.structural[len(before.structural):]
+    return [(t[0].key, item) for t, item in zip(terms, added(before, after))]
+
+
+def _numbers(corr: Correction) -> int:
+    """The numbers a correction's findings choose (a declared parameter's correction not counted)."""
+    return len(corr.found) + len(corr.structural)
+
+
+def _in(term, corr: Correction) -> bool:
+    return any(a[0] is term for a in corr.additive + corr.structural)
+
+
+def _joined(alt: Correction, later: list) -> Correction:
+    """``alt`` with the ``later`` terms (additive or structural, as in a correction) it lacks."""
+    have = {id(a[0]) for a in alt.additive + alt.structural}
+    more = [t for t in later if id(t[0]) not in have]
+    return Correction(alt.additive + [t for t in more if isinstance(t[0], Additive)],
+                      alt.structural + [t for t in more if not isinstance(t[0], Additive)])
+
+
+def _pruned(first: Model, trial: Correction, optional: list, rec, folds, rms, size, alpha: float,
+            noise_from=None) -> tuple[Model, tuple[Correction, np.ndarray]] | None:
+    """``trial`` refitted under the noise calibrated with it, then without each ``optional`` term
+    whose drop costs less than what a finding must add (cross-validated), the least needed first:
+    (noise, (correction, per-fold log-likelihood)); None where its filter diverges."""
+    try:                                       # its coefficients as the noise before naming has them
+        trial = refit(first, trial, rec, rms, size)
+    except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):
+        return None
+    noise = recalibrated(first, trial, rec, noise_from)
+    if (scored := _scored(noise, trial, rec, folds, rms, size)) is None:
+        return None
+    again = recalibrated(first, scored[0], rec, noise_from)      # the noise under coefficients fitted with it
+    if (rescored := _scored(again, scored[0], rec, folds, rms, size)) and np.sum(rescored[1]) > np.sum(scored[1]):
+        noise, scored = again, rescored
+    optional = list(optional)
+    while optional:
+        drops = [(d, t) for t in optional if (d := _scored(noise, scored[0].without(t), rec, folds, rms, size))]
+        if not drops:
+            break
+        drop, t = max(drops, key=lambda d: np.sum(d[0][1]))
+        if -_gain(drop[1], scored[1]) >= evidence_threshold(alpha):
+            break
+        scored = drop
+        optional.remove(t)
+    return noise, scored
 
 
 def _text(item: dict) -> str:
