@@ -45,8 +45,8 @@ from .fit import DIVERGED, evaluate_fit, free_run_window, simulation_worth
 from .inputs import MIN_SAMPLES, check, load, usable
 from .locate import Location, locate
 from .suggest import explain
-from .name import (DELAYS, Correction, acts, basis_rms, beyond_parameters, focus_window, name_terms, recalibrated,
-                   redelayed, shape_search)
+from .name import (DELAYS, Correction, StartRejected, acts, basis_rms, beyond_parameters, focus_window,
+                   name_terms, recalibrated, redelayed, shape_search)
 from .plausible import screen, significant, term_item
 from .name import refit as refit_terms
 from .report import behind, where, write_json, write_markdown
@@ -118,7 +118,7 @@ class _Stages:
 def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01, folds: int = DEFAULT_FOLDS,
              validate=(), equations=None, figures: bool = True, emit: bool = True, refit: bool = True,
              show_progress: bool = True, time=None, time_unit: str = "s", columns=None,
-             max_gap: float = 1.0) -> Report:
+             max_gap: float = 1.0, judge_start=None) -> Report:
     """Diagnose ``model`` (a :class:`Model`, a model file or ``package.module:attribute``) against
     ``recording`` (a :class:`Recording`, a CSV, Parquet or ULog path, or a DataFrame); write report.json,
     report.md, figures and the corrected model into ``out_dir``.
@@ -143,7 +143,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         nominal = T.copy_model(user, unknowns=False)
         check(nominal, rec, folds)
         nominal, moved = started(nominal, rec, "every filter of the diagnosis starts",
-                                 "; the corrected model file declares the user's start")
+                                 "; the corrected model file declares the user's start", judge_start)
         caveats += moved
         start_note = moved[0] if moved else None
         others = []
@@ -241,12 +241,20 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
             for e in {c.equation for c in additive}}
     before_naming = calibrated
     cv_before = fold_loglik(calibrated, rec, cv)      # the nominal as calibrated, as in the in-sample table
-    corr, history, rms, size, calibrated = name_terms(calibrated, rec, cv, loc.equations, loc.states, size, additive,
-                                          structural, alpha, progress=lambda s: stage(f"naming: {s}"),
-                                                      focus=focus_window(sum((d / np.maximum(sd, 1e-300)) ** 2
-                                                                             for d, sd in loc.disturbance.values())),
-                                                      parameters=C.parameter_terms(declared, rate_eqs),
-                                                      noise_from=user_noise)
+    try:
+        corr, history, rms, size, calibrated = name_terms(
+            calibrated, rec, cv, loc.equations, loc.states, size, additive, structural, alpha,
+            progress=lambda s: stage(f"naming: {s}"),
+            focus=focus_window(sum((d / np.maximum(sd, 1e-300)) ** 2 for d, sd in loc.disturbance.values())),
+            parameters=C.parameter_terms(declared, rate_eqs), noise_from=user_noise)
+    except StartRejected as e:
+        if start_note or judge_start is not None:
+            raise DiagnosisError(f"the filter of '{e.label}' fails on {rec.path} from either start") from None
+        stage.note(f"judged with {e.label}, the recording does not start at the model's initial state: "
+                   "diagnosing again from a vague start")
+        return diagnose(model, recording, out_dir, candidates=candidates, alpha=alpha, folds=folds, validate=validate,
+                        equations=equations, figures=figures, emit=emit, refit=refit, show_progress=show_progress,
+                        judge_start=(e.model, e.label), **read)
     stage("searching the shapes")
     variants = {}
     for c in additive:
@@ -333,6 +341,13 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
             stage("emitting the corrected filter's C")
             meta["generated"] = [str(p) for p in emit_filter(filed, out / "generated")]
         corrected = _start_as(filed, nominal)                 # this recording's start, as every model above
+        if not start_note:                    # the nominal's misfit hid a start the corrected model rejects
+            corrected, moved = started(corrected, rec, "the fits of both models start",
+                                       " (judged with the corrected model: the nominal's misfit had hidden it)")
+            if moved:
+                caveats += moved
+                before = evaluate_fit(_start_as(before_naming, corrected), rec, window=window)
+                data["fit"]["before"] = before.metrics
         stage("fit of the corrected model")
         after = evaluate_fit(corrected, rec, window=window)
         data["fit"]["after"] = after.metrics
@@ -417,15 +432,18 @@ def _worse(before: dict, after: dict) -> str:
                      if None not in (a[k], b.get(k)) and a[k] > b[k] and not a[k] <= (noise.get(k) or 0.0))
 
 
-def started(model: Model, rec, who: str, then: str = "") -> tuple[Model, list[str]]:
+def started(model: Model, rec, who: str, then: str = "", judge=None) -> tuple[Model, list[str]]:
     """``model``, or where ``rec`` rejects its declared start (:func:`skigen.start.recorded_start`)
     a copy starting from the vague prior (:attr:`~skigen.start.RecordedStart.vague_mean`, DIFFUSE
-    times the declared std), with a note saying how ``who`` starts, and ``then``."""
-    rs = recorded_start(model, rec)
+    times the declared std), with a note saying how ``who`` starts, and ``then``. judge: (model,
+    label) that judges the start instead (its first states those of ``model``)."""
+    rs = recorded_start(judge[0] if judge else model, rec)
     if rs is None or rs.consistent:
         return model, []
+    if judge:
+        then = f" (judged with {judge[1]}: the nominal's misfit had hidden it)" + then
     vague = T.copy_model(model)
-    vague.x0 = [float(v) for v in rs.vague_mean]
+    vague.x0 = [float(v) for v in rs.vague_mean[:len(model.x0)]]
     vague.x_std = [DIFFUSE * s for s in model.x_std]
     vague.P0 = None if model.P0 is None else DIFFUSE ** 2 * model.P0
     return vague, [rs.note(rec.path, rs.starting(who) + then)]

@@ -833,6 +833,8 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
                 got = None
             if got is not None and _gain(score := cv_loglik(got[1], got[0], rec, folds, rms, size), 0.0) > -np.inf:
                 adopted.append(got + (score, p))
+            elif got is not None and not first_start(got[0].build(got[1]), rec):
+                raise StartRejected(got[0].build(got[1]), p.label)
         if not adopted:                    # its terms compensating: the next round searches without them
             new_aside = {(a["effect"], a["equation"], a.get("through", "")) for p in passing for a in p.set_aside}
             if not new_aside - aside:
@@ -874,6 +876,23 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
         history.append(revision)
         corr, nominal, current = revision.correction, revision.noise, revision.folds
     return corr, history, rms, size, nominal
+
+
+class StartRejected(Exception):
+    """A finding whose filter fails under its own noise rejects the recording's declared start,
+    which the nominal's misfit had covered: the diagnosis starts again from the vague prior,
+    judged with ``model`` (the nominal with the finding ``label``)."""
+
+    def __init__(self, model: Model, label: str):
+        super().__init__(label)
+        self.model, self.label = model, label
+
+
+def first_start(model: Model, rec: Recording) -> bool:
+    """Whether ``model`` takes ``rec``'s declared start (:func:`skigen.start.recorded_start`)."""
+    from ..start import recorded_start
+    rs = recorded_start(model, rec)
+    return rs is None or rs.consistent
 
 
 def _revised(first: Model, corr: Correction, current, rounds: list, rec, folds, rms, size, alpha: float,
