@@ -116,17 +116,13 @@ def _run(args) -> int:
                     w.write(part.columns())
                     summary.add(part)
         except NotStreamable:
-            out.unlink(missing_ok=True)
+            pass                          # read whole below, which names the fault
         else:
             summary.holes, summary.notes = grid.holes, tuple(grid.notes)
             for line in grid.notes:
                 print(line)
             return _ran(args, model, grid.n, grid.time(0), grid.time(grid.n - 1), summary)
-    try:
-        rec = load_recording(args.data, model, real=args.real, **options)
-    except RecordingError:
-        out.unlink(missing_ok=True)
-        raise
+    rec = load_recording(args.data, model, real=args.real, **options)
     for line in rec.notes:
         print(line)
     filt = filt or _derived(args, model)

@@ -307,10 +307,14 @@ class TableWriter:
     the GIL), at most ``queue`` blocks behind, while the caller computes the next: formatting
     numbers is the slowest part of a run over a long log, and this overlaps it with the filter.
     An error in the thread is raised by the next :meth:`write` or by :meth:`close`.
+
+    The blocks go to ``<path>.partial``, renamed to ``path`` when the writer closes without an
+    error: a run that fails part way leaves an earlier result at ``path`` as it was.
     """
 
     def __init__(self, path, background: bool = False, queue: int = 2):
         self.path, self._writer, self._error = path, None, None
+        self._partial = f"{os.fspath(path)}.partial"
         self._thread = self._queue = None
         if background:
             import queue as q
@@ -351,31 +355,38 @@ class TableWriter:
              for v in columns.values()], names=list(columns))
 
         if self._writer is None:
-            self._file = open(self.path, "wb")
+            self._file = open(self._partial, "wb")
             self._file.write((",".join(_csv_cell(n) for n in table.column_names) + "\n").encode())
             self._writer = pc.CSVWriter(self._file, table.schema, write_options=pc.WriteOptions(
                 include_header=False, quoting_style="none"))
         self._writer.write_table(table)
 
-    def close(self) -> None:
+    def close(self, keep: bool = True) -> None:
+        """Finish the file and rename it to ``path``; keep=False: remove it instead."""
         if self._thread is not None:
             self._queue.put(None)
             self._thread.join()
             self._thread = None
-        if self._writer is not None:
+        written = self._writer is not None
+        if written:
             self._writer.close()
             self._file.close()
             self._writer = None
-        if self._error is not None:
-            error, self._error = self._error, None
-            raise error
+        if self._error is not None or not keep:
+            if written:
+                os.remove(self._partial)
+            if self._error is not None:
+                error, self._error = self._error, None
+                raise error
+        elif written:
+            os.replace(self._partial, self.path)
 
     def __enter__(self):
         return self
 
     def __exit__(self, *exc):
         try:
-            self.close()
+            self.close(keep=exc[0] is None)
         except BaseException:
             if exc[0] is None:
                 raise

@@ -253,6 +253,15 @@ def test_errors_are_those_of_the_whole_file_reader(tmp_path, capsys, monkeypatch
     df.to_csv(path, index=False)
     assert main(["run", spec, str(path), "--filter", "ekf", "--out", str(tmp_path / "o.csv")]) == 2
     assert "row 352, column 'u': '0x10' is not a number" in capsys.readouterr().err
+    # An earlier result at --out outlives a run that fails part way (the partial file is removed).
+    (tmp_path / "o.csv").write_text("kept\n")
+    assert main(["run", spec, str(path), "--filter", "ekf", "--out", str(tmp_path / "o.csv")]) == 2
+    assert (tmp_path / "o.csv").read_text() == "kept\n" and sorted(p.name for p in tmp_path.iterdir()) == [
+        "back.csv", "o.csv"]
+    df.loc[350, "u"] = "0.1"
+    df.to_csv(path, index=False)
+    assert main(["run", spec, str(path), "--filter", "ekf", "--out", str(tmp_path / "o.csv")]) == 0
+    assert len(pd.read_csv(tmp_path / "o.csv")) == 400 and not (tmp_path / "o.csv.partial").exists()
 
 
 MODEL = small_model()
