@@ -421,8 +421,10 @@ class GridStream:
 
     The result is that of :func:`to_grid` on the whole file, sample for sample (the same
     expressions on the same numbers): a grid sample is laid out once no later time stamp can change
-    it (every input has a stamp past it, every output a sample nearer the next grid sample), and
-    only the samples that can still matter are kept, so memory does not grow with the file. Three
+    it (every input has a stamp at or past it, every output a sample nearer the next grid sample:
+    whether a sample after an input's last stamp is in a hole is known at its next stamp or the
+    end of the file), and only the samples that can still matter are kept, so memory does not
+    grow with the file (it grows with an input's hole, whose rows wait for its end). Three
     decisions are taken on the first block instead of the whole file: the time origin (the same:
     the first row), ``--time-unit auto`` and the check of the unit against dt (both from the
     median spacing of the first block). Holes and notes are complete after :meth:`finish`;
@@ -595,9 +597,8 @@ class GridStream:
             c = self.cols[name]
             if self.hold == "foh":
                 k = min(k, self._count(lambda t, T=c.last: T > t, guess(c.last)))
-            else:
-                T = max(c.last, row)
-                k = min(k, self._count(lambda t, T=T: T >= t + half, guess(T)))
+            else:          # its value: no stamp can come before row; a hole: none after its last stamp yet
+                k = min(k, self._count(lambda t, a=c.last: t <= a and t + half <= row, guess(c.last)))
         for name in self.output_names:
             c = self.cols[name]
             T = max(c.last if c.last is not None else -np.inf, row)
