@@ -12,7 +12,7 @@ __all__ = ["run"]
 
 def run(model: Model, data, *, filter: str = "ukf", backend: str = "python", columns=None, time=None,
         time_unit: str = "s", max_gap: float = 1.0, real: str = "double",
-        show_progress: bool = True, guard=None, options=None) -> RunResult:
+        show_progress: bool = True, guard=None, options=None, estimate=()) -> RunResult:
     """Run ``model``'s ``filter`` over ``data`` on the model's grid.
 
     data: a CSV, Parquet or PX4 ULog path, a pandas DataFrame (a time column, or a numeric or
@@ -23,6 +23,8 @@ def run(model: Model, data, *, filter: str = "ukf", backend: str = "python", col
     python, c (``real`` double or float) or casadi (no guard policy: see :mod:`skigen.runtime`).
     guard: outlier gate and recovery settings (a :class:`skigen.guard.Guard`; default its defaults).
     options: the filter's :class:`~skigen.derive.FilterOptions` (sigma-point alpha, second-order EKF, ARD).
+    estimate: declared parameters estimated online, augmented into the state with their std as
+    prior (``skigen run --estimate``).
     show_progress: a progress line on stderr, where progress is shown (a terminal, or
     ``SKIGEN_PROGRESS=1``), as :func:`skigen.fit.fit` and the commands.
     Returns a :class:`~skigen.runtime.RunResult`; ``.to_frame()`` gives a DataFrame.
@@ -30,5 +32,5 @@ def run(model: Model, data, *, filter: str = "ukf", backend: str = "python", col
     model.check()
     rec = data if isinstance(data, Recording) else load_recording(
         data, model, time=time, time_unit=time_unit, columns=columns, max_gap=max_gap, real=real)
-    return _run(derive(model, filter, options), rec, backend=backend, real=real, show_progress=show_progress,
+    return _run(derive(model, filter, options, estimate=estimate), rec, backend=backend, real=real, show_progress=show_progress,
                 guard=guard)

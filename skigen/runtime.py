@@ -310,9 +310,30 @@ class RunSummary:
                     + ("; a first-order EKF's linearisation may be it: try --second-order or the UKF"
                        if self.filter.kind == "ekf" and not self.filter.options.second_order else ""))
         if mean < lo:
+            estimated = self.filter.aug.n > len(self.filter.aug.model.states)
             return (f"conservative: the innovations are {mean:.3g} times their predicted variance ({band}): the "
-                    f"declared noise is larger than the recording shows, and the ± 2σ above are wide")
+                    f"declared noise is larger than the recording shows, and the states' ± 2σ above are wide"
+                    + ("; the estimated parameters' and weights' are not vouched for: a process noise above the "
+                       "true one makes the states they multiply noisy and can bias them beyond their ± 2σ (`skigen "
+                       "fit --method filter-error` calibrates the noise with them)" if estimated else ""))
         return f"consistent: the innovations are {mean:.3g} times their predicted variance ({band})"
+
+    PRIOR_Z = 3.0     # an estimated parameter this many prior std from its declared value is remarked
+
+    def _odd(self, i: int) -> str:
+        """What the parameter table says beside estimated parameter ``i``: outside its declared
+        bounds (the filter does not hold them), or PRIOR_Z prior std from its declared value (a
+        thrust in percent for a fraction: 0.196 for a declared 18 ± 5, said nowhere)."""
+        p = self.filter.aug.model.parameter_named(self.filter.aug.names[i])
+        value, (lo, hi) = self.last[0][i], p.bounds
+        z = abs(value - p.value) / p.std if p.std else 0.0
+        said = ([f"outside its bounds [{lo:g}, {hi:g}], which the online filter does not hold"]
+                if not lo <= value <= hi else []) + ([f"{z:.1f} prior std from its declared {p.value:g}"]
+                                                    if z > self.PRIOR_Z else [])
+        ratio = value / p.value if p.value and value else np.nan
+        if said and np.isfinite(ratio) and not 0.2 < ratio < 5:
+            said.append(f"{ratio:.3g}× it: check the units and mapping")
+        return "   " + "; ".join(said) if said else ""
 
     def _mark(self, i: int, kept: bool | None) -> str:
         """What the weight table says beside weight ``i``: never informed, or (SKI, ``kept`` not
@@ -356,7 +377,8 @@ class RunSummary:
                 out.append(f"  {aug.names[i]:16s} {self.last[0][i]:+.4g} ± {2 * self.last[1][i]:.2g}{mark}")
         if self.last is not None and len(aug.p_index):
             out.append("parameter" + " " * 11 + "final ± 2σ   (estimated online)")
-            out += [f"  {aug.names[i]:16s} {self.last[0][i]:+.6g} ± {2 * self.last[1][i]:.2g}" for i in aug.p_index]
+            out += [f"  {aug.names[i]:16s} {self.last[0][i]:+.6g} ± {2 * self.last[1][i]:.2g}{self._odd(i)}"
+                    for i in aug.p_index]
         if self.last is not None:
             out += self.together()
         if any(self.events.values()):

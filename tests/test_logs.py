@@ -463,6 +463,52 @@ def test_the_summary_judges_the_nis_against_its_band(noise, verdict):
     said = lines[lines.index(next(line for line in lines if line.startswith("mean NIS"))) + 1]
     assert said.startswith(verdict), said
     assert ("196 gated" in said and "`skigen diagnose`" in said) == (noise == 0.3)
+    assert ("the states' ± 2σ above are wide" in said) == (noise == 0.03) and "parameters'" not in said
+
+
+def test_an_estimate_outside_its_bounds_or_far_from_its_prior_is_remarked():
+    """An input gain declared 2 ± 0.5 in [0.5, 10], the input logged in percent: online it comes
+    out near 0.02, which the summary's parameter table said without a word (``skigen fit`` names
+    the units); the right log's estimate gets no remark."""
+    m = skigen.Model("gain", dt=0.02)
+    v = m.state("v", std=0.1, process_std=0.005)
+    b = m.parameter("b", 2.0, std=0.5, bounds=(0.5, 10.0))
+    u = m.input("u")
+    m.dynamics({v: b * u - 0.5 * v})
+    m.output("vm", v, noise_std=0.03)
+    rng = np.random.default_rng(4)
+    us, vs = np.repeat(rng.normal(0, 1, 50), 40), np.zeros(2000)
+    for k in range(1999):
+        vs[k + 1] = vs[k] + 0.02 * (2.0 * us[k] - 0.5 * vs[k]) + rng.normal(0, 0.005)
+    df = pd.DataFrame({"t": np.arange(2000) * 0.02, "u": us, "vm": vs + rng.normal(0, 0.03, 2000)})
+    row = lambda frame: next(line for line in skigen.run(m, frame, filter="ukf", estimate=["b"], show_progress=False)
+                             .summary().lines() if line.startswith("  b "))
+    name, value, _, _, *remark = row(df).split()                # b, +2.00…, ±, its 2σ: nothing more
+    assert abs(float(value) - 2) < 0.02 and remark == [], row(df)
+    said = row(df.assign(u=100 * df.u))
+    assert "outside its bounds [0.5, 10], which the online filter does not hold; 4.0 prior std from its declared 2; " \
+           "0.0101× it: check the units and mapping" in said, said
+
+
+def test_a_conservative_run_does_not_vouch_for_the_parameters_it_estimates():
+    """A drag constant estimated online under a process noise 10× the true one on the velocity it
+    multiplies: the readings say "conservative", true of the states' error bars, not of the
+    constant's (an altitude log's drag came out 0.45 ± 0.005 for 0.5): the verdict says so, and
+    where to calibrate the noise."""
+    m = skigen.Model("sink", dt=0.02)
+    v = m.state("v", std=0.1, process_std=0.05)
+    c = m.parameter("c", 0.3, std=0.5)
+    u = m.input("u")
+    m.dynamics({v: u - c * v})
+    m.output("vm", v, noise_std=0.1)
+    rng = np.random.default_rng(3)
+    us, vs = np.repeat(rng.normal(0, 2, 50), 40), np.zeros(2000)
+    for k in range(1999):
+        vs[k + 1] = vs[k] + 0.02 * (us[k] - 0.5 * vs[k]) + rng.normal(0, 0.005)
+    df = pd.DataFrame({"t": np.arange(2000) * 0.02, "u": us, "vm": vs + rng.normal(0, 0.03, 2000)})
+    said = skigen.run(m, df, filter="ukf", estimate=["c"], show_progress=False).summary().verdict()
+    assert said.startswith("conservative") and "the estimated parameters' and weights' are not vouched for" in said
+    assert "`skigen fit --method filter-error`" in said, said
 
 
 def test_an_inconsistent_first_order_ekf_points_at_its_linearisation_too():
