@@ -68,6 +68,9 @@ def _spacing(samples: Samples) -> float:
     return float(np.median(d)) if d.size else float("nan")
 
 
+MIN_SPAN = 50      # grid samples: a time unit in which a recording spans fewer is unlikely ('auto')
+
+
 def _plausible(t0_seconds: float) -> bool:
     """A first time stamp that reads as time since start (< 11 days) or an epoch date (2001–2100)."""
     return abs(t0_seconds) < 1e6 or 1e9 <= t0_seconds <= 4.1e9
@@ -77,7 +80,9 @@ def time_scale(samples: Samples, time_unit: str, dt: float) -> tuple[float, str 
     """(seconds per time unit, a note saying what was decided or None).
 
     'auto' takes the unit in which the median spacing is nearest the model's dt
-    (on a log scale), preferring one in which the first stamp is plausible.
+    (on a log scale), preferring one in which the first stamp is plausible and the
+    recording spans at least MIN_SPAN grid samples (a 2 Hz log in seconds for a 100 Hz
+    model, 50 dt apart, was read as milliseconds, 0.05 dt apart: 60 s became 6 samples).
     An explicit unit that makes the spacing 300× off dt is an error naming the likely unit.
     """
     if time_unit not in (*UNITS, "auto"):
@@ -85,11 +90,12 @@ def time_scale(samples: Samples, time_unit: str, dt: float) -> tuple[float, str 
     if all(g.seconds for g in samples.groups):
         return 1.0, None
     spacing, t0 = _spacing(samples), float(samples.groups[0].t[0]) if len(samples.groups[0].t) else 0.0
+    span = max((float(g.t[-1] - g.t[0]) for g in samples.groups if len(g.t)), default=0.0)
 
     def score(unit):
         s = UNITS[unit]
         off = abs(np.log10(spacing * s / dt)) if np.isfinite(spacing) else 0.0
-        return off + (0.0 if _plausible(t0 * s) else 1.0)
+        return off + (0.0 if _plausible(t0 * s) else 1.0) + (2.0 if span * s < MIN_SPAN * dt else 0.0)
     best = min(UNITS, key=score)
     if time_unit == "auto":
         return UNITS[best], (f"time unit: {best} (auto: time stamps {spacing:g} {best} apart (median) "

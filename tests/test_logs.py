@@ -147,6 +147,18 @@ def test_time_units(flight, clean, unit, factor):
         load_recording(scaled, MODEL)                    # read as seconds: 1000x off the model's dt
 
 
+@pytest.mark.parametrize("every", [25, 50])
+def test_auto_reads_a_slow_log_in_seconds_as_seconds(flight, every):
+    """A log every 0.5 s or 1 s for a model of dt 0.02 s is nearer dt in milliseconds on a log scale
+    (0.025 dt against 25 dt), and 'auto' took ms: the 15 s log became 15 ms, its rows laid on a
+    grid of one sample. A unit in which the recording spans under 50 grid samples is now a worse
+    guess: seconds, the log kept."""
+    slow = flight.iloc[::every].reset_index(drop=True)
+    rec = load_recording(slow, MODEL, time_unit="auto")
+    assert rec.notes[0].startswith(f"time unit: s (auto: time stamps {0.02 * every:g} s apart (median)"), rec.notes
+    assert rec.t[-1] == pytest.approx(slow.t.iloc[-1]) and np.isfinite(rec.outputs).sum() == len(slow)
+
+
 def test_jitter_of_40_percent(flight, clean):
     rng = np.random.default_rng(3)
     jittered = flight.assign(t=flight.t + rng.uniform(-0.4, 0.4, len(flight)) * 0.02)
