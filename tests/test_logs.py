@@ -166,6 +166,27 @@ def test_jitter_of_40_percent(flight, clean):
     res = skigen.run(MODEL, jittered, filter="ukf")
     assert res.measured.mean() > 0.95                # few collisions (the nearer sample wins)
     assert error(res) < 3 * error(clean)
+    assert not any("first stamps are" in n for n in res.notes)       # the clock's rate, not its jitter
+
+
+@pytest.mark.parametrize("stretch, said", [(1.02, "2.0% longer"), (0.99, "1.0% shorter"), (1.003, None)])
+def test_a_log_whose_clock_runs_off_the_model_rate_is_said(flight, stretch, said, tmp_path):
+    """A log written at the model's 50 Hz by a clock 2 % slow (stamps 20.4 ms apart) was laid on the
+    grid without a word: 15 of 751 grid samples held the input and had no reading, and every time
+    constant fitted on it is 2 % off. Each column whose first stamps keep a pace 0.5 %–17 % off dt
+    says so, in both readers; 0.3 % is within a clock's tolerance."""
+    stretched = flight.assign(t=flight.t * stretch)
+    notes = [n for n in load_recording(stretched, MODEL).notes if "first stamps are" in n]
+    stretched.to_csv(tmp_path / "log.csv", index=False)
+    grid = skigen.recording.stream_recording(tmp_path / "log.csv", MODEL)
+    list(grid)
+    assert [n for n in grid.notes if "first stamps are" in n] == notes
+    if said is None:
+        assert notes == []
+        return
+    assert [n.split(":")[0] for n in notes] == ["input 'delta'", "output 'phi'"]
+    assert f"{said} than the model's dt = 0.02 s: if it was logged at the model's rate, the logger's clock runs " \
+           f"{stretch:g}× the true time" in notes[0], notes
 
 
 def test_each_event_says_when_it_first_happened_and_epoch_times_read_as_times(flight):
