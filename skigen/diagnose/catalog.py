@@ -644,7 +644,7 @@ def constant_candidates(model: Model, equations, outputs) -> list[Structural]:
     for c, where in keys:
         written = tuple(kind + name for (kind, name), lits in places.items()
                         if any(np.isclose(abs(x), c, rtol=1e-12, atol=0) and w == where for x, w in lits))
-        if len(written) < 2 and _stood_in(written[0], where, model.input_names):
+        if len(written) < 2 and _stood_in(model, written[0], where):
             continue
         text = _num(c) if float(_num(c)) == c else f"{c:.6g}"
         out.append(Structural(
@@ -655,11 +655,19 @@ def constant_candidates(model: Model, equations, outputs) -> list[Structural]:
     return out
 
 
-def _stood_in(place: str, where: str, inputs) -> bool:
+def _stood_in(model: Model, place: str, where: str) -> bool:
     """Whether a number written once, at ``place`` beside ``where``, has a stand-in: a catalog term
-    on its equation, unless it is the factor of a shape of the states (:func:`_shaped`); in an
-    output's formula, a sensor offset for a number added, and nothing for any other."""
-    return where.startswith("+") if place.startswith("output ") else not _shaped(where, inputs)
+    on its equation, unless it is the factor of a shape of the states (:func:`_shaped`) or of a
+    bare state no catalog term of that equation draws (not its own, nor a position it pairs with:
+    a motor's back-EMF constant on ω in di/dt, 1.2× off, was named a speed sensor's gain of 0.83);
+    in an output's formula, a sensor offset for a number added, and nothing for any other."""
+    if place.startswith("output "):
+        return where.startswith("+")
+    op, _, rest = where.partition("(")
+    other = rest[:-1]
+    if op == "*" and other in model.state_names and other != place and other not in pairs(model, place):
+        return False
+    return not _shaped(where, model.input_names)
 
 
 def _shaped(where: str, inputs) -> bool:

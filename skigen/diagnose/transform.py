@@ -269,10 +269,12 @@ EXPONENTS = (ca.OP_POW, ca.OP_CONSTPOW)        # their second operand is a power
 
 
 def _replay(expr: ca.SX, swap) -> ca.SX:
-    """``expr`` rebuilt operation by operation, each literal constant c replaced by
-    ``swap(c, context)`` (kept where that returns None); ``context``: what the constant multiplies,
-    divides or is added to (:func:`_context`). The constants are those CasADi keeps as written;
-    a power's exponent is none of them."""
+    """``expr`` rebuilt operation by operation, each use of a literal constant c by a binary
+    operation replaced by ``swap(c, context)`` (kept where that returns None); ``context``: what
+    the constant multiplies, divides or is added to in that use (:func:`_context`). Uses are
+    replaced one by one: CasADi keeps one node for equal constants, and a motor's inductance 0.1
+    dividing di/dt and its back-EMF constant 0.1 on ω there are two numbers of the model. The
+    constants are those CasADi keeps as written; a power's exponent is none of them."""
     expr = ca.SX(expr)
     syms = ca.symvar(expr)
     f = ca.Function("f", syms, [expr])
@@ -284,26 +286,28 @@ def _replay(expr: ca.SX, swap) -> ca.SX:
         for k in range(n):
             op, a, b = ops[k], ins[k], outs[k]
             if op == ca.OP_CONST:
-                c = f.instruction_constant(k)
-                new = change(k, c)
-                work[b[0]] = ca.SX(c) if new is None else ca.SX(new)
+                work[b[0]] = ca.SX(f.instruction_constant(k))
             elif op == ca.OP_INPUT:
                 work[b[0]] = syms[a[0]]
             elif op == ca.OP_OUTPUT:
                 return work[a[0]]
             elif len(a) == 2 and a[1] >= 0:
-                for slot, r in enumerate(a[:2]):     # who reads each constant, and beside what
-                    if ops[last[r]] == ca.OP_CONST:
-                        users.setdefault(last[r], []).append((op, slot, work[a[1 - slot]]))
-                work[b[0]] = ca.SX.binary(op, work[a[0]], work[a[1]])
+                args = [work[a[0]], work[a[1]]]
+                for slot, r in enumerate(a[:2]):     # each use of a constant, and beside what
+                    if ops[last[r]] == ca.OP_CONST and (new := change(k, slot, last[r], args[1 - slot])) is not None:
+                        args[slot] = ca.SX(new)
+                work[b[0]] = ca.SX.binary(op, *args)
             else:
                 work[b[0]] = ca.SX.unary(op, work[a[0]])
             last[b[0]] = k
         return expr                                  # a constant expression: nothing to replay
-    users: dict = {}
-    run(lambda k, c: None)
-    contexts = {k: _context(u) for k, u in users.items()}
-    return run(lambda k, c: None if contexts.get(k) is None else swap(c, contexts[k]))
+    contexts = {}
+
+    def seen(k, slot, const, other):
+        contexts[k, slot] = _context([(ops[k], slot, other)])
+    run(seen)
+    return run(lambda k, slot, const, other: None if contexts[k, slot] is None
+               else swap(f.instruction_constant(const), contexts[k, slot]))
 
 
 def _context(uses) -> str | None:
