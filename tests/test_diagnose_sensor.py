@@ -271,6 +271,10 @@ def test_of_two_sensors_of_one_motion_the_one_off_is_named(tmp_path, wheel, gps)
     (bias,) = found.values()
     assert bias["effect"] == "bias" and abs(bias["coefficient"] + 0.012 * 9.81) < 3 * bias["std"], bias
     assert d["remaining"]["mismatch"] is False
+    table = (tmp_path / "report.md").read_text()          # a sensor acts on its output, not on an equation
+    sensor = "| sensor_gain | `v_wheel` (reads `v`) |" if wheel != 1 else "| sensor_gain | `x_gps` (reads `x`) |"
+    assert sensor in table, table
+    assert "| bias | `v` |" in table
 
 
 def _slope_frame(seed: int, noise_seed: int):

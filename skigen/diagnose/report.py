@@ -80,6 +80,16 @@ def lifted(data: dict) -> str | None:
             "there (refitted, not catalog findings; section 5)") if said else None
 
 
+def _acts_on(f: dict) -> str:
+    """A finding's place in the table: the equation, a sensor's output and what it reads, or the
+    equations and outputs a constant is written in."""
+    if f.get("output"):
+        return f"`{f['output']}` (reads `{f.get('reads') or f['equation']}`)"
+    if f["effect"] == "constant" and f.get("written_in"):
+        return ", ".join(f"`{p}`" for p in f["written_in"])
+    return f"`{f['equation']}`"
+
+
 def _together(tie: dict) -> str:
     """A tie that is one of several terms explaining as well together (a revision's): the others."""
     return f", together with {', '.join(tie['with'])}" if tie.get("with") else ""
@@ -226,12 +236,12 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
                   f"this one finding (with all of them: {_fmt(data.get('free_run_with_all_findings'), '.3g')}); "
                   "the findings are listed by it, the one a simulation needs most first: one step ahead a "
                   "delay or a sensor effect can carry more evidence than a force the simulation cannot do without.",
-                  "", "| effect | equation | term | coefficient ± std | shape | evidence | free run without it |",
+                  "", "| effect | acts on | term | coefficient ± std | shape | evidence | free run without it |",
                   "|---|---|---|---|---|---|---|"]
             for f in data["findings"]:
                 shape = ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}"
                                   for k, v in f.get("shape", {}).items() if k != "state") or "–"
-                L.append(f"| {f['effect']} | `{f['equation']}` | `{f['expression']}` | "
+                L.append(f"| {f['effect']} | {_acts_on(f)} | `{f['expression']}` | "
                          f"{_pm(f['coefficient'], f['std'])} {f.get('unit', '')} | {shape} | "
                          f"{f['evidence']:+.1f} | {_fmt(f.get('free_run_without'), '.3g')} |")
             L.append("")
