@@ -1027,6 +1027,21 @@ def test_a_tight_prior_the_data_contradict_is_said_with_where_the_data_alone_put
     assert not any("prior" in n for n in right.notes), right.notes
 
 
+def test_several_priors_the_data_contradict_say_their_extrapolations_do_not_hold_together():
+    """a and g both held by tight priors away from the truth: each note says where the recordings
+    alone put its parameter, extrapolated for it alone (a motor's back-EMF, viscous and Coulomb
+    friction, all off, were put at 0.083, −0.17 and −4.95 for 0.1, 0 and 0), and a note says those
+    do not hold together, and how to see where the recordings put them."""
+    res = fit(_predator_prey(0.9, 0.45).set_parameters({}, std={"a": 0.0003, "g": 0.0003}), [_stocked_recording()],
+              method="filter-error", show_progress=False)
+    assert sum("The prior and the recordings disagree" in n for n in res.notes) == 2, res.notes
+    assert any(n.startswith("the priors of a, g all disagree with the recordings") and "a fit without those "
+               "priors (no std)" in n for n in res.notes), res.notes
+    one = fit(_predator_prey(0.9, 0.5).set_parameters({}, std={"a": 0.0003}), [_stocked_recording()],
+              method="filter-error", show_progress=False)
+    assert not any("all disagree" in n for n in one.notes)
+
+
 def test_an_estimate_stopped_a_rounding_error_past_its_bound_is_held_on_it():
     """Started 9× and 20× from the truth (a = 1, g = 0.5; bounds [0, 10]) the search stops on the
     upper bounds, IPOPT a rounding error beyond one (g = 10.000000000000002): the fit ended in

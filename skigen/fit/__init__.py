@@ -571,7 +571,7 @@ def _prior_notes(model: Model, parameters: dict, fisher_std: dict) -> list[str]:
     the note gives where the recordings alone put θ, θ₀ + (θ − θ₀)/K ± c·f. (A tight prior
     a = 0.9 ± 0.0003 against data saying 0.994 ± 0.004 moved 1.8 prior std, 22 times what it
     allows, and was not said.)"""
-    notes = []
+    notes, conflicts = [], []
     for name, p in parameters.items():
         sd, sigma = model.parameter_named(name).std, fisher_std.get(name, 0.0)
         if not sd or not 0 < sigma < sd:
@@ -585,11 +585,16 @@ def _prior_notes(model: Model, parameters: dict, fisher_std: dict) -> list[str]:
                          f"their residuals were white; coloured, they know {name} {c:.2g}× less well than that, "
                          f"so the prior counted too little (filter error weighs both as they are)")
         if abs(shift) > PRIOR_CONFLICT * room:
+            conflicts.append(name)
             notes.append(f"{name} = {p['value']:.6g} ± {p['std']:.2g} lies {abs(shift) / sd:.2g} prior std from its "
                          f"declared prior {p['initial']:.6g} ± {sd:.2g}, {abs(shift) / room:.0f} times the shift the "
                          f"prior allows with these recordings (± {room:.2g}); the recordings alone put it near "
                          f"{p['initial'] + shift / K:.6g} ± {c * f:.2g}. The prior and the recordings disagree, and "
                          f"the estimate is a compromise of the two. Check the prior")
+    if len(conflicts) > 1:        # (a motor's Ke, viscous and Coulomb friction: 0.083, −0.17, −4.95 for 0.1, 0, 0)
+        notes.append(f"the priors of {', '.join(conflicts)} all disagree with the recordings: where the recordings "
+                     f"alone put each is extrapolated for it alone, and does not hold for them together; "
+                     f"a fit without those priors (no std) says where the recordings put them")
     return notes
 
 
