@@ -582,7 +582,9 @@ def _parse_ulog(path, topics=None):
         f.close()
     if not f.cut and not log.file_corruption:
         return log, None
-    last, start = log.last_timestamp * 1e-6, log.start_timestamp * 1e-6
+    stamps = [d.data["timestamp"][[0, -1]] for d in log.data_list if len(d.data.get("timestamp", ()))]
+    last = max(s[1] for s in stamps) * 1e-6 if stamps else log.last_timestamp * 1e-6   # pyulog's can be the header's
+    start = min([log.start_timestamp, *(s[0] for s in stamps)]) * 1e-6
     data = f"{last - start:.3f} s after its start (t = {last:.3f} s)" if last > start else None
     if f.cut:
         return log, (f"the log is truncated: it ends inside a message, at byte {Path(path).stat().st_size}; "
