@@ -1411,3 +1411,48 @@ def test_a_recording_passed_twice_is_said():
     assert any(n.startswith("epoch.csv holds the same inputs and readings as sim: fitted twice") for n in res.notes)
     other = recording(m, U, Y + 0.01 * rng.normal(size=Y.shape), path="other")
     assert not any("holds the same" in n for n in fit(m, [rec, other], show_progress=False).notes)
+
+
+def _hover(kt0: float, cd_std=None, cd_bounds=(0.0, 5.0)):
+    """A quadcopter's altitude (h' = v, v' = kT·u − g − cd·v; a barometer, 0.1 m) and 40 s of it at
+    50 Hz under an open-loop throttle (truth kT 15, cd 0.4, no process noise); the model starts kT
+    at ``kt0``, cd at 0.3."""
+    m = Model("hover", dt=0.02, discretization="rk4")
+    h = m.state("h", unit="m", role="position", std=0.5, process_std=1e-4)
+    v = m.state("v", unit="m/s", role="velocity", std=0.5, process_std=0.01)
+    u = m.input("u")
+    kt = m.parameter("kT", kt0, bounds=(1.0, 50.0))
+    cd = m.parameter("cd", 0.3, bounds=cd_bounds, **({} if cd_std is None else {"std": cd_std}))
+    m.dynamics({h: v, v: kt * u - 9.81 - cd * v})
+    m.output("baro", h, unit="m", noise_std=0.1)
+    t = np.arange(2001) * 0.02
+    throttle = 0.654 + 0.05 * np.sin(0.7 * t) + 0.03 * np.sign(np.sin(2.1 * t))
+    f = lambda x, uk: np.array([x[1], 15 * uk - 9.81 - 0.4 * x[1]])
+    x, hs = np.zeros(2), np.empty(len(t))
+    for k, uk in enumerate(throttle):
+        hs[k] = x[0]
+        k1 = f(x, uk); k2 = f(x + 0.01 * k1, uk); k3 = f(x + 0.01 * k2, uk)
+        x = x + 0.02 / 6 * (k1 + 2 * k2 + 2 * k3 + f(x + 0.02 * k3, uk))
+    baro = hs + np.random.default_rng(10).normal(0, 0.1, len(t))
+    import pandas as pd
+    return m, pd.DataFrame({"t": t, "u": throttle, "baro": baro})
+
+
+@pytest.mark.parametrize("cd_std, cd_bounds", [(0.2, (0.0, 5.0)), (None, (0.0, 0.3))])
+def test_output_error_from_a_far_start_weighs_a_prior_or_a_bound_as_declared(cd_std, cd_bounds):
+    """kT started at 13 for 15: the free run strays 1000 noise std and output error searches under
+    R scaled to its residuals, which shrank the recordings' part of the objective: a drag prior of
+    0.3 ± 0.2, which the recordings outweigh 10⁴ times, held cd at 0.302 ± 0.2 (the prior's own
+    std), and a bound at 0.3 stopped the search at 0.277 inside it. The weighted optimum is now
+    polished under the declared R: 0.3980 ± 0.0017 as without the prior (or from kT = 15.2), and
+    0.300 on the bound, said."""
+    m, frame = _hover(13.0, cd_std, cd_bounds)
+    res = fit(m, frame, show_progress=False)
+    cd = res.parameters["cd"]
+    if cd_std is not None:
+        near, _ = _hover(15.2, cd_std, cd_bounds)
+        assert abs(cd["value"] - 0.4) < 3 * cd["std"] < 0.006, cd
+        assert cd["value"] == pytest.approx(fit(near, frame, show_progress=False).parameters["cd"]["value"], abs=1e-4)
+    else:
+        assert cd["value"] == pytest.approx(0.3, abs=1e-6), cd
+        assert any(n.startswith("cd = 0.3 ± ") and "sits on its upper bound 0.3" in n for n in res.notes), res.notes
