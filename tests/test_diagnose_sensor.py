@@ -324,3 +324,41 @@ def test_a_start_the_nominal_misfit_hid_is_judged_with_the_corrected_model(tmp_p
     assert "every filter of the diagnosis starts from the declared mean with 100× the declared std (judged " \
            "with quadratic_drag on v: the nominal's misfit had hidden it)" in start, start
     assert d["fit"]["after"]["loglik"] > d["fit"]["before"]["loglik"] and d["remaining"]["mismatch"] is False
+
+
+def test_a_state_no_output_sees_keeps_its_declared_noise_and_the_diagnosis_runs(tmp_path):
+    """A car's position, integrated from its speed and read by no sensor, with a wheel speed sensor
+    5 % high and an accelerometer: the calibration could not tell its process noise from 0 and
+    the diagnosis stopped ("'Q_scale_x' has no effect on the likelihood … --estimate NAME", an
+    option diagnose does not have). That noise is now held at its declared value, said, and the
+    wheel gain named (measured 1.0474 ± 0.0022)."""
+    import numpy as np
+    import pandas as pd
+    from skigen import Model
+    from skigen.diagnose import diagnose
+    m = Model("car", dt=0.02, discretization="rk4")
+    x = m.state("x", unit="m", role="position", std=0.5, process_std=1e-4)
+    v = m.state("v", unit="m/s", role="velocity", initial=5.0, std=0.5, process_std=0.01)
+    a = m.input("a_cmd", unit="m/s^2")
+    m.dynamics({x: v, v: a - 0.05 * v})
+    m.output("wheel_v", v, unit="m/s", noise_std=0.05)
+    m.output("imu_ax", a - 0.05 * v, unit="m/s^2", noise_std=0.1)
+    rng, n, dt = np.random.default_rng(41), 4000, 0.02
+    ref, k = np.empty(n), 0
+    while k < n:
+        hold = int(rng.uniform(4, 10) / dt)
+        ref[k:k + hold], k = rng.uniform(5, 20), k + hold
+    speed, integral, rows = 5.0, 0.0, np.empty((n, 3))
+    decay = np.exp(-0.05 * dt)
+    for k in range(n):
+        wheel = 1.05 * speed + 0.05 * rng.standard_normal()
+        integral += (ref[k] - wheel) * dt
+        u = np.clip(0.8 * (ref[k] - wheel) + 0.2 * integral, -3, 3)
+        rows[k] = u, wheel, u - 0.05 * speed + 0.1 * rng.standard_normal()
+        speed = decay * speed + (1 - decay) / 0.05 * u + 0.01 * rng.standard_normal()
+    frame = pd.DataFrame({"t": np.arange(n) * dt, "a_cmd": rows[:, 0], "wheel_v": rows[:, 1], "imu_ax": rows[:, 2]})
+    d = diagnose(m, frame, tmp_path, show_progress=False, figures=False, emit=False).data
+    assert any("the process noise of x is held at its declared value: no output sees it" in n for n in d["notes"])
+    assert d["noise"]["calibrated"]["process_std"]["x"] == 1e-4
+    [gain] = d["findings"]
+    assert (gain["effect"], gain["output"]) == ("sensor_gain", "wheel_v") and abs(gain["coefficient"] - 1.05) < 3 * gain["std"]
