@@ -330,8 +330,9 @@ def test_a_state_no_output_sees_keeps_its_declared_noise_and_the_diagnosis_runs(
     """A car's position, integrated from its speed and read by no sensor, with a wheel speed sensor
     5 % high and an accelerometer: the calibration could not tell its process noise from 0 and
     the diagnosis stopped ("'Q_scale_x' has no effect on the likelihood … --estimate NAME", an
-    option diagnose does not have). That noise is now held at its declared value, said, and the
-    wheel gain named (measured 1.0474 ± 0.0022)."""
+    option diagnose does not have; `skigen fit --method filter-error` refused the same). That
+    noise is now held at its declared value, said, and the wheel gain named (measured 1.0474 ±
+    0.0022)."""
     import numpy as np
     import pandas as pd
     from skigen import Model
@@ -357,6 +358,10 @@ def test_a_state_no_output_sees_keeps_its_declared_noise_and_the_diagnosis_runs(
         rows[k] = u, wheel, u - 0.05 * speed + 0.1 * rng.standard_normal()
         speed = decay * speed + (1 - decay) / 0.05 * u + 0.01 * rng.standard_normal()
     frame = pd.DataFrame({"t": np.arange(n) * dt, "a_cmd": rows[:, 0], "wheel_v": rows[:, 1], "imu_ax": rows[:, 2]})
+    from skigen.fit import fit
+    held = fit(m, frame, method="filter-error", show_progress=False)        # skigen fit holds it too
+    assert "the process noise of x is held at its declared value: no output sees it, and no recording can " \
+           "calibrate it" in held.notes and held.noise["scales"]["Q_scale_x"]["value"] == 1.0
     d = diagnose(m, frame, tmp_path, show_progress=False, figures=False, emit=False).data
     assert any("the process noise of x is held at its declared value: no output sees it" in n for n in d["notes"])
     assert d["noise"]["calibrated"]["process_std"]["x"] == 1e-4

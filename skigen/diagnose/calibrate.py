@@ -18,7 +18,6 @@ high was absorbed as 284× the altitude's declared noise, and nothing was named)
 """
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -87,40 +86,6 @@ def block_starts(model: Model, rec: Recording, pieces: list[Recording]) -> list 
     return [None if a == 0 else (prior[a][0][:nx], prior[a][1][:nx, :nx]) for a in at]
 
 
-def _quiet(model: Model, held: list[str]) -> Model:
-    """``model`` without process noise on the ``held`` states (their noise left out of the fit)."""
-    if not held:
-        return model
-    from . import transform as T
-    m, idx = T.copy_model(model), [model.state_names.index(h) for h in held]
-    Q = model.process_noise().copy()
-    Q[idx, :] = Q[:, idx] = 0.0
-    m.covariances(Q=Q, R=model.R, P0=model.P0)
-    return m
-
-
-def _quiet_noise(model: Model, noise_from, held: list[str]):
-    if noise_from is None or not held:
-        return noise_from
-    Q = np.array(noise_from[0], float)
-    idx = [model.state_names.index(h) for h in held]
-    Q[idx, :] = Q[:, idx] = 0.0
-    return Q, noise_from[1]
-
-
-def _unquiet(res, model: Model, held: list[str]):
-    """The fit of the model without the ``held`` states' process noise, given it back at its
-    declared value (in the fitted model and the noise record)."""
-    idx = [model.state_names.index(h) for h in held]
-    Q, declared = res.model.process_noise().copy(), model.process_noise()
-    Q[idx, :], Q[:, idx] = declared[idx, :], declared[:, idx]
-    res.model.covariances(Q=Q, R=res.model.R, P0=res.model.P0)
-    for h, i in zip(held, idx):
-        sd = float(np.sqrt(declared[i, i]))
-        res.noise["declared"]["process_std"][h] = res.noise["calibrated"]["process_std"][h] = sd
-    return res
-
-
 def calibrate(model: Model, recs: list[Recording], show_progress: bool = False,
               max_samples: int = MAX_SAMPLES, noise_from=None) -> tuple[Model, Noise]:
     """(``model`` with its calibrated Q and R, the :class:`Noise` record). A recording longer than
@@ -141,27 +106,15 @@ def calibrate(model: Model, recs: list[Recording], show_progress: bool = False,
                       noise_from=noise_from, noise_caps=caps)
         except FitError as exc:
             note = f"declared parameters held at their values ({exc})"
-    held = []
-    for _ in range(2):
-        try:
-            res = res or fit(_quiet(model, held), recs, method="filter-error", estimate=[], starts=starts,
-                             show_progress=show_progress, noise_from=_quiet_noise(model, noise_from, held),
-                             noise_caps={k: v for k, v in caps.items() if k not in held})
-            break
-        except FitError as exc:
-            unseen = re.findall(r"'Q_scale_(\w+)' has no effect on the likelihood", str(exc))
-            if isinstance(exc, NotIdentifiable) and unseen and not held and set(unseen) <= set(model.state_names):
-                held = unseen          # a state no output sees, whose noise no recording can calibrate
-                continue
-            kind = NoiseNotIdentifiable if isinstance(exc, NotIdentifiable) else DiagnosisError
-            raise kind(f"could not calibrate the noise of '{model.name}' on this recording: {exc}") from None
+    try:
+        res = res or fit(model, recs, method="filter-error", estimate=[], starts=starts,
+                         show_progress=show_progress, noise_from=noise_from, noise_caps=caps)
+    except FitError as exc:
+        kind = NoiseNotIdentifiable if isinstance(exc, NotIdentifiable) else DiagnosisError
+        raise kind(f"could not calibrate the noise of '{model.name}' on this recording: {exc}") from None
     said = _bound_notes(res.parameters) + _far_notes(res.parameters)
-    unseen = ""
-    if held:
-        res = _unquiet(res, model, held)
-        unseen = (f"the process noise of {', '.join(held)} is held at its declared value: no output sees "
-                  f"{'it' if len(held) == 1 else 'them'}, and no recording can calibrate it")
-    note = "; ".join(filter(None, [note, *(f"calibrating the declared parameters: {n}" for n in said), unseen]))
+    unseen = [n for n in res.notes if n.startswith("the process noise of ") and "no output sees" in n]
+    note = "; ".join(filter(None, [note, *(f"calibrating the declared parameters: {n}" for n in said), *unseen]))
     noise = res.noise
     params = {n: {"declared": p["initial"], "calibrated": p["value"], "std": p["std"]} for n, p in res.parameters.items()}
     return res.model, Noise(noise["declared"], noise["calibrated"], noise["scales"], res.seconds, params, note)

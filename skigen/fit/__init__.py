@@ -310,6 +310,13 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     if held:                                    # a never-measured output's noise: nothing to calibrate it on
         notes.append(f"output(s) {', '.join(map(repr, unseen))} never measured in these recordings: their noise "
                      f"is held at its declared value")
+    with np.errstate(over="ignore", invalid="ignore"):
+        dead = [i for i, k in enumerate(V.kinds) if k == "noise" and V.names[i].startswith("Q_scale_")
+                and i not in held and not np.any(J0[:, i]) and not prior.ravel()[i]]
+    if dead:                                    # a state no output sees: its noise moves no prediction
+        held += dead
+        notes.append(f"the process noise of {', '.join(V.names[i][8:] for i in dead)} is held at its declared "
+                     f"value: no output sees {'it' if len(dead) == 1 else 'them'}, and no recording can calibrate it")
     free = [i for i in range(len(V)) if i not in held]
     G = _dense(jac_g(theta0 / scale, p))
     lost = unidentified(J0[:, free], prior.ravel()[free], [V.names[i] for i in free], G[:, free])
