@@ -381,6 +381,12 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
                                                    alpha))
             if data["remaining"].get("figure"):
                 meta["figures"].append(Path(data["remaining"].pop("figure")))
+    if (at := data["remaining"].get("changes_at")) is not None and data["findings"]:
+        caveats.append(f"the system changed at t = {at:.4g} s (what remains): the findings fit one model to the "
+                       f"stretches before and after it, and may stand for the change rather than for missing "
+                       f"physics; diagnose the stretches apart")
+        for f in data["findings"]:
+            _note(f, f"fitted across a change at t = {at:.4g} s: see the notes")
     if data["remaining"].get("mismatch") and (hint := _integration_hint(nominal)):
         data["remaining"]["integration"] = hint
     if units:
