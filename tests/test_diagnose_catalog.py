@@ -886,3 +886,37 @@ def test_terms_on_an_equation_that_is_no_velocity_read_as_losses():
     assert reading[("p", "viscous_damping")].startswith("a loss proportional to the state (a leak")
     assert reading[("v", "viscous_damping")].startswith("damping proportional to the rate (viscous friction")
     assert reading[("p", "coulomb_friction")] == "a constant loss opposing the sign of the state"
+
+
+def test_a_third_finalist_rescored_under_its_own_noise_can_win(tmp_path):
+    """A servo valve with a dead band of ±0.1 on its command (steps of −0.5…0.5 held 0.1–0.6 s):
+    under the nominal's noise the dead zone at its right width scored third, behind a position
+    sensor gain of 0.70 and a set of four additive terms; only the two best were scored again
+    under the noise each leaves, and a sensor gain of 0.72 with a Coulomb friction and a negative
+    damping were named, "a mismatch remains". Three finalists now: the dead zone, 0.0998 ±
+    0.0003, consistent (measured)."""
+    from skigen import Model
+    from skigen.diagnose import diagnose
+    m = Model("valve", dt=0.01, discretization="rk4")
+    x = m.state("x", unit="m", role="position", std=0.002, process_std=1e-5)
+    v = m.state("v", unit="m/s", role="velocity", std=0.01, process_std=5e-4)
+    u = m.input("u")
+    m.dynamics({x: v, v: (0.2 * u - v) / 0.05})
+    m.output("x_lvdt", x, unit="m", noise_std=2e-4)
+    rng, n, dt = np.random.default_rng(51), 4000, 0.01
+    cmd, k = np.empty(n), 0
+    while k < n:
+        hold = max(int(rng.uniform(0.1, 0.6) / dt), 1)
+        cmd[k:k + hold], k = rng.choice(np.linspace(-0.5, 0.5, 11)), k + hold
+    acting = np.sign(cmd) * np.maximum(np.abs(cmd) - 0.1, 0)
+    f = lambda s, a: np.array([s[1], (0.2 * a - s[1]) / 0.05])
+    s, pos = np.zeros(2), np.empty(n)
+    for k in range(n):
+        pos[k] = s[0]
+        k1 = f(s, acting[k]); k2 = f(s + dt / 2 * k1, acting[k]); k3 = f(s + dt / 2 * k2, acting[k])
+        s = s + dt / 6 * (k1 + 2 * k2 + 2 * k3 + f(s + dt * k3, acting[k])) + rng.normal(0, [1e-5, 5e-4])
+    frame = pd.DataFrame({"t": np.arange(n) * dt, "u": cmd, "x_lvdt": pos + rng.normal(0, 2e-4, n)})
+    d = diagnose(m, frame, tmp_path, show_progress=False, figures=False, emit=False).data
+    [zone] = d["findings"]
+    assert zone["effect"] == "dead_zone" and abs(zone["coefficient"] - 0.1) < 3 * zone["std"] < 0.002, zone
+    assert d["remaining"]["mismatch"] is False

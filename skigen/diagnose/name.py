@@ -66,7 +66,7 @@ __all__ = ["Correction", "Proposal", "name_terms", "refit", "basis_rms", "distin
            "focus_window", "recalibrated", "significant", "best_cv_loglik"]
 
 MAX_ROUNDS = 3
-FINALISTS = 2      # proposals scored again, each under the noise calibrated with it
+FINALISTS = 3      # proposals scored again, each under the noise calibrated with it
 MIN_SHARE = 0.01   # a further change must add ≥ 1 % of the gain so far: below that it only
                    # absorbs the first one's approximation (grid resolution, smoothing)
 RIVAL_SHARE = 0.5  # a finalist below half the best's gain is no close rival: it is not re-scored
