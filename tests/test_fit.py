@@ -1456,3 +1456,13 @@ def test_output_error_from_a_far_start_weighs_a_prior_or_a_bound_as_declared(cd_
     else:
         assert cd["value"] == pytest.approx(0.3, abs=1e-6), cd
         assert any(n.startswith("cd = 0.3 ± ") and "sits on its upper bound 0.3" in n for n in res.notes), res.notes
+
+
+def test_a_message_of_many_sets_not_told_apart_says_three_and_counts_the_rest():
+    """A joint refit that failed with seven such sets wrote a note of 2 600 characters on one line;
+    the message says three and counts the rest, ``lost`` keeps them all."""
+    from skigen.fit import _not_identifiable
+    lost = [f"'p{k}', 'q{k}' cannot be told apart" for k in range(7)]
+    exc = _not_identifiable(Model("m", dt=0.1), lost)
+    assert "'p2', 'q2' cannot be told apart; and 4 more such set(s). Hold some" in str(exc)
+    assert "'p3'" not in str(exc) and exc.lost == lost

@@ -76,8 +76,10 @@ def lifted(data: dict) -> str | None:
         if p and p.get("std"):
             said.append(f"its {d['effect'].replace('_', ' ')} on `{d['equation']}` (`{d['formula']}`) by "
                         f"{p['value']:.4g} ± {p['std']:.2g} ({abs(p['value']) / p['std']:.1f} std from 0)")
-    return ("The joint refit corrects the nominal's own terms: " + "; ".join(said) + " — its constants are off "
-            "there (refitted, not catalog findings; section 5)") if said else None
+    remains = (data.get("remaining") or {}).get("mismatch")
+    return ("The joint refit corrects the nominal's own terms: " + "; ".join(said) + (
+        " — its constants are off there, or the corrections make up for the mismatch that remains" if remains
+        else " — its constants are off there") + " (refitted, not catalog findings; section 5)") if said else None
 
 
 def _acts_on(f: dict) -> str:

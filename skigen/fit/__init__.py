@@ -455,8 +455,13 @@ def _acts_elsewhere(prob: Problem, theta0, scale, p, V, model: Model, sentence: 
     return sentence
 
 
+SAID_SETS = 3      # sets that cannot be told apart said in a message; the rest counted (all in ``lost``)
+
+
 def _not_identifiable(model: Model, lost: list[str]) -> NotIdentifiable:
-    return NotIdentifiable(f"the recordings cannot identify every quantity of '{model.name}': " + "; ".join(lost)
+    said = "; ".join(lost[:SAID_SETS]) + (f"; and {len(lost) - SAID_SETS} more such set(s)"
+                                           if len(lost) > SAID_SETS else "")
+    return NotIdentifiable(f"the recordings cannot identify every quantity of '{model.name}': " + said
                            + ". Hold some at their declared values (estimate only the others: estimate=[...] in "
                            "Python, --estimate NAME for each on the command line), give them a prior std, or "
                            "record richer excitation", lost)
