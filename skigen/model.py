@@ -430,6 +430,14 @@ class Model:
                 raise ModelError(f"{what} is {v} at the declared initial state (inputs 0): a non-finite "
                                  f"constant, or an expression undefined there")
 
+    def kinematic(self) -> list[str]:
+        """The states whose equation is a kinematic identity dx/dt = v (x of a position, angle or
+        altitude role, v a declared state): exact by definition, their process noise a numerical
+        allowance, not a disturbance."""
+        names = set(self.state_names)
+        return [v.name for v in self.states if v.role in ("position", "angle", "altitude")
+                and self.rhs[v.name].is_symbolic() and self.rhs[v.name].name() in names]
+
     def unstable_step(self) -> str | None:
         """Why a run diverges when the integration step amplifies a mode the dynamics damp (the
         state Jacobian at the declared initial state, inputs and history 0), with the fewest

@@ -218,7 +218,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         return _finish(report, meta, t_start, stage)
 
     stage("locating the equations")
-    meta["kinematic"] = [k for k in C.kinematic_equations(nominal) if k not in eqs]
+    meta["kinematic"] = [k for k in nominal.kinematic() if k not in eqs]
     loc = locate(calibrated, rec, nominal_run, cons, alpha, equations=eqs, tested=verdict.tested)
     report.location = loc
     data["located"] = loc.asdict()

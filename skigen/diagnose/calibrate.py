@@ -11,7 +11,7 @@ written into the model stay as they are), and every later test runs on the
 calibrated model. Missing physics then shows as what
 white noise cannot explain: innovations that are not white, a disturbance
 that drifts slowly or depends on the state, the input or the regime.
-A kinematic identity ṗ = v (:func:`catalog.kinematic_equations`) is exact by
+A kinematic identity ṗ = v (:meth:`Model.kinematic`) is exact by
 definition: its process noise may fall below what the user declared on it,
 never rise above (calibrated freely, a vertical-speed sensor reading 0.3 m/s
 high was absorbed as 284× the altitude's declared noise, and nothing was named).
@@ -25,7 +25,6 @@ import numpy as np
 from ..fit import FitError, NotIdentifiable, _bound_notes, _far_notes, fit
 from ..model import Model
 from ..recording import Recording
-from .catalog import kinematic_equations
 from .errors import DiagnosisError
 
 __all__ = ["Noise", "NoiseNotIdentifiable", "calibrate"]
@@ -98,7 +97,7 @@ def calibrate(model: Model, recs: list[Recording], show_progress: bool = False,
     recs = [b for bs in pieces for b in bs]
     res, note = None, ""
     Q = np.diag(noise_from[0] if noise_from is not None else model.process_noise())
-    caps = {k: float(Q[i]) for k in kinematic_equations(model)
+    caps = {k: float(Q[i]) for k in model.kinematic()
             if (i := model.state_names.index(k)) < len(Q) and Q[i] > 0}
     if model.parameters:               # the user's uncertain constants are the model's to fit, not findings
         try:

@@ -28,7 +28,7 @@ from .source import to_python
 
 __all__ = ["Additive", "Structural", "EFFECTS", "READINGS", "evaluate", "additive_candidates",
            "structural_candidates", "output_candidates", "user_candidates", "declared_candidates", "rate_equations",
-           "kinematic_equations", "pairs", "COULOMB_WIDTHS", "channel", "channel_candidates", "limit"]
+           "pairs", "COULOMB_WIDTHS", "channel", "channel_candidates", "limit"]
 
 VELOCITY_ROLES = ("velocity", "rate")
 POSITION_ROLES = ("position", "angle", "altitude")
@@ -228,13 +228,6 @@ def rate_equations(model: Model) -> list[str]:
     names = set(model.state_names)
     return [v.name for v in model.states if v.role in VELOCITY_ROLES or not (
         (model.rhs[v.name].is_symbolic() and model.rhs[v.name].name() in names) or ca.SX(model.rhs[v.name]).is_zero())]
-
-
-def kinematic_equations(model: Model) -> list[str]:
-    """dx/dt = v identities (x a position-type state, v a declared state): exact by definition."""
-    names = set(model.state_names)
-    return [v.name for v in model.states
-            if v.role in POSITION_ROLES and model.rhs[v.name].is_symbolic() and model.rhs[v.name].name() in names]
 
 
 def pairs(model: Model, velocity: str) -> list[str]:
