@@ -11,7 +11,7 @@ written into the model stay as they are), and every later test runs on the
 calibrated model. Missing physics then shows as what
 white noise cannot explain: innovations that are not white, a disturbance
 that drifts slowly or depends on the state, the input or the regime.
-A kinematic identity ṗ = v (:meth:`Model.kinematic`) is exact by
+A kinematic identity ṗ = v (:meth:`Model.kinematic`; :func:`skigen.fit` holds it) is exact by
 definition: its process noise may fall below what the user declared on it,
 never rise above (calibrated freely, a vertical-speed sensor reading 0.3 m/s
 high was absorbed as 284× the altitude's declared noise, and nothing was named).
@@ -96,18 +96,15 @@ def calibrate(model: Model, recs: list[Recording], show_progress: bool = False,
     starts = [s for r, b in zip(recs, pieces) for s in (block_starts(model, r, b) or [None] * len(b))]
     recs = [b for bs in pieces for b in bs]
     res, note = None, ""
-    Q = np.diag(noise_from[0] if noise_from is not None else model.process_noise())
-    caps = {k: float(Q[i]) for k in model.kinematic()
-            if (i := model.state_names.index(k)) < len(Q) and Q[i] > 0}
     if model.parameters:               # the user's uncertain constants are the model's to fit, not findings
         try:
             res = fit(model, recs, method="filter-error", starts=starts, show_progress=show_progress,
-                      noise_from=noise_from, noise_caps=caps)
+                      noise_from=noise_from)
         except FitError as exc:
             note = f"declared parameters held at their values ({exc})"
     try:
         res = res or fit(model, recs, method="filter-error", estimate=[], starts=starts,
-                         show_progress=show_progress, noise_from=noise_from, noise_caps=caps)
+                         show_progress=show_progress, noise_from=noise_from)
     except FitError as exc:
         kind = NoiseNotIdentifiable if isinstance(exc, NotIdentifiable) else DiagnosisError
         raise kind(f"could not calibrate the noise of '{model.name}' on this recording: {exc}") from None

@@ -249,6 +249,7 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     kept (a diagnosis gives the user's declared noise to a model that carries a calibrated one).
     noise_caps: filter error only, {state: variance} its process noise may not exceed; by default
     each kinematic identity ṗ = v (:meth:`Model.kinematic`) is held to the noise declared on it
+    (in ``noise_from`` where given)
     (exact by definition: freed, an altitude's noise took 2700× its declared variance from the
     vertical speed's on 5 of 12 hover flights of a right model, whose thrust's error bars then
     missed the truth by up to 4.5 of them); ``{}`` frees them.
@@ -331,9 +332,10 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
                   ubx=prob.solver_inputs["ubx"] / scale, p=p)
     for i in held:
         inputs["lbx"][i] = inputs["ubx"][i] = inputs["x0"][i]
-    if noise_caps is None:
-        q = np.diag(model.process_noise())
-        noise_caps = {k: float(q[model.state_names.index(k)]) for k in model.kinematic()}
+    if noise_caps is None:                     # the user's declared noise, where noise_from gives it
+        q = np.diag(noise_from[0] if noise_from is not None else model.process_noise())
+        noise_caps = {k: float(q[i]) for k in model.kinematic() if (i := model.state_names.index(k)) < len(q)
+                      and q[i] > 0}
     for i, top in _capped(V, model, noise_caps):
         inputs["ubx"][i] = min(inputs["ubx"][i], top)
         inputs["x0"][i] = min(inputs["x0"][i], top)
