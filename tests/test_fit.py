@@ -725,6 +725,9 @@ def test_a_parameter_fitted_far_from_its_starting_value_is_said():
         assert bool(said) == far, res.notes
     assert res.parameters["K"]["value"] < 0.05 and "for the 0.5 declared (0.00" in said[0], said
     assert said[0].endswith("×): check the units of the inputs and outputs it acts through before reading the rest")
+    from skigen.fit import _far_notes              # hardly determined: no unit is blamed for it
+    assert _far_notes({"cd": dict(initial=0.3, value=0.00136, std=0.74)}) == []
+    assert _far_notes({"cd": dict(initial=0.3, value=0.00136, std=0.001)}) != []
 
 
 def test_a_parameter_used_nowhere_is_held_by_default_and_refused_when_named():
