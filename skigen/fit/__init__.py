@@ -479,6 +479,7 @@ AT_BOUND = 1e-3     # standard errors: an estimate this close to a bound sits on
 ON_BOUND = 1e-6     # × its size (at least 1): a std of 6.6e4 put 1.64 'on' a bound at 1e-5
 VAGUE = 10.0        # a std this many times the value: the data hardly determine it
 PRIOR_CONFLICT = 3.0   # stds of the shift a right prior allows: a shift beyond says they disagree
+PRIOR_ONLY = 0.9       # a posterior std this share of the prior's or more: the recordings hardly inform it
 COLOURED = 1.5         # output error: a reported std this many times the white one outweighs a prior
 
 
@@ -603,6 +604,10 @@ def _prior_notes(model: Model, parameters: dict, fisher_std: dict) -> list[str]:
     notes, conflicts = [], []
     for name, p in parameters.items():
         sd, sigma = model.parameter_named(name).std, fisher_std.get(name, 0.0)
+        if sd and sigma >= PRIOR_ONLY * sd and abs(p["value"] - p["initial"]) < sd:
+            notes.append(f"{name} = {p['value']:.6g} ± {p['std']:.2g}: the recordings add little to its declared "
+                         f"prior {p['initial']:.6g} ± {sd:.2g} (its std with them is {sigma / sd:.0%} of the "
+                         f"prior's): the estimate is mostly the prior")
         if not sd or not 0 < sigma < sd:
             continue
         f = 1 / np.sqrt(1 / sigma ** 2 - 1 / sd ** 2)
