@@ -91,12 +91,12 @@ typedef float quadrotor_spiral_ukf_real;
 
 /* Run-time settings: quadrotor_spiral_ukf_init sets the declared values; change them between steps. */
 typedef struct {
-    quadrotor_spiral_ukf_real Q_sqrt[196]; /* lower factor of the process noise, Q = Q_sqrt Q_sqrt^T (upper ignored) */
-    quadrotor_spiral_ukf_real R_sqrt[9]; /* lower factor of the measurement noise, R = R_sqrt R_sqrt^T */
-    quadrotor_spiral_ukf_real param[1]; /* declared parameters, see the _P_ index macros */
+    quadrotor_spiral_ukf_real Q_sqrt[196]; /* lower factor of the process noise over the whole state z (the _Z_ macros: states, weights, estimated parameters), Q = Q_sqrt Q_sqrt^T (upper ignored) */
+    quadrotor_spiral_ukf_real R_sqrt[9]; /* lower factor of the measurement noise, R = R_sqrt R_sqrt^T (its signs free) */
+    quadrotor_spiral_ukf_real param[1]; /* declared parameters not estimated (an estimated one is in z), see the _P_ index macros */
     quadrotor_spiral_ukf_real gate; /* innovation gate per output, in standard deviations (0: off) */
     quadrotor_spiral_ukf_real reinit_scale; /* variance multiple of the declared initial covariance at a restart */
-    quadrotor_spiral_ukf_real std_max[14]; /* bound on each prior standard deviation (INFINITY: none) */
+    quadrotor_spiral_ukf_real std_max[14]; /* bound on each prior standard deviation (settings_init: a multiple of the declared initial one, 100 by default; INFINITY: none) */
     long reject_limit; /* readings of an output rejected in a row before its next one restarts the states (0: never) */
     long gap_limit; /* samples without a used measurement after which a reading the gate rejects restarts (0: never) */
     long stuck_limit; /* identical readings in a row from which an output is stuck (0: off) */

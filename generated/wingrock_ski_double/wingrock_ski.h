@@ -79,12 +79,12 @@ typedef double wingrock_ski_real;
 
 /* Run-time settings: wingrock_ski_init sets the declared values; change them between steps. */
 typedef struct {
-    wingrock_ski_real Q_sqrt[64]; /* lower factor of the process noise, Q = Q_sqrt Q_sqrt^T (upper ignored) */
-    wingrock_ski_real R_sqrt[1]; /* lower factor of the measurement noise, R = R_sqrt R_sqrt^T */
-    wingrock_ski_real param[1]; /* declared parameters, see the _P_ index macros */
+    wingrock_ski_real Q_sqrt[64]; /* lower factor of the process noise over the whole state z (the _Z_ macros: states, weights, estimated parameters), Q = Q_sqrt Q_sqrt^T (upper ignored) */
+    wingrock_ski_real R_sqrt[1]; /* lower factor of the measurement noise, R = R_sqrt R_sqrt^T (its signs free) */
+    wingrock_ski_real param[1]; /* declared parameters not estimated (an estimated one is in z), see the _P_ index macros */
     wingrock_ski_real gate; /* innovation gate per output, in standard deviations (0: off) */
     wingrock_ski_real reinit_scale; /* variance multiple of the declared initial covariance at a restart */
-    wingrock_ski_real std_max[8]; /* bound on each prior standard deviation (INFINITY: none) */
+    wingrock_ski_real std_max[8]; /* bound on each prior standard deviation (settings_init: a multiple of the declared initial one, 100 by default; INFINITY: none) */
     long reject_limit; /* readings of an output rejected in a row before its next one restarts the states (0: never) */
     long gap_limit; /* samples without a used measurement after which a reading the gate rejects restarts (0: never) */
     long stuck_limit; /* identical readings in a row from which an output is stuck (0: off) */

@@ -127,12 +127,15 @@ def _fields(filt: DerivedFilter) -> list[tuple[str, tuple, str]]:
 def _settings(filt: DerivedFilter) -> list[tuple[str, str, tuple, str]]:
     """The fields of ``<prefix>_settings``: (name, 'real' or 'long', shape, comment); see skigen.guard."""
     n, ny, npar = filt.aug.n, filt.aug.shapes["ny"], filt.aug.fixed.shape[0]
-    return [("Q_sqrt", "real", (n, n), "lower factor of the process noise, Q = Q_sqrt Q_sqrt^T (upper ignored)"),
-            ("R_sqrt", "real", (ny, ny), "lower factor of the measurement noise, R = R_sqrt R_sqrt^T"),
-            ("param", "real", (npar,), "declared parameters, see the _P_ index macros"),
+    return [("Q_sqrt", "real", (n, n), "lower factor of the process noise over the whole state z (the _Z_ "
+             "macros: states, weights, estimated parameters), Q = Q_sqrt Q_sqrt^T (upper ignored)"),
+            ("R_sqrt", "real", (ny, ny), "lower factor of the measurement noise, R = R_sqrt R_sqrt^T (its signs free)"),
+            ("param", "real", (npar,), "declared parameters not estimated (an estimated one is in z), see the _P_ "
+             "index macros"),
             ("gate", "real", (), "innovation gate per output, in standard deviations (0: off)"),
             ("reinit_scale", "real", (), "variance multiple of the declared initial covariance at a restart"),
-            ("std_max", "real", (n,), "bound on each prior standard deviation (INFINITY: none)"),
+            ("std_max", "real", (n,), "bound on each prior standard deviation (settings_init: a multiple of "
+             "the declared initial one, 100 by default; INFINITY: none)"),
             ("reject_limit", "long", (), "readings of an output rejected in a row before its next one restarts the states (0: never)"),
             ("gap_limit", "long", (), "samples without a used measurement after which a reading the gate rejects restarts (0: never)"),
             ("stuck_limit", "long", (), "identical readings in a row from which an output is stuck (0: off)")]
