@@ -118,7 +118,7 @@ class _Stages:
 def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01, folds: int = DEFAULT_FOLDS,
              validate=(), equations=None, figures: bool = True, emit: bool = True, refit: bool = True,
              show_progress: bool = True, time=None, time_unit: str = "s", columns=None,
-             max_gap: float = 1.0, judge_start=None) -> Report:
+             max_gap: float = 1.0, _judge_start=None) -> Report:
     """Diagnose ``model`` (a :class:`Model`, a model file or ``package.module:attribute``) against
     ``recording`` (a :class:`Recording`, a CSV, Parquet or ULog path, or a DataFrame); write report.json,
     report.md, figures and the corrected model into ``out_dir``.
@@ -143,7 +143,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
         nominal = T.copy_model(user, unknowns=False)
         check(nominal, rec, folds)
         nominal, moved = started(nominal, rec, "every filter of the diagnosis starts",
-                                 "; the corrected model file declares the user's start", judge_start)
+                                 "; the corrected model file declares the user's start", _judge_start)
         caveats += moved
         start_note = moved[0] if moved else None
         others = []
@@ -246,15 +246,14 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
             calibrated, rec, cv, loc.equations, loc.states, size, additive, structural, alpha,
             progress=lambda s: stage(f"naming: {s}"),
             focus=focus_window(sum((d / np.maximum(sd, 1e-300)) ** 2 for d, sd in loc.disturbance.values())),
-            parameters=C.parameter_terms(declared, rate_eqs), noise_from=user_noise)
-    except StartRejected as e:
-        if start_note or judge_start is not None:
-            raise DiagnosisError(f"the filter of '{e.label}' fails on {rec.path} from either start") from None
+            parameters=C.parameter_terms(declared, rate_eqs), noise_from=user_noise,
+            restartable=not start_note and _judge_start is None)
+    except StartRejected as e:              # once, judged with the finding (_judge_start: model, label)
         stage.note(f"judged with {e.label}, the recording does not start at the model's initial state: "
                    "diagnosing again from a vague start")
         return diagnose(model, recording, out_dir, candidates=candidates, alpha=alpha, folds=folds, validate=validate,
                         equations=equations, figures=figures, emit=emit, refit=refit, show_progress=show_progress,
-                        judge_start=(e.model, e.label), **read)
+                        _judge_start=(e.model, e.label), **read)
     stage("searching the shapes")
     variants = {}
     for c in additive:

@@ -55,6 +55,7 @@ from ..library import term
 from ..model import Model
 from ..recording import Recording
 from ..runtime import parallel
+from ..start import recorded_start
 from . import catalog as C
 from . import transform as T
 from .catalog import Additive, Structural, feedthrough, rate_readers
@@ -772,12 +773,15 @@ def _refined(nominal: Model, best: Correction, i: int, alts: list[Additive], bes
 def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str], states: np.ndarray,
                disturbance_rms: dict[str, float], additive: list[Additive], structural: list[Structural],
                alpha: float = 0.01, progress=None, focus: tuple[int, int] | None = None,
-               parameters: list[Additive] = (), noise_from=None) -> tuple[Correction, list[Proposal], dict, dict, Model]:
+               parameters: list[Additive] = (), noise_from=None,
+               restartable: bool = False) -> tuple[Correction, list[Proposal], dict, dict, Model]:
     """See the module docstring. ``states``: smoothed nominal states (for candidate scales);
     ``disturbance_rms``: RMS of the located disturbance per equation (the missing rate's size);
     ``focus``: the samples [a, b) SKI selects on (all of them by default); ``parameters``: the
     declared parameters' corrections (:func:`catalog.parameter_terms`), refitted with every candidate;
-    ``noise_from``: the user's declared (Q, R), a start of every recalibration (:func:`calibrate`).
+    ``noise_from``: the user's declared (Q, R), a start of every recalibration (:func:`calibrate`);
+    ``restartable``: a finalist whose filter fails from the declared start, which it rejects, raises
+    :class:`StartRejected` (else it is not adopted).
     Returns (correction, proposals accepted or not, candidate RMS, per-equation sizes, ``nominal``
     with the noise recalibrated under the correction)."""
     tick = progress or (lambda label: None)
@@ -833,8 +837,8 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
                 got = None
             if got is not None and _gain(score := cv_loglik(got[1], got[0], rec, folds, rms, size), 0.0) > -np.inf:
                 adopted.append(got + (score, p))
-            elif got is not None and not first_start(got[0].build(got[1]), rec):
-                raise StartRejected(got[0].build(got[1]), p.label)
+            elif got is not None and restartable and not first_start(built := got[0].build(got[1]), rec):
+                raise StartRejected(built, p.label)
         if not adopted:                    # its terms compensating: the next round searches without them
             new_aside = {(a["effect"], a["equation"], a.get("through", "")) for p in passing for a in p.set_aside}
             if not new_aside - aside:
@@ -890,7 +894,6 @@ class StartRejected(Exception):
 
 def first_start(model: Model, rec: Recording) -> bool:
     """Whether ``model`` takes ``rec``'s declared start (:func:`skigen.start.recorded_start`)."""
-    from ..start import recorded_start
     rs = recorded_start(model, rec)
     return rs is None or rs.consistent
 
