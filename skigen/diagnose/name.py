@@ -941,9 +941,9 @@ def _revised(first: Model, corr: Correction, current, rounds: list, rec, folds, 
                         ", ".join(map(_text, mine)) + " in place of " + ", ".join(map(_text, replaced))
                         + (", leaving out " + ", ".join(map(_text, later)) if later else ""), score)
     revision.noise, revision.adopted = noise, mine
-    revision.note = ("a tie or rival of an earlier round that leaves later findings unneeded: fewer numbers "
-                     "for the same evidence" if later else "a tie that explains the recording better under "
-                     "the noise calibrated with it")
+    revision.note = ("a tie or rival of an earlier round" + (" that leaves later findings unneeded" if later else "")
+                     + ": fewer numbers for the same evidence" if _numbers(revised) < final else
+                     "a tie that explains the recording better under the noise calibrated with it")
     instead, others = [list(acts(b)) for b in mine], replaced + later
     revision.as_good = [a | {"cv_loglik_behind": -short, "instead_of": instead,
                              "with": [_text(b) for b in others if b is not a]} for a in others
