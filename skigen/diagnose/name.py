@@ -922,7 +922,7 @@ def _revised(first: Model, corr: Correction, current, rounds: list, rec, folds, 
         trials += [_joined(alt.without(*lost), later) for alt in (p.alternatives + p.rivals) if later]
         for trial in trials:
             got = _pruned(first, trial, [t[0] for t in later if _in(t[0], trial)], rec, folds, rms, size,
-                          alpha, noise_from)
+                          alpha, current, noise_from)
             if got is None or any(compensating(got[0], c, coef, states, rec)
                                   for c, coef, _ in got[1][0].found[len(before.found):]):
                 continue                       # a term a round would set aside is no revision
@@ -974,21 +974,27 @@ def _joined(alt: Correction, later: list) -> Correction:
                       alt.structural + [t for t in more if not isinstance(t[0], Additive)])
 
 
-def _pruned(first: Model, trial: Correction, optional: list, rec, folds, rms, size, alpha: float,
+def _pruned(first: Model, trial: Correction, optional: list, rec, folds, rms, size, alpha: float, current,
             noise_from=None) -> tuple[Model, tuple[Correction, np.ndarray]] | None:
     """``trial`` refitted under the noise calibrated with it, then without each ``optional`` term
     whose drop costs less than what a finding must add (cross-validated), the least needed first:
-    (noise, (correction, per-fold log-likelihood)); None where its filter diverges."""
+    (noise, (correction, per-fold log-likelihood)); None where its filter diverges, or where it is
+    too far behind ``current`` (the final correction's per-fold log-likelihood) to be taken: beyond
+    TIE_MARGIN thresholds under the first noise (the second moved a car's wheel gain by 16), or
+    beyond one under the second (a drop does not raise it)."""
     try:                                       # its coefficients as the noise before naming has them
         trial = refit(first, trial, rec, rms, size)
     except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):
         return None
     noise = recalibrated(first, trial, rec, noise_from)
-    if (scored := _scored(noise, trial, rec, folds, rms, size)) is None:
+    if (scored := _scored(noise, trial, rec, folds, rms, size)) is None or \
+            -_gain(scored[1], current) >= TIE_MARGIN * evidence_threshold(alpha):
         return None
     again = recalibrated(first, scored[0], rec, noise_from)      # the noise under coefficients fitted with it
     if (rescored := _scored(again, scored[0], rec, folds, rms, size)) and np.sum(rescored[1]) > np.sum(scored[1]):
         noise, scored = again, rescored
+    if -_gain(scored[1], current) >= evidence_threshold(alpha):
+        return None
     optional = list(optional)
     while optional:
         drops = [(d, t) for t in optional if (d := _scored(noise, scored[0].without(t), rec, folds, rms, size))]
