@@ -659,3 +659,15 @@ def test_a_line_in_the_innovations_spectrum_is_found_against_its_local_level():
     said = periodic_line({}, run, ["r_meas"], dt, 0.01)["periodic"]
     assert said["output"] == "r_meas" and said["note"].startswith("the innovations of r_meas carry a line at a period of 9")
     assert periodic_line({"explained_by": "psi"}, run, ["r_meas"], dt, 0.01) == {}
+
+
+def test_a_round_s_set_scored_ahead_under_the_finding_s_noise_says_under_which():
+    """A servo's round line read "as good: coulomb_friction … 39.6 ahead" beside the finding it was
+    not adopted over: a set of the round scored under the noise the finding leaves, never weighed
+    under its own. It says so; a revision's replaced term keeps "ahead, with more numbers"."""
+    from skigen.diagnose.report import behind
+    said = behind({"cv_loglik_behind": -39.6})
+    assert said == ("cross-validated log-likelihood 39.6 ahead under the noise the finding leaves (a round weighs its "
+                    "finalists each under the noise calibrated with it, and this set was not one)")
+    assert behind({"cv_loglik_behind": -0.6, "with": ["x"]}) == "cross-validated log-likelihood 0.6 ahead, with more numbers"
+    assert behind({"cv_loglik_behind": 1.8}) == "cross-validated log-likelihood 1.8 behind"
