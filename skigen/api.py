@@ -32,5 +32,5 @@ def run(model: Model, data, *, filter: str = "ukf", backend: str = "python", col
     model.check()
     rec = data if isinstance(data, Recording) else load_recording(
         data, model, time=time, time_unit=time_unit, columns=columns, max_gap=max_gap, real=real)
-    return _run(derive(model, filter, options, estimate=estimate), rec, backend=backend, real=real, show_progress=show_progress,
-                guard=guard)
+    return _run(derive(model, filter, options, estimate=estimate), rec, backend=backend, real=real,
+                show_progress=show_progress, guard=guard)

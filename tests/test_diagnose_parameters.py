@@ -669,5 +669,6 @@ def test_a_round_s_set_scored_ahead_under_the_finding_s_noise_says_under_which()
     said = behind({"cv_loglik_behind": -39.6})
     assert said == ("cross-validated log-likelihood 39.6 ahead under the noise the finding leaves (a round weighs its "
                     "finalists each under the noise calibrated with it, and this set was not one)")
-    assert behind({"cv_loglik_behind": -0.6, "with": ["x"]}) == "cross-validated log-likelihood 0.6 ahead, with more numbers"
+    assert behind({"cv_loglik_behind": -0.6, "with": ["x"]}) == \
+        "cross-validated log-likelihood 0.6 ahead, with more numbers"
     assert behind({"cv_loglik_behind": 1.8}) == "cross-validated log-likelihood 1.8 behind"
