@@ -21,9 +21,10 @@ import numpy as np
 
 from .library import Term
 
-__all__ = ["Model", "ModelError", "Parameter", "ROLES", "DISCRETIZATIONS", "INPUT_HOLDS"]
+__all__ = ["Model", "ModelError", "Parameter", "ROLES", "POSITION_ROLES", "DISCRETIZATIONS", "INPUT_HOLDS"]
 
 ROLES = ("position", "velocity", "angle", "rate", "altitude")
+POSITION_ROLES = ("position", "angle", "altitude")     # roles whose rate may be a declared state (ẋ = v)
 DISCRETIZATIONS = ("rk4", "euler", "discrete")
 INPUT_HOLDS = ("zoh", "foh")     # input held over the sample, or interpolated linearly to the next
 C_KEYWORDS = frozenset("""auto break case char const continue default do double else enum extern float for goto
@@ -435,7 +436,7 @@ class Model:
         altitude role, v a declared state): exact by definition, their process noise a numerical
         allowance, not a disturbance."""
         names = set(self.state_names)
-        return [v.name for v in self.states if v.role in ("position", "angle", "altitude")
+        return [v.name for v in self.states if v.role in POSITION_ROLES
                 and self.rhs[v.name].is_symbolic() and self.rhs[v.name].name() in names]
 
     def unstable_step(self) -> str | None:

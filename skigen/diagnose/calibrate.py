@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..fit import FitError, NotIdentifiable, _bound_notes, _far_notes, fit
+from ..fit import FitError, NotIdentifiable, _bound_notes, _far_notes, fit, unseen_noise_note
 from ..model import Model
 from ..recording import Recording
 from .errors import DiagnosisError
@@ -109,8 +109,8 @@ def calibrate(model: Model, recs: list[Recording], show_progress: bool = False,
         kind = NoiseNotIdentifiable if isinstance(exc, NotIdentifiable) else DiagnosisError
         raise kind(f"could not calibrate the noise of '{model.name}' on this recording: {exc}") from None
     said = _bound_notes(res.parameters) + _far_notes(res.parameters)
-    unseen = [n for n in res.notes if n.startswith("the process noise of ") and "no output sees" in n]
-    note = "; ".join(filter(None, [note, *(f"calibrating the declared parameters: {n}" for n in said), *unseen]))
+    unseen = unseen_noise_note(res.noise["unseen"]) if res.noise.get("unseen") else ""
+    note = "; ".join(filter(None, [note, *(f"calibrating the declared parameters: {n}" for n in said), unseen]))
     noise = res.noise
     params = {n: {"declared": p["initial"], "calibrated": p["value"], "std": p["std"]} for n, p in res.parameters.items()}
     return res.model, Noise(noise["declared"], noise["calibrated"], noise["scales"], res.seconds, params, note)

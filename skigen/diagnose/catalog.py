@@ -22,7 +22,7 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
-from ..model import Model
+from ..model import POSITION_ROLES, Model
 from . import transform as T
 from .source import to_python
 
@@ -31,7 +31,6 @@ __all__ = ["Additive", "Structural", "EFFECTS", "READINGS", "evaluate", "additiv
            "pairs", "COULOMB_WIDTHS", "channel", "channel_candidates", "limit"]
 
 VELOCITY_ROLES = ("velocity", "rate")
-POSITION_ROLES = ("position", "angle", "altitude")
 GROUND_EFFECT_HEIGHTS = (0.05, 0.1, 0.2, 0.4)   # m: about a rotor radius
 LENGTH_UNITS = {"m": 1.0, "cm": 100.0, "mm": 1000.0, "ft": 1 / 0.3048, "": 1.0}
 
@@ -656,18 +655,22 @@ def _stood_in(model: Model, place: str, where: str) -> bool:
     in an output's formula, a sensor offset for a number added, and nothing for any other."""
     if place.startswith("output "):
         return where.startswith("+")
-    op, _, rest = where.partition("(")
-    other = rest[:-1]
+    op, other = _beside(where)
     if op == "*" and other in model.state_names and other != place and other not in pairs(model, place):
         return False
     return not _shaped(where, model.input_names)
 
 
+def _beside(where: str) -> tuple[str, str]:
+    """A constant's use (:func:`transform.literals`) as (operation, what it stands beside)."""
+    op, _, rest = where.partition("(")
+    return op, rest[:-1]
+
+
 def _shaped(where: str, inputs) -> bool:
     """Whether a number stands as the factor of a shape of the states no catalog term draws: not a
     bare state (a damping, a stiffness) nor anything of an input (its gain on its own terms)."""
-    op, _, rest = where.partition("(")
-    other = rest[:-1]
+    op, other = _beside(where)
     return op == "*" and not re.fullmatch(r"\w+", other) and \
         not any(re.search(rf"\b{re.escape(u)}\b", other) for u in inputs)
 

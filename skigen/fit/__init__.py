@@ -248,11 +248,11 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     filter error only, another (Q, R) to start the noise from as well, the more likely optimum
     kept (a diagnosis gives the user's declared noise to a model that carries a calibrated one).
     noise_caps: filter error only, {state: variance} its process noise may not exceed; by default
-    each kinematic identity ṗ = v (:meth:`Model.kinematic`) is held to the noise declared on it
-    (in ``noise_from`` where given)
-    (exact by definition: freed, an altitude's noise took 2700× its declared variance from the
-    vertical speed's on 5 of 12 hover flights of a right model, whose thrust's error bars then
-    missed the truth by up to 4.5 of them); ``{}`` frees them.
+    each kinematic identity ṗ = v (:meth:`Model.kinematic`), exact by definition, is held to the
+    noise declared on it, in ``noise_from`` where given (freed, an altitude's noise took 2700× its
+    declared variance from the vertical speed's on 5 of 12 hover flights of a right model, whose
+    thrust's error bars then missed the truth by up to 4.5 of them); ``{}`` frees them. A state
+    no output sees keeps its declared process noise (``noise["unseen"]``, and a note).
     """
     t0 = perf_counter()
     if method not in METHODS:
@@ -317,10 +317,10 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     with np.errstate(over="ignore", invalid="ignore"):
         dead = [i for i, k in enumerate(V.kinds) if k == "noise" and V.names[i].startswith("Q_scale_")
                 and i not in held and not np.any(J0[:, i]) and not prior.ravel()[i]]
+    unseen_states = [V.names[i].removeprefix("Q_scale_") for i in dead]
     if dead:                                    # a state no output sees: its noise moves no prediction
         held += dead
-        notes.append(f"the process noise of {', '.join(V.names[i][8:] for i in dead)} is held at its declared "
-                     f"value: no output sees {'it' if len(dead) == 1 else 'them'}, and no recording can calibrate it")
+        notes.append(unseen_noise_note(unseen_states))
     free = [i for i in range(len(V)) if i not in held]
     G = _dense(jac_g(theta0 / scale, p))
     lost = unidentified(J0[:, free], prior.ravel()[free], [V.names[i] for i in free], G[:, free])
@@ -390,6 +390,8 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     Y = np.asarray(prob.predict(xi, p)).T
     result = _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_at,
                      nll, Y, stats, status, perf_counter() - t0, float(sol["f"]), info, robust)
+    if unseen_states:
+        result.noise["unseen"] = unseen_states
     for i, side in _flat_sides(prob, xi, inputs, std / scale, info["information"], fitted_at).items():
         ({**result.parameters, **result.weights})[V.names[i]]["flat"] = side
     if method == "filter-error":
@@ -461,6 +463,12 @@ def _acts_elsewhere(prob: Problem, theta0, scale, p, V, model: Model, sentence: 
                     f"where it acts from there (a limit beyond every recorded command); start it within what "
                     f"the recordings reach")
     return sentence
+
+
+def unseen_noise_note(states: list[str]) -> str:
+    """The note on the states whose process noise filter error holds: no output sees them."""
+    return (f"the process noise of {', '.join(states)} is held at its declared value: no output sees "
+            f"{'it' if len(states) == 1 else 'them'}, and no recording can calibrate it")
 
 
 SAID_SETS = 3      # sets that cannot be told apart said in a message; the rest counted (all in ``lost``)
