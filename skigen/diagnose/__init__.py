@@ -37,7 +37,7 @@ from . import transform as T
 from .calibrate import calibrate
 from .correct import emit_filter, header_lines, refit_jointly, write_model_file
 from .cv import DEFAULT_BLOCKS, DEFAULT_FOLDS, Folds, ekf_run, fold_loglik
-from .detect import Consistency, consistency, judge, normalised_innovations, periodic_line, remaining
+from .detect import Consistency, consistency, judge, normalised_innovations, remaining, unexplained
 from .errors import DiagnosisError
 from .evidence import weigh
 from .figures import diagnosis_figures, plot_residuals
@@ -376,8 +376,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
                              "note": "no candidate explains the mismatch: it remains as detected"}
         if loc.equations and loc.equations[0] in loc.disturbance:     # what it follows: a candidate to try
             data["remaining"].update(explain(before_naming, rec, loc, out if figures else None, tried=additive))
-            data["remaining"].update(periodic_line(data["remaining"], nominal_run, nominal.output_names, nominal.dt,
-                                                   alpha))
+            data["remaining"].update(unexplained(data["remaining"], before_naming, rec, nominal_run, alpha))
             if data["remaining"].get("figure"):
                 meta["figures"].append(Path(data["remaining"].pop("figure")))
     if (at := data["remaining"].get("changes_at")) is not None and data["findings"]:

@@ -100,6 +100,59 @@ def past_regressors(model, run: RunResult, inputs: np.ndarray) -> np.ndarray:
     return np.vstack([np.full(Z.shape[1], np.nan), Z[:-1]])
 
 
+def _residual_ss(e: np.ndarray, X: np.ndarray) -> tuple[float, int]:
+    """(residual sum of squares, rank) of ``e`` regressed on the columns of ``X``."""
+    q, r = np.linalg.qr(X)
+    d = np.abs(np.diag(r))
+    q = q[:, d > 1e-8 * max(d.max(), 1e-300)]
+    return float(e @ e - np.sum((q.T @ e) ** 2)), q.shape[1]
+
+
+BREAKS = 57          # candidate times of a change, evenly in the recording's samples
+BREAK_TRIM = 0.15    # ... between 15 % and 85 % of them (Andrews 1993): a stretch must have data
+
+
+def relation_break(model, rec, run: RunResult, alpha: float) -> dict:
+    """{"changes_at", "note", "break"} where how an output's innovations follow the past
+    (:func:`past_regressors`, with an intercept) changes at one time: Chow's F of the regression
+    split at t against one regression, at BREAKS times, Bonferroni over them and the outputs. A
+    gain that drops partway (an elevator 20 % weaker from 50 s of 80) is fitted as its average and
+    what it leaves follows the input with one sign before and the other after, while a slowly
+    varying disturbance cannot follow it; a time-invariant misfit has one relation throughout.
+    The signal whose split alone gains most names where; {} when no change is significant."""
+    eps, Z = normalised_innovations(run), past_regressors(model, run, rec.inputs)
+    signals = list(model.state_names) + list(model.input_names)
+    group = np.r_[np.repeat(np.arange(len(signals)), 4), len(model.state_names) + np.arange(len(model.input_names))]
+    best = None
+    for i, name in enumerate(model.output_names):
+        ok = np.isfinite(eps[:, i]) & np.all(np.isfinite(Z), axis=1)
+        e, X, t = eps[ok, i], np.column_stack([np.ones(int(ok.sum())), Z[ok]]), rec.t[ok]
+        if len(e) < 4 * X.shape[1] + 20:
+            continue
+        rss0, p0 = _residual_ss(e, X)
+        for at in t[np.linspace(BREAK_TRIM * len(t), (1 - BREAK_TRIM) * len(t), BREAKS).astype(int)]:
+            rss1, p1 = _residual_ss(e, np.column_stack([X, X * (t > at)[:, None]]))
+            if p1 > p0 and rss1 > 0:
+                F = (rss0 - rss1) / (p1 - p0) / (rss1 / (len(e) - p1))
+                p = float(stats.f.sf(F, p1 - p0, len(e) - p1))
+                if best is None or p < best[0]:
+                    best = (p, float(at), name, F, p1 - p0, e, X, t)
+    if best is None or min(1.0, best[0] * BREAKS * len(model.output_names)) >= alpha:
+        return {}
+    p, at, name, F, dof, e, X, t = best
+    after = (t > at)[:, None]
+    most = min(signals, key=lambda g: _residual_ss(
+        e, np.column_stack([X, X[:, 1:][:, group == signals.index(g)] * after]))[0])
+    p = min(1.0, p * BREAKS * len(model.output_names))
+    note = (f"how the innovations of {name} follow the states and inputs changes at t = {at:.4g} s"
+            + f", most in how they follow {most}"
+            + f" (Chow's F = {F:.3g} on {dof} regressors, p = {p:.2g} over {BREAKS} times and the outputs): "
+              f"the system changed during the recording (a gain, a friction, a failure); diagnose the stretches "
+              f"before and after it apart")
+    return {"changes_at": at, "note": note,
+            "break": {"output": name, "at": at, "F": float(F), "dof": int(dof), "pvalue": p, "signal": most}}
+
+
 def independence(eps: np.ndarray, Z: np.ndarray) -> tuple[float, int]:
     """(p-value, degrees of freedom) of N·R² of one output's normalised innovations regressed on
     ``Z`` (columns centred, about zero mean), χ²(rank Z), where both are finite."""
@@ -223,7 +276,16 @@ def remaining(model, rec, run: RunResult, equations, alpha: float, out_dir=None,
     out["where"] = {"equations": loc.equations, "windows": [[float(a), float(b)] for a, b in loc.windows],
                     "regime": loc.regime}
     out.update(explain(model, rec, loc, out_dir, names, tried))
-    return out | periodic_line(out, run, model.output_names, model.dt, alpha)
+    return out | unexplained(out, model, rec, run, alpha)
+
+
+def unexplained(said: dict, model, rec, run: RunResult, alpha: float) -> dict:
+    """Where no shape of a state or input explains what remains, nor a step in time: a change in
+    how the innovations follow the past (:func:`relation_break`), else a spectral line
+    (:func:`periodic_line`); {} otherwise."""
+    if said.get("explained_by") or said.get("changes_at") is not None:
+        return {}
+    return relation_break(model, rec, run, alpha) or periodic_line(said, run, model.output_names, model.dt, alpha)
 
 
 def periodic_line(said: dict, run: RunResult, outputs, dt: float, alpha: float) -> dict:
