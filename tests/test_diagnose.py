@@ -525,3 +525,32 @@ def test_findings_fitted_across_a_change_in_time_say_so(tmp_path):
     assert any(n.startswith(f"the system changed at t = {at:.4g} s (what remains): the findings fit one model")
                for n in d["notes"]), d["notes"]
     assert all(f"fitted across a change at t = {at:.4g} s" in f["note"] for f in d["findings"])
+
+
+def test_a_gain_that_drops_partway_is_said_as_a_change_not_only_as_its_average(tmp_path):
+    """A servo's input gain 3 → 2.4 from 70 s of 120 under a zero-mean command: one model fits
+    the average and what it leaves follows the command with one sign before and the other after,
+    which the random-walk disturbance cannot follow ("a mismatch remains", and nothing else, on an
+    aircraft's elevator that lost 20 % at 50 s). The change is said, with when and what it acts on."""
+    import pandas as pd
+    from skigen import Model
+    from skigen.diagnose import diagnose
+    m = Model("servo", dt=0.05, discretization="rk4")
+    x = m.state("x", unit="rad", std=0.05, process_std=1e-3)
+    u = m.input("u", unit="V")
+    m.dynamics({x: -2 * x + 3 * u})
+    m.output("x_meas", x, unit="rad", noise_std=0.01)
+    rng, n, dt = np.random.default_rng(5), 2400, 0.05
+    volts = np.repeat(rng.choice([-1.0, 1.0], n // 20) * rng.uniform(0.3, 1, n // 20), 20)
+    angle, s = np.empty(n), 0.0
+    for k in range(n):
+        angle[k] = s
+        b = 2.4 if k * dt >= 70 else 3.0
+        f = lambda y: -2 * y + b * volts[k]
+        k1 = f(s); k2 = f(s + dt / 2 * k1); k3 = f(s + dt / 2 * k2)
+        s = s + dt / 6 * (k1 + 2 * k2 + 2 * k3 + f(s + dt * k3)) + 1e-3 * rng.standard_normal()
+    frame = pd.DataFrame({"t": np.arange(n) * dt, "u": volts, "x_meas": angle + 0.01 * rng.standard_normal(n)})
+    d = diagnose(m, frame, tmp_path, show_progress=False, figures=False, emit=False).data
+    said = d["remaining"]
+    assert said["mismatch"] and 69 <= said["changes_at"] <= 71.5 and said["break"]["signal"] == "u", said
+    assert any(n.startswith(f"the system changed at t = {said['changes_at']:.4g} s") for n in d["notes"]), d["notes"]
