@@ -31,6 +31,7 @@ import functools
 import hashlib
 import os
 import re
+import shlex
 import shutil
 import string
 import subprocess
@@ -481,22 +482,33 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
 
 
 @functools.lru_cache(maxsize=None)
-def _cc_version(cc: str) -> str:
-    return subprocess.run([cc, "--version"], capture_output=True, text=True, check=True).stdout
+def _cc_version(cc: tuple[str, ...]) -> str:
+    return subprocess.run([*cc, "--version"], capture_output=True, text=True, check=True).stdout
 
 
-def compile_shared(sources, out=None, cc: str = "gcc", flags=DEFAULT_FLAGS, cache_dir=None) -> Path:
-    """Build ``sources`` (.c; .h allowed) into a shared library with ``-fPIC -shared ... -lm``.
+def _compiler(cc: str | None) -> tuple[str, ...]:
+    """The compiler command: ``cc``, else ``$CC``, else gcc; a clear error where it is not found."""
+    cmd = tuple(shlex.split(cc or os.environ.get("CC") or "gcc"))
+    if not cmd or shutil.which(cmd[0]) is None:
+        raise CompileError(f"the c backend needs a C compiler: {' '.join(cmd) or repr(cc)!s} is not on PATH "
+                           f"(install gcc, set CC to one, or use --backend python)")
+    return cmd
+
+
+def compile_shared(sources, out=None, cc: str | None = None, flags=DEFAULT_FLAGS, cache_dir=None) -> Path:
+    """Build ``sources`` (.c; .h allowed) into a shared library with ``-fPIC -shared ... -lm``; ``cc``
+    the compiler command (default ``$CC``, else gcc).
 
     Libraries are cached by a hash of the compiler, flags and the sources with every header
     beside them, in ``cache_dir`` (default ``$SKIGEN_CACHE`` or ``~/.cache/skigen``).
     Returns ``out`` (a copy of the cached library) or the cached path itself.
     """
+    cc = _compiler(cc)
     sources = [Path(s).resolve() for s in sources]
     cfiles = [s for s in sources if s.suffix == ".c"]
     dirs = sorted({s.parent for s in sources})
     hashed = cfiles + sorted({h for d in dirs for h in d.glob("*.h")})
-    key = hashlib.sha256("\0".join([cc, _cc_version(cc), *flags]).encode())
+    key = hashlib.sha256("\0".join([*cc, _cc_version(cc), *flags]).encode())
     for p in hashed:
         key.update(b"\0" + p.name.encode() + b"\0" + p.read_bytes())
     cache = Path(cache_dir or os.environ.get("SKIGEN_CACHE") or Path.home() / ".cache" / "skigen")
@@ -505,7 +517,7 @@ def compile_shared(sources, out=None, cc: str = "gcc", flags=DEFAULT_FLAGS, cach
         lib.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(suffix=".so", dir=lib.parent)
         os.close(fd)
-        cmd = [cc, *flags, "-fPIC", "-shared", *(f"-I{d}" for d in dirs), *map(str, cfiles), "-o", tmp, "-lm"]
+        cmd = [*cc, *flags, "-fPIC", "-shared", *(f"-I{d}" for d in dirs), *map(str, cfiles), "-o", tmp, "-lm"]
         r = subprocess.run(cmd, capture_output=True, text=True)
         if r.returncode:
             os.unlink(tmp)
@@ -684,7 +696,7 @@ def _run_many_source(filt: DerivedFilter, out_dir, real: str, prefix: str) -> Pa
 
 
 def load_c(filt: DerivedFilter, real: str = "double", prefix: str | None = None, cache_dir=None,
-           cc: str = "gcc", flags=DEFAULT_FLAGS, style: str = "auto") -> CFilter:
+           cc: str | None = None, flags=DEFAULT_FLAGS, style: str = "auto") -> CFilter:
     """Emit, compile (cached) and load ``filt`` as a :class:`CFilter`."""
     with tempfile.TemporaryDirectory() as tmp:
         paths = emit_c(filt, tmp, real, prefix, style)
