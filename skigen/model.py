@@ -572,6 +572,31 @@ def _step_gain(method: str, z):
     return 1 + z if method == "euler" else 1 + z + z ** 2 / 2 + z ** 3 / 6 + z ** 4 / 24
 
 
+MODE_OFF = 0.1     # a step that moves a mode by this share of its damping misplaces it
+LIGHT = 0.05       # ... a lightly damped mode's damping counted as at least this share of |λ|
+
+
+def mode_error(A: np.ndarray, method: str, h: float) -> tuple[float, complex, complex] | None:
+    """(error, λ, λ_step) of the mode of the continuous Jacobian ``A`` (1/s) that a ``method`` step
+    of ``h`` s misplaces most: λ_step = log R(λh)/h is the rate the step gives the mode, and the
+    error is |λ_step − λ| over max(|Re λ|, LIGHT·|λ|), as a share of the mode's damping (an Euler
+    step adds ω²h/2 to a lightly damped mode's decay, which an identified damping term absorbs:
+    a pendulum's −0.10 read −0.154 at 100 Hz). None without modes; inf where R(λh) ≤ 0."""
+    if not np.isfinite(A).all():
+        return None
+    lam = np.linalg.eigvals(A)
+    lam = lam[np.abs(lam) > 0]
+    if not lam.size:
+        return None
+    gain = _step_gain(method, lam * h)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        step = np.where(np.abs(gain) > 0, np.log(gain.astype(complex)) / h, -np.inf)
+        err = np.where(np.isfinite(step), np.abs(step - lam) / np.maximum(np.abs(lam.real), LIGHT * np.abs(lam)),
+                       np.inf)
+    k = int(np.argmax(err))
+    return float(err[k]), complex(lam[k]), complex(step[k])
+
+
 def _check_scalar(expr: ca.SX, what: str):
     if expr.shape != (1, 1):
         raise ModelError(f"{what} must be a scalar, got shape {expr.shape}")

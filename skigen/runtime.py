@@ -40,7 +40,7 @@ from .failure import explain, nearer, sigma_reach
 from .emit.c import Status
 from .grid import clock, first_known
 from .guard import Guard, bound_std, reinit
-from .model import Model
+from .model import MODE_OFF, Model, _complex, mode_error
 from .progress import note, progress
 from .recording import Recording, write_table
 
@@ -281,6 +281,33 @@ class RunSummary:
                 f"sigma-point states and weights (alpha = {filt.options.alpha:g}): a cubic or exponential term "
                 f"there can overflow the step, and each restart widens them again. {nearer(filt)}")
 
+    def integration(self) -> str | None:
+        """Where the integration step misplaces a mode of the dynamics at the final estimates (the
+        rates' Jacobian at the last posterior mean, inputs and history 0) by MODE_OFF of its
+        damping (:func:`~skigen.model.mode_error`): the weights and parameters that set that mode
+        absorb the step's error, beyond their ± 2σ, whatever the verdict below. A model whose
+        damping is all in its unknown terms shows no mode at its declared start."""
+        aug = self.filter.aug
+        m = aug.model
+        if aug.rates_jacobian is None or self.last is None or not np.isfinite(self.last[0]).all():
+            return None
+        A = np.asarray(aug.rates_jacobian(self.last[0], np.zeros(len(m.inputs)), np.zeros(len(m.memory)),
+                                          aug.fixed_values), float)
+        h = m.dt / m.substeps
+        said = mode_error(A, m.discretization, h)
+        if said is None or said[0] < MODE_OFF:
+            return None
+        n = m.substeps
+        while n < 4096 and (e := mode_error(A, m.discretization, m.dt / n)) is not None and e[0] >= MODE_OFF:
+            n *= 2
+        lam, step = said[1], said[2]
+        what = f"decay rate {-lam.real:.3g} → {-step.real:.3g} /s" + (
+            f", frequency {abs(lam.imag):.4g} → {abs(step.imag):.4g} rad/s" if lam.imag else "")
+        return (f"integration: the {m.discretization} step of {h:g} s moves the mode at {_complex(lam)} /s (the "
+                f"rates' Jacobian at the final estimates) to {_complex(step)} /s ({what}): what sets that mode in "
+                f"the estimates absorbs the step's error, beyond their ± 2σ and whatever the verdict; use "
+                f"discretization=\"rk4\"" + (f" or substeps={n}" if n < 4096 else "") + " and run again")
+
     REFUSED = 0.05   # a filter that gates, or fails on, more than 1 in 20 samples with a reading is not following it
 
     def verdict(self) -> str:
@@ -381,6 +408,8 @@ class RunSummary:
                     for i in aug.p_index]
         if self.last is not None:
             out += self.together()
+        if line := self.integration():
+            out.append(line)
         if any(self.events.values()):
             out.append("events: " + "; ".join(f"{n} {EVENT_WORDS[c]}, first at t = {clock(self.first[c])} s"
                                               for c, n in self.events.items() if n))

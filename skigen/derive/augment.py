@@ -45,6 +45,7 @@ class Augmented:
     h_free: ca.SX | None = None
     Q_sqrt: ca.SX | None = None         # set in a tunable step: Q = Q_sqrt Q_sqrtᵀ, R = R_sqrt R_sqrtᵀ
     R_sqrt: ca.SX | None = None
+    rates_jacobian: ca.Function | None = None   # (z, u, mem, fixed) → ∂(dx/dt)/∂x, continuous models
 
     @property
     def fixed_names(self) -> list[str]:
@@ -113,6 +114,8 @@ def augment(model: Model, estimate=(), *, online: bool = True) -> Augmented:
     if fixed:
         syms, values = ca.vertcat(*[p.sym for p in fixed]), np.array([p.value for p in fixed], float)
         f, h = (ca.substitute(e, syms, ca.DM(values)) for e in (f, h))
+    jac = None if model.discretization == "discrete" else ca.Function(
+        "rates_jacobian", [ca.vertcat(x, w, p_est), u, mem, syms], [ca.jacobian(rhs, x)])
     s0 = model.prior_variances()
     nx, nw = len(model.states), len(weights)
     return Augmented(
@@ -126,7 +129,7 @@ def augment(model: Model, estimate=(), *, online: bool = True) -> Augmented:
         s0=s0, w_index=np.arange(nx, nx + nw),
         names=model.state_names + [name for name, *_ in weights] + [p.name for p in estimated],
         p_index=np.arange(nx + nw, nx + nw + len(estimated)), fixed=syms, fixed_values=values,
-        f_free=f_free, h_free=h_free)
+        f_free=f_free, h_free=h_free, rates_jacobian=jac)
 
 
 def memory_values(model: Model, inputs) -> np.ndarray:
