@@ -283,7 +283,8 @@ class RunSummary:
 
     def integration(self) -> str | None:
         """Where the integration step misplaces a mode of the dynamics at the final estimates (the
-        rates' Jacobian at the last posterior mean, inputs and history 0) by MODE_OFF of its
+        rates' Jacobian at the last posterior mean and at the declared start's states with the
+        final weights and parameters, inputs and history 0) by MODE_OFF of its
         damping (:func:`~skigen.model.mode_error`): the weights and parameters that set that mode
         absorb the step's error, beyond their ± 2σ, whatever the verdict below. A model whose
         damping is all in its unknown terms shows no mode at its declared start."""
@@ -291,10 +292,12 @@ class RunSummary:
         m = aug.model
         if aug.rates_jacobian is None or self.last is None or not np.isfinite(self.last[0]).all():
             return None
-        A = np.asarray(aug.rates_jacobian(self.last[0], np.zeros(len(m.inputs)), np.zeros(len(m.memory)),
-                                          aug.fixed_values), float)
+        start = np.r_[m.x0, self.last[0][len(m.states):]]
+        jac = [np.asarray(aug.rates_jacobian(z, np.zeros(len(m.inputs)), np.zeros(len(m.memory)), aug.fixed_values),
+                          float) for z in (self.last[0], start)]
         h = m.dt / m.substeps
-        said = mode_error(A, m.discretization, h)
+        said, A = max(((mode_error(A, m.discretization, h), A) for A in jac),
+                      key=lambda e: -1.0 if e[0] is None else e[0][0])
         if said is None or said[0] < MODE_OFF:
             return None
         n = m.substeps
@@ -304,7 +307,7 @@ class RunSummary:
         what = f"decay rate {-lam.real:.3g} → {-step.real:.3g} /s" + (
             f", frequency {abs(lam.imag):.4g} → {abs(step.imag):.4g} rad/s" if lam.imag else "")
         return (f"integration: the {m.discretization} step of {h:g} s moves the mode at {_complex(lam)} /s (the "
-                f"rates' Jacobian at the final estimates) to {_complex(step)} /s ({what}): what sets that mode in "
+                f"rates' Jacobian with the final estimates) to {_complex(step)} /s ({what}): what sets that mode in "
                 f"the estimates absorbs the step's error, beyond their ± 2σ and whatever the verdict; use "
                 f"discretization=\"rk4\"" + (f" or substeps={n}" if n < 4096 else "") + " and run again")
 
