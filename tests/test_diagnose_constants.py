@@ -56,6 +56,25 @@ def test_a_constant_is_scaled_wherever_it_is_written_beside_the_same_thing():
                      "(…)/300": ("vs", "output acc_body")}
 
 
+def test_a_two_written_in_two_equations_is_a_constant():
+    """CasADi keeps 2·x as an operation of its own (OP_TWICE), not a number: a two-node thermal
+    model's conductance G = 2 in G·(T1 − T2), 1.3× off, was no candidate, and was named a sensor
+    gain of 0.77 with a bias and an input gain (G = 2.5 or 3 were named: × 1.3001). Now the 2 is a
+    number as written, a candidate on both equations, and scaled where it stands."""
+    m = Model("two_node", dt=2.0)
+    T1, T2 = m.state("T1", initial=20.0), m.state("T2", initial=20.0)
+    P = m.input("P")
+    m.dynamics({T1: (P - 2.0 * (T1 - T2) - 0.5 * (T1 - 20)) / 200, T2: (2.0 * (T1 - T2) - (T2 - 20)) / 400})
+    m.output("T1_meas", T1, noise_std=0.05)
+    assert (2.0, "*((T1-T2))") in T.literals(m.rhs["T1"])
+    cands = {c.target: c.equations for c in C.constant_candidates(m, ["T1", "T2"], [])}
+    assert cands.get("2·(T1-T2)") == ("T1", "T2"), cands
+    scaled = T.scale_constant(m, 2.0, 1.3, "*((T1-T2))")
+    x = ca.vertcat(T1, T2, P)
+    rates = lambda model: np.array(ca.Function("f", [x], [ca.vertcat(*model.rhs.values())])([30.0, 25.0, 10.0])).ravel()
+    np.testing.assert_allclose(rates(scaled) - rates(m), [-0.6 * 5 / 200, 0.6 * 5 / 400], rtol=1e-12)
+
+
 def test_an_orifice_off_in_both_levels_is_named_as_its_constant(tmp_path):
     """Two tanks whose upper orifice drains 1.2× what the model declares (400 s, 4000 samples):
     the constant a₁·√(2g), in h1 and h2, is named with its factor (measured 1.2005 ± 0.0057) and

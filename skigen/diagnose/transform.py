@@ -274,7 +274,8 @@ def _replay(expr: ca.SX, swap) -> ca.SX:
     the constant multiplies, divides or is added to in that use (:func:`_context`). Uses are
     replaced one by one: CasADi keeps one node for equal constants, and a motor's inductance 0.1
     dividing di/dt and its back-EMF constant 0.1 on ω there are two numbers of the model. The
-    constants are those CasADi keeps as written; a power's exponent is none of them."""
+    constants are those CasADi keeps as written, and the 2 of 2·x, which it keeps as an operation
+    (a conductance G = 2 in G·(T1 − T2) was invisible); a power's exponent is none of them."""
     expr = ca.SX(expr)
     syms = ca.symvar(expr)
     f = ca.Function("f", syms, [expr])
@@ -294,20 +295,23 @@ def _replay(expr: ca.SX, swap) -> ca.SX:
             elif len(a) == 2 and a[1] >= 0:
                 args = [work[a[0]], work[a[1]]]
                 for slot, r in enumerate(a[:2]):     # each use of a constant, and beside what
-                    if ops[last[r]] == ca.OP_CONST and (new := change(k, slot, last[r], args[1 - slot])) is not None:
+                    if ops[last[r]] == ca.OP_CONST and (new := change(k, slot, f.instruction_constant(last[r]),
+                                                                      args[1 - slot])) is not None:
                         args[slot] = ca.SX(new)
                 work[b[0]] = ca.SX.binary(op, *args)
+            elif op == ca.OP_TWICE:                  # 2·x: CasADi keeps the 2 in the operation
+                new = change(k, 0, 2.0, work[a[0]])
+                work[b[0]] = ca.SX.unary(op, work[a[0]]) if new is None else ca.SX(new) * work[a[0]]
             else:
                 work[b[0]] = ca.SX.unary(op, work[a[0]])
             last[b[0]] = k
         return expr                                  # a constant expression: nothing to replay
     contexts = {}
 
-    def seen(k, slot, const, other):
-        contexts[k, slot] = _context([(ops[k], slot, other)])
+    def seen(k, slot, value, other):
+        contexts[k, slot] = _context([(ca.OP_MUL if ops[k] == ca.OP_TWICE else ops[k], slot, other)])
     run(seen)
-    return run(lambda k, slot, const, other: None if contexts[k, slot] is None
-               else swap(f.instruction_constant(const), contexts[k, slot]))
+    return run(lambda k, slot, value, other: None if contexts[k, slot] is None else swap(value, contexts[k, slot]))
 
 
 def _context(uses) -> str | None:
