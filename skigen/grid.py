@@ -213,6 +213,52 @@ def _column_notes(name, column, output, count, early, dropped, repeated, first_r
     return notes
 
 
+class Wraps:
+    """An output's readings in order, looked at as an angle wrapped to one turn (2π or 360): jumps
+    of about a turn between consecutive readings, in a column that otherwise moves in small steps
+    and stays within a turn. A heading logged in (−π, π] crossing south jumps by 2π: the filter
+    took each crossing for 25 outliers and a restart, said as nothing but outliers."""
+
+    TURNS = {2 * np.pi: ("2π", "radians", ""), 360.0: ("360", "degrees", ", period=360")}
+    NEAR = 0.2       # a jump within this share of a turn of a full turn
+    SMALL = 0.05     # ... in a column whose other steps are under this share of a turn,
+    SMOOTH = 0.9     # ... this share of its steps at least
+
+    def __init__(self):
+        self.last, self.lo, self.hi, self.steps = None, np.inf, -np.inf, 0
+        self.jumps = dict.fromkeys(self.TURNS, 0)
+        self.small = dict.fromkeys(self.TURNS, 0)
+        self.first = dict.fromkeys(self.TURNS)
+
+    def add(self, t, v) -> None:
+        ok = np.isfinite(v)
+        t, v = np.asarray(t, float)[ok], np.asarray(v, float)[ok]
+        if not len(v):
+            return
+        seq = v if self.last is None else np.r_[self.last, v]
+        step, at = np.abs(np.diff(seq)), t[len(t) - len(seq) + 1:]
+        for turn in self.TURNS:
+            near = np.flatnonzero(np.abs(step - turn) < self.NEAR * turn)
+            self.jumps[turn] += len(near)
+            self.small[turn] += int(np.sum(step < self.SMALL * turn))
+            if len(near) and self.first[turn] is None:
+                self.first[turn] = float(at[near[0]])
+        self.steps += len(step)
+        self.lo, self.hi, self.last = min(self.lo, v.min()), max(self.hi, v.max()), float(v[-1])
+
+    def note(self, name: str, origin: float = 0.0) -> list[str]:
+        """The note for output ``name`` (times relative to ``origin``, s), or none."""
+        for turn, (text, unit, period) in self.TURNS.items():
+            within = self.lo >= -0.5001 * turn and self.hi <= 1.0001 * turn and self.hi - self.lo <= 1.0001 * turn
+            if self.jumps[turn] and within and self.jumps[turn] + self.small[turn] >= self.SMOOTH * self.steps:
+                return [f"output '{name}': its readings jump by about {text} {self.jumps[turn]} time(s) (first at "
+                        f"t = {clock(origin + self.first[turn])} s) and stay within one turn ({self.lo:.4g} to "
+                        f"{self.hi:.4g}): an angle in {unit} wrapped to one turn, while the model's is continuous: "
+                        f"the filter takes each jump for outliers and restarts. Unwrap it before the run "
+                        f"(numpy.unwrap(angle{period}))"]
+        return []
+
+
 def _held_note(name, column, run, repeats) -> str:
     return (f"output '{name}' (column '{column}') repeats each reading about {run} times in a row, as a "
             f"logger that holds a slower sensor's last reading writes it: only the first of each run is "
@@ -379,6 +425,9 @@ def to_grid(samples: Samples, dt: float, input_names, output_names, input_hold: 
             ts, v = ts[fresh], v[fresh]
         k, used = _nearest(ts, start, dt, n)
         outputs[k, j] = v[used]
+        wraps = Wraps()
+        wraps.add(ts, v)
+        notes += wraps.note(name, origin)
         early = int(np.sum(ts < start - dt / 2))
         notes += _column_notes(name, cols[name], True, len(ts), early, len(ts) - len(used) - early,
                                *_repeats(ts), origin, start, dt, interval(ts), pace(ts))
@@ -419,6 +468,7 @@ class _Column:
         self.limit = None             # seconds without a sample that make a hole, once known
         self.own = None               # an input's own sample interval, once known
         self.short = (0, 0, 0.0)      # an input's gaps short of a hole: count, grid samples held, longest
+        self.wraps = Wraps()          # an output's readings as a wrapped angle
 
     def add(self, t, v):
         if len(t):
@@ -429,6 +479,7 @@ class _Column:
             self.repeated += repeated
             self.first_repeat = first if self.first_repeat is None else self.first_repeat
             self.t, self.v = np.concatenate([self.t, t]), np.concatenate([self.v, v])
+            self.wraps.add(t, v)
             self.new.append(t)
             self.first = float(t[0]) if self.first is None else self.first
             self.last = float(t[-1])
@@ -700,6 +751,7 @@ class GridStream:
                                         pace(c.head))
             if output:
                 self.notes += _offset_note(name, c.used, c.offset, dt, "inputs" if self.input_names else "outputs")
+                self.notes += c.wraps.note(name, self.origin)
             else:
                 self.notes += _short_gap_note(name, *c.short, c.limit)
 

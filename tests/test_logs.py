@@ -857,3 +857,27 @@ def test_an_integration_step_that_moves_a_mode_at_the_final_estimates_is_said(di
     assert len(said) == 1 and "the euler step of 0.01 s moves the mode at" in said[0], said
     before, after = map(float, re.search(r"decay rate ([0-9.]+) → ([0-9.]+) /s", said[0]).groups())
     assert 0.045 < before - after < 0.053 and "substeps=4" in said[0], said[0]     # ω²h/2 = 9.81·0.01/2
+
+
+@pytest.mark.parametrize("turn, wrapped", [(360.0, True), (2 * np.pi, True), (360.0, False)])
+def test_an_angle_wrapped_to_one_turn_is_said(flight, turn, wrapped, tmp_path):
+    """A heading logged in (−π, π] jumps by 2π where it crosses south: the filter gated 25 readings
+    at each crossing and restarted its states, and the summary said only '126 gated'. An output
+    whose readings jump by about a turn (2π or 360) and otherwise move in small steps within one
+    turn is said, with how to unwrap it, in both readers; the same angle unwrapped is not."""
+    heading = np.deg2rad(20.0 * flight.t + 100.0) if turn != 360 else 20.0 * flight.t + 100.0
+    if wrapped:
+        heading = np.mod(heading + turn / 2, turn) - turn / 2          # 100 → 400: crosses the back once
+    log = flight.assign(phi=heading)
+    notes = [n for n in load_recording(log, MODEL).notes if "wrapped" in n]
+    log.to_csv(tmp_path / "log.csv", index=False)
+    grid = skigen.recording.stream_recording(tmp_path / "log.csv", MODEL)
+    list(grid)
+    assert [n for n in grid.notes if "wrapped" in n] == notes
+    if not wrapped:
+        assert notes == []
+        return
+    (note,) = notes
+    text = "360" if turn == 360 else "2π"
+    assert note.startswith(f"output 'phi': its readings jump by about {text} 1 time(s) (first at t = 4 s)"), note
+    assert f"numpy.unwrap(angle{', period=360' if turn == 360 else ''})" in note, note
