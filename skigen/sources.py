@@ -93,7 +93,15 @@ def _columns_for(names, mapping) -> dict[str, str]:
     if unknown:
         raise RecordingError(f"--map (columns= in Python) names {', '.join(repr(k) for k in unknown)}, which the model does not "
                              f"have (inputs and outputs: {', '.join(names)})")
-    return {n: mapping.get(n, n) for n in names}
+    columns = {n: mapping.get(n, n) for n in names}
+    readers = {}
+    for n, c in columns.items():
+        readers.setdefault(c, []).append(n)
+    if shared := {c: ns for c, ns in readers.items() if len(ns) > 1}:
+        c, ns = next(iter(shared.items()))
+        raise RecordingError(f"column '{c}' would be read as {' and '.join(repr(n) for n in ns)} (--map / columns=): "
+                             f"each input and output of the model reads a column of its own")
+    return columns
 
 
 def _time_like(header, used=()) -> list[str]:

@@ -320,6 +320,9 @@ def test_mapped_names_text_and_missing_cells(tmp_path, flight, clean):
         load_recording(path, MODEL)
     with pytest.raises(RecordingError, match="'beta', which the model does not have"):
         load_recording(path, MODEL, columns={"beta": "roll"})
+    for source in (path, df):     # one column read as the input and the output ran, 1800 readings 'stuck'
+        with pytest.raises(RecordingError, match="column 'roll_cmd' would be read as 'delta' and 'phi'"):
+            load_recording(source, MODEL, columns={"delta": "roll_cmd", "phi": "roll_cmd"})
 
 
 def test_inputs_and_outputs_on_separate_rows(flight, clean):
