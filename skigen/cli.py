@@ -65,7 +65,8 @@ def _read_options(args) -> dict:
 def _derived(args, model):
     """The filter of ``skigen run`` and ``generate``: --filter with FilterOptions from --alpha and
     --second-order, and the --estimate parameters augmented into the state."""
-    from .derive import FilterOptions, derive
+    from .derive import FilterOptions, default_filter, derive
+    args.filter = args.filter or default_filter(model)
     if not (0 < args.alpha <= 1):
         raise CliError(f"--alpha must be in (0, 1], got {args.alpha}")
     if args.second_order and args.filter != "ekf":
@@ -332,7 +333,8 @@ def _parser() -> argparse.ArgumentParser:
     r = sub.add_parser("run", help="run a filter over a recording")
     r.add_argument("model", help="model file (.py exposing `model`) or package.module:attribute")
     r.add_argument("data", help="recording: CSV, Parquet or PX4 ULog")
-    r.add_argument("--filter", choices=FILTERS, default="ski")
+    r.add_argument("--filter", choices=FILTERS, default=None,
+                   help="default: ski where the model declares unknown terms, else ukf")
     r.add_argument("--backend", choices=["python", "c", "casadi"], default="python",
                    help="python: step by step; c: the generated C; casadi: chained by CasADi, without the "
                         "gate, stuck-sensor test and restarts (raw innovations)")
@@ -345,7 +347,8 @@ def _parser() -> argparse.ArgumentParser:
     r.set_defaults(func=_run)
     g = sub.add_parser("generate", help="emit the C library of a filter")
     g.add_argument("model")
-    g.add_argument("--filter", choices=FILTERS, default="ski")
+    g.add_argument("--filter", choices=FILTERS, default=None,
+                   help="default: ski where the model declares unknown terms, else ukf")
     g.add_argument("--real", choices=["double", "float"], default="double")
     g.add_argument("--style", choices=STYLES, default="auto",
                    help="kernel: 'unrolled' (flat scalar code, fastest for small models), 'loops' "
@@ -396,7 +399,8 @@ def _parser() -> argparse.ArgumentParser:
     a.add_argument("logs", nargs="+", metavar="GLOB", help="log files or globs (quote them: 'flights/*.ulg'; ** recurses)")
     a.add_argument("--out", required=True, help="output directory: DIR/<log>/ per log, DIR/summary.csv, DIR/summary.png")
     what = a.add_mutually_exclusive_group()
-    what.add_argument("--filter", choices=FILTERS, default="ski", help="run this filter over each log (default ski)")
+    what.add_argument("--filter", choices=FILTERS, default=None,
+                      help="run this filter over each log (default: ski where the model declares unknown terms, else ukf)")
     what.add_argument("--fit", action="store_true", help="fit each log (skigen fit) instead of filtering it")
     what.add_argument("--diagnose", action="store_true", help="diagnose each log (skigen diagnose) instead")
     a.add_argument("--backend", choices=["python", "c"], default="python",

@@ -403,3 +403,21 @@ def test_the_terminal_names_the_runs_that_are_not_consistent_and_their_moves(tmp
     assert lines[2].endswith("(z = 14.0 > 2.39)")
     assert lines[3] == f"  inconsistent: f1: mean NIS 5.2 (expected 1.66); see {tmp_path / 'f1' / 'summary.txt'}"
     assert len(lines) == 4
+
+
+def test_a_log_without_readings_is_said_not_listed_as_ok(fleet, tmp_path):
+    """A log whose output column is empty ran 'ok' with its weights at their priors (k = 3 ± 1) and
+    nothing on the terminal: its verdict is 'no reading' and the terminal says its estimates are
+    the priors."""
+    import pandas as pd
+    from skigen.batch import BatchResult
+    from skigen.batch.task import run_log
+    log = pd.read_csv(fleet / "flight_00.csv").assign(phi=np.nan)
+    log.to_csv(tmp_path / "empty.csv", index=False)
+    options = dict(spec=MODEL, mode="run", filter=FILTER, backend="python", real="double", build=str(tmp_path / ".build"),
+                   read=dict(time=None, time_unit="s", columns=None, max_gap=1.0), track=[], estimate=[],
+                   method="output-error", figures=False, digest="d", fingerprint="f")
+    row = run_log(MODEL, str(tmp_path / "empty.csv"), str(tmp_path / "out"), "empty", options)
+    assert row["status"] == "ok" and row["verdict"] == "no reading", row
+    lines = BatchResult(tmp_path, [row], [], "file name", tmp_path / "summary.csv", None, 0, 1.0, 1, {"ok": 1}).lines()
+    assert lines[1] == f"  no reading: empty: its estimates are the declared priors; see {tmp_path / 'empty' / 'summary.txt'}"

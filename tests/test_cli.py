@@ -305,3 +305,17 @@ def test_run_and_generate_estimate_a_declared_parameter_online(tmp_path):
                        ("c", "model 'lag' has no parameter 'c' (parameters: a, b)")):
         r = skigen("run", lag, data, "--filter", "ukf", "--estimate", name, "--out", str(tmp_path / "x.csv"))
         assert r.returncode != 0 and said in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+def test_run_without_filter_takes_ski_for_unknown_terms_else_the_ukf(recording, tmp_path):
+    """`skigen run` (and generate, batch) defaulted to SKI, so a model without unknown terms failed
+    with 'SKI needs basis weights' unless --filter was given: now the UKF runs it."""
+    plain = tmp_path / "plain.py"
+    plain.write_text("from skigen import Model\nmodel = Model('plain', dt=0.02)\n"
+                     "theta = model.state('theta', std=1.0, process_std=0.01)\n"
+                     "p = model.state('p', std=1.0, process_std=0.01)\ndelta = model.input('delta')\n"
+                     "model.dynamics({theta: p, p: -2 * theta - p + delta})\n"
+                     "model.output('phi', theta, noise_std=0.1)\n")
+    for model, kind in ((MODEL, "ski"), (str(plain), "ukf")):
+        r = skigen("run", model, str(recording), "--out", str(tmp_path / f"{kind}.csv"))
+        assert r.returncode == 0 and f" {kind} (python)" in r.stdout, (r.stdout, r.stderr)

@@ -81,7 +81,10 @@ class BatchResult:
                        f"free-run residuals beyond the declared sensor noise: a disturbance it does not model), so "
                        f"moves between them may be false; --method filter-error models the disturbance")
         for r in self.rows:
-            if r["status"] == "ok" and r.get("verdict") not in (None, "consistent"):
+            if r["status"] == "ok" and (r.get("verdict") or "").startswith("no reading"):
+                out.append(f"  {r['verdict']}: {r['log']}: its estimates are the declared priors; see "
+                           f"{self.out_dir / r['log'] / 'summary.txt'}")
+            elif r["status"] == "ok" and r.get("verdict") not in (None, "consistent"):
                 out.append(f"  {r['verdict']}: {r['log']}: mean NIS {r.get('mean_nis') or float('nan'):.3g} (expected "
                            f"{r.get('nis_expected') or float('nan'):.3g}); see {self.out_dir / r['log'] / 'summary.txt'}")
             if r.get("mismatch") and r["status"] == "ok":
@@ -181,14 +184,15 @@ def _client(workers, scheduler, connect_timeout):
     return Client(cluster), cluster, n
 
 
-def batch(model, logs, out_dir, *, mode: str = "run", filter: str = "ski", backend: str = "python",
+def batch(model, logs, out_dir, *, mode: str = "run", filter: str | None = None, backend: str = "python",
           real: str = "double", track=(), estimate=(), method: str = "output-error", figures: bool = True,
           time=None, time_unit: str = "s", columns=None, max_gap: float = 1.0, workers: int | None = None,
           scheduler: str | None = None, client=None, retries: int = 1, connect_timeout: float = 10.0,
           show_progress: bool = True) -> BatchResult:
     """Run ``model`` over every log of ``logs`` (globs or paths) on Dask; write ``out_dir``.
 
-    mode: ``run`` (the ``filter`` over each log, ``backend`` python or c), ``fit`` (output-error
+    mode: ``run`` (the ``filter`` over each log — default SKI where the model declares unknown
+    terms, else the UKF — ``backend`` python or c), ``fit`` (output-error
     :func:`skigen.fit.fit` of each log) or ``diagnose``. track: states whose final value ± std
     join the summary (besides the weights and ``estimate``-d parameters). time, time_unit,
     columns, max_gap: how to read the logs (:func:`skigen.recording.load_recording`).
@@ -219,7 +223,8 @@ def batch(model, logs, out_dir, *, mode: str = "run", filter: str = "ski", backe
     paths = expand_logs(logs, outside=out)          # what to read, before what to run on it
     filt = None
     if mode == "run":
-        from ..derive import derive
+        from ..derive import default_filter, derive
+        filter = filter or default_filter(m)
         try:
             filt = derive(m, filter, estimate=estimate)
         except ValueError as exc:

@@ -121,8 +121,8 @@ def _run(spec, digest, path, tmp: Path, opt: dict, row: dict) -> None:
         row["mean_nis"] = summary.nis_sum / summary.nis_count
         row["nis_expected"] = summary.expected_sum / summary.nis_count
         row["verdict"] = summary.verdict().partition(":")[0]
-    elif summary.present:
-        row["verdict"] = "no reading used"
+    else:            # the estimates are their priors: not a result to compare across the fleet
+        row["verdict"] = "no reading used" if summary.present else "no reading"
     row["holes"] = len(rec.holes)
 
 

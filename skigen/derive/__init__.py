@@ -182,6 +182,12 @@ def derive(model: Model | Augmented, kind: str, options: FilterOptions | None = 
     return DerivedFilter(kind, aug, opts, part)
 
 
+def default_filter(model: Model) -> str:
+    """The filter a run takes when none is named: SKI where ``model`` declares unknown terms (its
+    basis weights), else the UKF (the model as declared)."""
+    return "ski" if model.unknowns else "ukf"
+
+
 def _step(filt: DerivedFilter) -> ca.Function:
     """Build the tunable step Function of ``filt`` symbolically."""
     kind, aug, opts, part = filt.kind, filt.aug, filt.options, filt.partition
