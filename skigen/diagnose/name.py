@@ -373,7 +373,9 @@ TIE_MARGIN = 10    # × what a finding must add: an alternative this close under
 
 def _ties_under(nominal: Model, recal: Model, corr: Correction, new: Correction, chosen: Proposal, score,
                 proposals, rec, folds, rms, size, alpha: float, noise_from=None) -> tuple[list[dict], list]:
-    """The additive sets the round scored (each additive proposal and its swaps and simpler sets)
+    """The additive sets the round scored (each additive proposal and its swaps and simpler sets, the
+    chosen's among them: a pendulum's quadratic drag and a viscous damping 0.1 apart under the
+    nominal's noise were 600 nat apart each under its own, and said "not told apart")
     scored again under the noise the chosen finding left (``recal``), and those within TIE_MARGIN
     thresholds of it under the noise calibrated with them (the round's ``nominal`` recalibrated):
     ties, when within what a finding must add of the chosen correction ``new`` with no more terms
@@ -848,6 +850,7 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
         new, recal, score, chosen = max(adopted, key=lambda a: np.sum(a[2]))
         history[-1] = chosen
         chosen.adopted = added(corr, new)
+        chosen.as_good, chosen.alternatives = [], []   # its swaps' ties were under the noise before it: judged again
         same = {_said(a) for a in chosen.adopted}
         for other, _, other_score, p in adopted:      # a finalist within what a finding must add: a tie
             behind = -_gain(other_score, score)
