@@ -416,6 +416,11 @@ class RunSummary:
         if any(self.events.values()):
             out.append("events: " + "; ".join(f"{n} {EVENT_WORDS[c]}, first at t = {clock(self.first[c])} s"
                                               for c, n in self.events.items() if n))
+            first = self.first[Status.OUTLIER_REJECTED]
+            if first is not None and first <= self.t[0] + 0.5 * aug.model.dt:
+                out.append("why the first readings may be gated: they disagree with the declared initial state "
+                           "from the first sample on; the recording may start elsewhere (declare its initial "
+                           "value, initial=, or a wider std=)")
             trouble = self.events[Status.NUMERICAL_FAILURE] or self.events[Status.REINITIALISED]
             if trouble and (why := aug.model.unstable_step()):
                 out.append(f"why steps may fail: {why}")

@@ -701,3 +701,27 @@ def test_a_relation_that_changes_partway_is_said_to_change_over_time():
     before = np.r_[0, growing[:-1]]
     assert said(growing, 0.8 * np.sign(before) * np.maximum(np.abs(before) - 0.7, 0)) == {}
     assert said(growing, 0.5 * np.clip(before, -0.5, 0.5)) == {}
+
+
+def test_an_input_gain_is_said_as_a_ratio_to_the_declared_one():
+    """An elevator at 80 %: 'input_gain on q: de, 2.42 ± 0.042' left the user to work out −12 →
+    −9.58. The finding says × 0.798 ± 0.0035 beside the term; on the input's own terms (a thrust
+    k·pwm²) the ratio is 1 + the coefficient; a gain on a state-dependent input term is not said."""
+    import casadi as ca
+    from skigen import Model
+    from skigen.diagnose import _gain_ratios
+    m = Model("pitch", dt=0.02)
+    a, q = m.state("alpha"), m.state("q")
+    de, pwm = m.input("de"), m.input("pwm")
+    m.dynamics({a: q - 1.2 * a, q: -8 * a - 2 * q - 12 * de + 3 * pwm ** 2 + ca.cos(a) * pwm})
+    found = [{"effect": "input_gain", "kind": "additive", "equation": "q", "expression": "de", "coefficient": 2.42,
+              "std": 0.042},
+             {"effect": "input_gain", "kind": "additive", "equation": "q", "expression": "3*pwm**2", "coefficient": -0.1,
+              "std": 0.0005},
+             {"effect": "input_gain", "kind": "additive", "equation": "q", "expression": "pwm", "coefficient": 0.3,
+              "std": 0.01}]
+    _gain_ratios(m, found)
+    assert found[0]["ratio"] == pytest.approx(9.58 / 12) and found[0]["ratio_std"] == pytest.approx(0.0035)
+    assert found[0]["note"] == "the input acts × 0.7983 ± 0.0035 as strongly as declared (-12 → -9.58 per unit of de)"
+    assert found[1]["ratio"] == pytest.approx(0.9) and "its terms scaled" in found[1]["note"]
+    assert "ratio" not in found[2] and "note" not in found[2]            # d(rate)/d(pwm) depends on the states

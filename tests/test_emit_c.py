@@ -421,6 +421,12 @@ int main(void)
     _run(["gcc", *(f for f in DEFAULT_FLAGS if not f.startswith("-O")), "-O0", *dirs, main, *[p for p in sources if p.suffix == ".c"],
           "-o", exe, "-lm"])
     assert _run([exe]).split() == ["0"] * 5
+    # As one translation unit (a unity build): each file's statics, typedefs and macros stay its own
+    # (every file's `real`, `copy_n` and CasADi's macros clashed; a float kernel took a double one's type).
+    unity = tmp_path / "unity.c"
+    unity.write_text("".join(f'#include "{p}"\n' for p in sources if p.suffix == ".c") + main.read_text())
+    _run(["gcc", *(f for f in DEFAULT_FLAGS if not f.startswith("-O")), "-O0", *dirs, unity, "-o", exe, "-lm"])
+    assert _run([exe]).split() == ["0"] * 5
 
 
 # --------------------------------------------------------------------------- cross toolchains

@@ -884,3 +884,19 @@ def test_an_angle_wrapped_to_one_turn_is_said(flight, turn, wrapped, tmp_path):
     text = "360" if turn == 360 else "2π"
     assert note.startswith(f"output 'phi': its readings jump by about {text} 1 time(s) (first at t = 4 s)"), note
     assert f"numpy.unwrap(angle{', period=360' if turn == 360 else ''})" in note, note
+
+
+def test_readings_gated_from_the_first_sample_point_at_the_declared_start():
+    """A pendulum released at 0.8 rad, declared at 0 ± 0.05: '25 gated, first at t = 0 s; 1
+    recovered', and nothing said the start was off. Gated from the first sample on, the summary
+    points at the declared initial state; gated later, it does not."""
+    from skigen.derive import derive
+    from skigen.emit.c import Status
+    from skigen.runtime import RunSummary
+    summary = RunSummary(derive(wingrock.build(), "ukf"))
+    summary.t, summary.events[Status.OUTLIER_REJECTED] = [0.0, 15.0], 25
+    hint = lambda lines: [line for line in lines if line.startswith("why the first readings may be gated")]
+    summary.first[Status.OUTLIER_REJECTED] = 0.0
+    assert hint(summary.lines()) and "initial=" in hint(summary.lines())[0]
+    summary.first[Status.OUTLIER_REJECTED] = 3.0
+    assert not hint(summary.lines())

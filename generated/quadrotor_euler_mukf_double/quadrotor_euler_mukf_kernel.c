@@ -6730,3 +6730,19 @@ int quadrotor_euler_mukf_kernel_work_bytes(casadi_int *sz_arg, casadi_int* sz_re
 #ifdef __cplusplus
 } /* extern "C" */
 #endif
+
+#undef CASADI_NAMESPACE_CONCAT
+#undef _CASADI_NAMESPACE_CONCAT
+#undef CASADI_PREFIX
+#undef casadi_real
+#undef casadi_int
+#undef casadi_f0
+#undef casadi_fabs
+#undef casadi_s0
+#undef casadi_s1
+#undef casadi_s2
+#undef casadi_s3
+#undef casadi_s4
+#undef casadi_s5
+#undef casadi_s6
+#undef casadi_sq

@@ -5,6 +5,24 @@
 #include "quadrotor_euler_mukf.h"
 #include "quadrotor_euler_mukf_kernel.h"
 
+/* file-local names, prefixed: several generated files build as one unit */
+#define real quadrotor_euler_mukf_l_real
+#define z0 quadrotor_euler_mukf_l_z0
+#define C0 quadrotor_euler_mukf_l_C0
+#define std_max0 quadrotor_euler_mukf_l_std_max0
+#define Q_sqrt0 quadrotor_euler_mukf_l_Q_sqrt0
+#define R_sqrt0 quadrotor_euler_mukf_l_R_sqrt0
+#define param0 quadrotor_euler_mukf_l_param0
+#define copy_n quadrotor_euler_mukf_l_copy_n
+#define zero_n quadrotor_euler_mukf_l_zero_n
+#define zero_l quadrotor_euler_mukf_l_zero_l
+#define all_finite quadrotor_euler_mukf_l_all_finite
+#define count quadrotor_euler_mukf_l_count
+#define chol_psd quadrotor_euler_mukf_l_chol_psd
+#define reinit quadrotor_euler_mukf_l_reinit
+#define bound_std quadrotor_euler_mukf_l_bound_std
+#define run_kernel quadrotor_euler_mukf_l_run_kernel
+
 #if defined(__FINITE_MATH_ONLY__) && __FINITE_MATH_ONLY__
 #error "skigen: a NaN reading means not measured, which isfinite() cannot see under -ffast-math: add -fno-finite-math-only"
 #endif
@@ -372,3 +390,20 @@ size_t quadrotor_euler_mukf_state_size(void)
 {
     return sizeof(quadrotor_euler_mukf_state);
 }
+
+#undef real
+#undef z0
+#undef C0
+#undef std_max0
+#undef Q_sqrt0
+#undef R_sqrt0
+#undef param0
+#undef copy_n
+#undef zero_n
+#undef zero_l
+#undef all_finite
+#undef count
+#undef chol_psd
+#undef reinit
+#undef bound_std
+#undef run_kernel

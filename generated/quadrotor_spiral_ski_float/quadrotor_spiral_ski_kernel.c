@@ -12,6 +12,49 @@
 #include "quadrotor_spiral_ski_kernel.h"
 #include "quadrotor_spiral_ski_model.h"
 
+/* file-local names, prefixed: several generated files build as one unit */
+#define real quadrotor_spiral_ski_kernel_l_real
+#define WM0 quadrotor_spiral_ski_kernel_l_WM0
+#define SQRT_WC1 quadrotor_spiral_ski_kernel_l_SQRT_WC1
+#define GAMMA quadrotor_spiral_ski_kernel_l_GAMMA
+#define LOG_2PI quadrotor_spiral_ski_kernel_l_LOG_2PI
+#define reflect quadrotor_spiral_ski_kernel_l_reflect
+#define reflect4 quadrotor_spiral_ski_kernel_l_reflect4
+#define tria quadrotor_spiral_ski_kernel_l_tria
+#define cholupdate quadrotor_spiral_ski_kernel_l_cholupdate
+#define forward quadrotor_spiral_ski_kernel_l_forward
+#define backward_t quadrotor_spiral_ski_kernel_l_backward_t
+#define copy quadrotor_spiral_ski_kernel_l_copy
+#define sigma_points quadrotor_spiral_ski_kernel_l_sigma_points
+#define map_points quadrotor_spiral_ski_kernel_l_map_points
+#define zero_from quadrotor_spiral_ski_kernel_l_zero_from
+#define spread quadrotor_spiral_ski_kernel_l_spread
+#define S_MAX quadrotor_spiral_ski_kernel_l_S_MAX
+#define S_FLOOR quadrotor_spiral_ski_kernel_l_S_FLOOR
+#define S0 quadrotor_spiral_ski_kernel_l_S0
+#define MARGIN quadrotor_spiral_ski_kernel_l_MARGIN
+#define ETA quadrotor_spiral_ski_kernel_l_ETA
+#define chol quadrotor_spiral_ski_kernel_l_chol
+#define softplus quadrotor_spiral_ski_kernel_l_softplus
+#define softplus_inv quadrotor_spiral_ski_kernel_l_softplus_inv
+#define sigmoid quadrotor_spiral_ski_kernel_l_sigmoid
+#define ard_pieces quadrotor_spiral_ski_kernel_l_ard_pieces
+#define ard_view quadrotor_spiral_ski_kernel_l_ard_view
+#define ard_em quadrotor_spiral_ski_kernel_l_ard_em
+#define ard_loss quadrotor_spiral_ski_kernel_l_ard_loss
+#define ard_grad quadrotor_spiral_ski_kernel_l_ard_grad
+#define gershgorin quadrotor_spiral_ski_kernel_l_gershgorin
+#define ard_project quadrotor_spiral_ski_kernel_l_ard_project
+#define ard_optimise quadrotor_spiral_ski_kernel_l_ard_optimise
+#define ard_correct quadrotor_spiral_ski_kernel_l_ard_correct
+#define WM1 quadrotor_spiral_ski_kernel_l_WM1
+#define WC0 quadrotor_spiral_ski_kernel_l_WC0
+#define WC1 quadrotor_spiral_ski_kernel_l_WC1
+#define SQRT_WC0 quadrotor_spiral_ski_kernel_l_SQRT_WC0
+#define WC0_SIGN quadrotor_spiral_ski_kernel_l_WC0_SIGN
+#define MAX_STEP quadrotor_spiral_ski_kernel_l_MAX_STEP
+#define S_MIN quadrotor_spiral_ski_kernel_l_S_MIN
+
 typedef float real;
 
 #define N 14            /* augmented state */
@@ -628,3 +671,58 @@ int quadrotor_spiral_ski_kernel(const real** arg, real** res, int* iw, real* w, 
 #endif
     return 0;
 }
+
+#undef real
+#undef WM0
+#undef SQRT_WC1
+#undef GAMMA
+#undef LOG_2PI
+#undef reflect
+#undef reflect4
+#undef tria
+#undef cholupdate
+#undef forward
+#undef backward_t
+#undef copy
+#undef sigma_points
+#undef map_points
+#undef zero_from
+#undef spread
+#undef S_MAX
+#undef S_FLOOR
+#undef S0
+#undef MARGIN
+#undef ETA
+#undef chol
+#undef softplus
+#undef softplus_inv
+#undef sigmoid
+#undef ard_pieces
+#undef ard_view
+#undef ard_em
+#undef ard_loss
+#undef ard_grad
+#undef gershgorin
+#undef ard_project
+#undef ard_optimise
+#undef ard_correct
+#undef WM1
+#undef WC0
+#undef WC1
+#undef SQRT_WC0
+#undef WC0_SIGN
+#undef MAX_STEP
+#undef S_MIN
+#undef N
+#undef NX
+#undef NW
+#undef NY
+#undef NQ
+#undef NMEM
+#undef NSIG
+#undef ARD
+#undef ARD_EM
+#undef ARD_DRIFT
+#undef ARD_STEPS
+#undef BACKTRACKS
+#undef FIRST

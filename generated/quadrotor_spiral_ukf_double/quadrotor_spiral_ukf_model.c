@@ -553,3 +553,16 @@ int quadrotor_spiral_ukf_model_h_work_bytes(casadi_int *sz_arg, casadi_int* sz_r
 #ifdef __cplusplus
 } /* extern "C" */
 #endif
+
+#undef CASADI_NAMESPACE_CONCAT
+#undef _CASADI_NAMESPACE_CONCAT
+#undef CASADI_PREFIX
+#undef casadi_real
+#undef casadi_int
+#undef casadi_f0
+#undef casadi_f1
+#undef casadi_s0
+#undef casadi_s1
+#undef casadi_s2
+#undef casadi_s3
+#undef casadi_sq

@@ -5,6 +5,26 @@
 #include "quadrotor_vertical_ski.h"
 #include "quadrotor_vertical_ski_kernel.h"
 
+/* file-local names, prefixed: several generated files build as one unit */
+#define real quadrotor_vertical_ski_l_real
+#define z0 quadrotor_vertical_ski_l_z0
+#define C0 quadrotor_vertical_ski_l_C0
+#define s0 quadrotor_vertical_ski_l_s0
+#define std_max0 quadrotor_vertical_ski_l_std_max0
+#define Q_sqrt0 quadrotor_vertical_ski_l_Q_sqrt0
+#define R_sqrt0 quadrotor_vertical_ski_l_R_sqrt0
+#define param0 quadrotor_vertical_ski_l_param0
+#define copy_n quadrotor_vertical_ski_l_copy_n
+#define zero_n quadrotor_vertical_ski_l_zero_n
+#define zero_l quadrotor_vertical_ski_l_zero_l
+#define all_finite quadrotor_vertical_ski_l_all_finite
+#define count quadrotor_vertical_ski_l_count
+#define chol_psd quadrotor_vertical_ski_l_chol_psd
+#define reinit quadrotor_vertical_ski_l_reinit
+#define bound_std quadrotor_vertical_ski_l_bound_std
+#define within_prior quadrotor_vertical_ski_l_within_prior
+#define run_kernel quadrotor_vertical_ski_l_run_kernel
+
 #if defined(__FINITE_MATH_ONLY__) && __FINITE_MATH_ONLY__
 #error "skigen: a NaN reading means not measured, which isfinite() cannot see under -ffast-math: add -fno-finite-math-only"
 #endif
@@ -394,3 +414,22 @@ size_t quadrotor_vertical_ski_state_size(void)
 {
     return sizeof(quadrotor_vertical_ski_state);
 }
+
+#undef real
+#undef z0
+#undef C0
+#undef s0
+#undef std_max0
+#undef Q_sqrt0
+#undef R_sqrt0
+#undef param0
+#undef copy_n
+#undef zero_n
+#undef zero_l
+#undef all_finite
+#undef count
+#undef chol_psd
+#undef reinit
+#undef bound_std
+#undef within_prior
+#undef run_kernel

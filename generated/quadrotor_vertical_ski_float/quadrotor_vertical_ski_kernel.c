@@ -8524,3 +8524,19 @@ int quadrotor_vertical_ski_kernel_work_bytes(casadi_int *sz_arg, casadi_int* sz_
 #ifdef __cplusplus
 } /* extern "C" */
 #endif
+
+#undef CASADI_NAMESPACE_CONCAT
+#undef _CASADI_NAMESPACE_CONCAT
+#undef CASADI_PREFIX
+#undef casadi_real
+#undef casadi_int
+#undef casadi_f0
+#undef casadi_fabs
+#undef casadi_fmax
+#undef casadi_fmin
+#undef casadi_s0
+#undef casadi_s1
+#undef casadi_s2
+#undef casadi_s3
+#undef casadi_s4
+#undef casadi_sq

@@ -5,6 +5,24 @@
 #include "wingrock_delay_ukf.h"
 #include "wingrock_delay_ukf_kernel.h"
 
+/* file-local names, prefixed: several generated files build as one unit */
+#define real wingrock_delay_ukf_l_real
+#define z0 wingrock_delay_ukf_l_z0
+#define C0 wingrock_delay_ukf_l_C0
+#define std_max0 wingrock_delay_ukf_l_std_max0
+#define Q_sqrt0 wingrock_delay_ukf_l_Q_sqrt0
+#define R_sqrt0 wingrock_delay_ukf_l_R_sqrt0
+#define param0 wingrock_delay_ukf_l_param0
+#define copy_n wingrock_delay_ukf_l_copy_n
+#define zero_n wingrock_delay_ukf_l_zero_n
+#define zero_l wingrock_delay_ukf_l_zero_l
+#define all_finite wingrock_delay_ukf_l_all_finite
+#define count wingrock_delay_ukf_l_count
+#define chol_psd wingrock_delay_ukf_l_chol_psd
+#define reinit wingrock_delay_ukf_l_reinit
+#define bound_std wingrock_delay_ukf_l_bound_std
+#define run_kernel wingrock_delay_ukf_l_run_kernel
+
 #if defined(__FINITE_MATH_ONLY__) && __FINITE_MATH_ONLY__
 #error "skigen: a NaN reading means not measured, which isfinite() cannot see under -ffast-math: add -fno-finite-math-only"
 #endif
@@ -380,3 +398,20 @@ size_t wingrock_delay_ukf_state_size(void)
 {
     return sizeof(wingrock_delay_ukf_state);
 }
+
+#undef real
+#undef z0
+#undef C0
+#undef std_max0
+#undef Q_sqrt0
+#undef R_sqrt0
+#undef param0
+#undef copy_n
+#undef zero_n
+#undef zero_l
+#undef all_finite
+#undef count
+#undef chol_psd
+#undef reinit
+#undef bound_std
+#undef run_kernel

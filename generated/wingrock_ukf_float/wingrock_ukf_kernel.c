@@ -6314,3 +6314,16 @@ int wingrock_ukf_kernel_work_bytes(casadi_int *sz_arg, casadi_int* sz_res, casad
 #ifdef __cplusplus
 } /* extern "C" */
 #endif
+
+#undef CASADI_NAMESPACE_CONCAT
+#undef _CASADI_NAMESPACE_CONCAT
+#undef CASADI_PREFIX
+#undef casadi_real
+#undef casadi_int
+#undef casadi_f0
+#undef casadi_fabs
+#undef casadi_s0
+#undef casadi_s1
+#undef casadi_s2
+#undef casadi_s3
+#undef casadi_sq

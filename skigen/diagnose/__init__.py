@@ -379,6 +379,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
             data["remaining"].update(unexplained(data["remaining"], before_naming, rec, nominal_run, alpha))
             if data["remaining"].get("figure"):
                 meta["figures"].append(Path(data["remaining"].pop("figure")))
+    _gain_ratios(nominal, data["findings"])
     if (at := data["remaining"].get("changes_at")) is not None and data["findings"]:
         caveats.append(f"the system changed at t = {at:.4g} s (what remains): the findings fit one model to the "
                        f"stretches before and after it, and may stand for the change rather than for missing "
@@ -646,6 +647,28 @@ def _flag_one_step_only(findings: list[dict], free_all: float, noise: float = 0.
         if f["free_run_without"] < free_all and not free_all <= noise:
             _note(f, f"the free run is better without it ({f['free_run_without']:.3g} of the output's spread, "
                      f"{free_all:.3g} with it): it helps the one-step prediction, not a simulation")
+
+
+def _gain_ratios(nominal: Model, findings: list[dict]) -> None:
+    """An input gain said as a ratio to the declared one, beside the term added: on the bare input,
+    where the declared rate's derivative b in it is a nonzero constant, (b + coefficient)/b; on the
+    input's own terms, 1 + coefficient (an elevator at 80 %: "input_gain on q: de, 2.42" left the
+    user to work out −12 → −9.58)."""
+    for f in findings:
+        if f["effect"] != "input_gain" or f.get("kind") != "additive":
+            continue
+        if f["expression"] in nominal.input_names:
+            u = T.symbols(nominal)[f["expression"]]
+            d = ca.jacobian(nominal.rhs[f["equation"]], u)
+            if not d.is_constant() or not (b := float(ca.evalf(d)) / (nominal.dt if nominal.discretization
+                                                                       == "discrete" else 1.0)):
+                continue
+            ratio, std = (b + f["coefficient"]) / b, f["std"] / abs(b)
+            said = f"{b:.4g} → {b + f['coefficient']:.4g} per unit of {f['expression']}"
+        else:
+            ratio, std, said = 1 + f["coefficient"], f["std"], "its terms scaled"
+        f["ratio"], f["ratio_std"] = ratio, std
+        _note(f, f"the input acts × {ratio:.4g} ± {std:.2g} as strongly as declared ({said})")
 
 
 def _note(finding: dict, text: str) -> None:

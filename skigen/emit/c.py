@@ -356,6 +356,33 @@ def _tidy(c: str, name: str, real: str) -> str:
     return _single_precision(c) if real == "float" else c
 
 
+_STATIC_RE = re.compile(r"^static\s+(?:inline\s+)?(?:const\s+)?\w+\s*\**\s*(\w+)\s*[\[(=;]", re.M)
+_MORE_RE = re.compile(r"^static\s+const\s+\w+\s+\w+\s*=[^;\n]*?((?:,\s*\w+\s*=[^,;\n]*)+);", re.M)
+_TYPEDEF_RE = re.compile(r"^typedef\s+[^;]*?\b(\w+)\s*;", re.M)
+_DEFINE_RE = re.compile(r"^\s*#\s*define\s+(\w+)", re.M)
+
+
+def _file_local(c: str, prefix: str) -> str:
+    """C text whose file-scope names (statics, typedefs) are ``<prefix>_l_<name>`` (``prefix``: the
+    file's name) by macros after
+    its includes, and whose macros are undefined at its end: several generated files compile as
+    one translation unit (a unity build), each keeping its own ``real``, ``copy_n`` and CasADi's
+    ``casadi_real`` (a float kernel after a double one took its type)."""
+    macros = list(dict.fromkeys(_DEFINE_RE.findall(c)))
+    names = _TYPEDEF_RE.findall(c) + _STATIC_RE.findall(c)
+    for more in _MORE_RE.findall(c):
+        names += re.findall(r",\s*(\w+)\s*=", more)
+    names = [n for n in dict.fromkeys(names) if n not in macros]
+    if not names and not macros:
+        return c
+    local = "".join(f"#define {n} {prefix}_l_{n}\n" for n in names)
+    if local:
+        last = max(m.end() for m in re.finditer(r"^#include .*\n", c, re.M))
+        c = (c[:last] + "\n/* file-local names, prefixed: several generated files build as one unit */\n"
+             + local + c[last:])
+    return c.rstrip("\n") + "\n\n" + "".join(f"#undef {n}\n" for n in names + macros)
+
+
 def _single_precision(c: str) -> str:
     """Every maths call and floating literal of C text in its float form (sqrtf, 0.5f)."""
     return _LITERAL_RE.sub(r"\1f", _MATH_RE.sub(r"\1f(", c))
@@ -474,6 +501,7 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
     texts = {f"{prefix}.h": string.Template((_HERE / "filter.h.in").read_text()).substitute(values),
              f"{prefix}.c": string.Template((_HERE / "filter.c.in").read_text()).substitute(values),
              **kernel_files}
+    texts = {f: _file_local(t, f[:-2]) if f.endswith(".c") else t for f, t in texts.items()}
     paths = []
     for fname, text in texts.items():
         (out / fname).write_text(text, newline="\n")
