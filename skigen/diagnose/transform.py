@@ -309,22 +309,19 @@ def _replay(expr: ca.SX, swap) -> ca.SX:
     contexts = {}
 
     def seen(k, slot, value, other):
-        contexts[k, slot] = _context([(ca.OP_MUL if ops[k] == ca.OP_TWICE else ops[k], slot, other)])
+        contexts[k, slot] = _context(ca.OP_MUL if ops[k] == ca.OP_TWICE else ops[k], slot, other)
     run(seen)
     return run(lambda k, slot, value, other: None if contexts[k, slot] is None else swap(value, contexts[k, slot]))
 
 
-def _context(uses) -> str | None:
-    """What a constant stands beside in its uses, as text ('*((vs-vu))'; a sum's '+(…)'; another
+def _context(op: int, slot: int, other) -> str | None:
+    """What a constant stands beside in one use, as text ('*((vs-vu))'; a sum's '+(…)'; another
     operation's code and the constant's operand slot, '4.1(…)' for a divisor); None where it is a
     power's exponent."""
-    out = set()
-    for op, slot, other in uses:
-        if op in EXPONENTS and slot == 1:
-            return None
-        sign = {ca.OP_MUL: "*", ca.OP_ADD: "+", ca.OP_SUB: "+"}.get(op) or f"{op}.{slot}"   # commuting: no slot
-        out.add(f"{sign}({other})")
-    return " ".join(sorted(out))
+    if op in EXPONENTS and slot == 1:
+        return None
+    sign = {ca.OP_MUL: "*", ca.OP_ADD: "+", ca.OP_SUB: "+"}.get(op) or f"{op}.{slot}"   # commuting: no slot
+    return f"{sign}({other})"
 
 
 def literals(expr) -> list[tuple[float, str]]:
