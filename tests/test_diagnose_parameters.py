@@ -725,3 +725,13 @@ def test_an_input_gain_is_said_as_a_ratio_to_the_declared_one():
     assert found[0]["note"] == "the input acts × 0.7983 ± 0.0035 as strongly as declared (-12 → -9.58 per unit of de)"
     assert found[1]["ratio"] == pytest.approx(0.9) and "its terms scaled" in found[1]["note"]
     assert "ratio" not in found[2] and "note" not in found[2]            # d(rate)/d(pwm) depends on the states
+
+
+def test_a_term_set_aside_in_two_rounds_is_said_once():
+    """A tank's anti-drag set aside as compensating in two rounds was listed, and printed, twice."""
+    from skigen.diagnose import _once
+    drag = {"effect": "quadratic_drag", "equation": "h1", "coefficient": -0.064}
+    later = dict(drag, coefficient=-0.050)
+    bias = {"effect": "bias", "equation": "h1", "coefficient": 1.0}
+    assert _once([drag, bias, later]) == [later, bias]
+    assert _once([drag, dict(drag, through="u")]) == [drag, dict(drag, through="u")]

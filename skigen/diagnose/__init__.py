@@ -282,7 +282,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
     data["free_run_with_all_findings"] = free_all
     _flag_one_step_only(data["findings"], free_all, free_noise)
     set_aside = [item for p in history for item in p.set_aside]
-    data["compensating"] = set_aside + rejected["compensating"]
+    data["compensating"] = _once(set_aside + rejected["compensating"])
     data["not_identifiable"] = rejected["not_identifiable"]
     data["candidates_not_named"] = _unnamed(user_cands, additive, data, calibrated, rec, loc.states)
     data["fit"]["folds"] = [{"spans": [list(s) for s in cv.spans(f, rec.t)], "loglik_before": float(cv_before[f]),
@@ -647,6 +647,12 @@ def _flag_one_step_only(findings: list[dict], free_all: float, noise: float = 0.
         if f["free_run_without"] < free_all and not free_all <= noise:
             _note(f, f"the free run is better without it ({f['free_run_without']:.3g} of the output's spread, "
                      f"{free_all:.3g} with it): it helps the one-step prediction, not a simulation")
+
+
+def _once(items: list[dict]) -> list[dict]:
+    """Report items one per term (effect, equation, through), the last said of each, in the order
+    first said: a tank's anti-drag set aside in two rounds was listed, and printed, twice."""
+    return list({(a["effect"], a["equation"], a.get("through", "")): a for a in items}.values())
 
 
 def _gain_ratios(nominal: Model, findings: list[dict]) -> None:
