@@ -246,7 +246,7 @@ def test_one_use_of_a_number_written_twice_is_a_candidate_on_a_bare_state(tmp_pa
     own, and one on another state than the equation's own (or a position it pairs with) a
     candidate; the torque constant on i in dω/dt too."""
     m, _ = _motor_frame(0.1, 0.1)
-    assert T.literals(m.rhs["i"]) == [(0.1, "*(w)"), (0.1, "4.1(((V-(2.*i))-(0.1*w)))")]
+    assert T.literals(m.rhs["i"]) == [(2.0, "*(i)"), (0.1, "*(w)"), (0.1, "4.1(((V-(2.*i))-(0.1*w)))")]
     assert sorted(c.target for c in C.constant_candidates(m, ["i", "w"], [])) == ["0.1·i", "0.1·w"]
     scaled = T.scale_constant(m, 0.1, 1.2, "*(w)")
     assert str(scaled.rhs["i"]) == "(((V-(2.*i))-(0.12*w))/0.1)"

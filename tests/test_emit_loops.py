@@ -123,12 +123,13 @@ def test_style_choice_and_errors(tmp_path):
 
 
 def test_looped_code_stays_small(tmp_path):
-    """n = 50: kilobytes of C where the unrolled step would be ~69 MB. Measured 111 390 B: the
+    """n = 50: kilobytes of C where the unrolled step would be ~69 MB. Measured 116 335 B: the
     looped EM kernel 25.4 kB, the model's functions 28.1 kB, the API 57.8 kB (its declared C0 and
     Q_sqrt0, n² literals each, are 27.6 kB of it; the 48 weights' index macros saying what each
-    multiplies, 2 kB; 100 321 B before the recovery policy's and ARD's later code)."""
+    multiplies, 2 kB; 100 321 B before the recovery policy's and ARD's later code), and each
+    file's macros that keep its names its own in a unity build, 4.9 kB (111 390 B before)."""
     files = emit_c(derive(wingrock_delay.wide, "ski"), tmp_path)
-    assert sum(p.stat().st_size for p in files) < 115_000
+    assert sum(p.stat().st_size for p in files) < 120_000
 
 
 def test_looped_float_ski_at_n50_tracks_double():
