@@ -701,6 +701,12 @@ def test_a_relation_that_changes_partway_is_said_to_change_over_time():
     before = np.r_[0, growing[:-1]]
     assert said(growing, 0.8 * np.sign(before) * np.maximum(np.abs(before) - 0.7, 0)) == {}
     assert said(growing, 0.5 * np.clip(before, -0.5, 0.5)) == {}
+    two = types.SimpleNamespace(states=[0], state_names=["x"], input_names=["u"], output_names=["y", "slow"])
+    slow = np.where(np.arange(n) % 2 == 0, rng.standard_normal(n), np.nan)     # another output, every other sample
+    e = np.column_stack([0.3 * np.r_[0, u[:-1]] * np.where(t > 50, -1, 1) + rng.standard_normal(n), slow])
+    run = types.SimpleNamespace(innovation=e, innovation_var=np.ones((n, 2)), mean=np.zeros((n, 1)), t=t)
+    out = relation_break(two, types.SimpleNamespace(t=t, inputs=u[:, None]), run, 0.01)
+    assert out["break"]["output"] == "y" and out["break"]["signal"] == "u", out
 
 
 def test_an_input_gain_is_said_as_a_ratio_to_the_declared_one():

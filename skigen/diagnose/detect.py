@@ -108,7 +108,8 @@ def _pieces(s: np.ndarray, knots: int) -> np.ndarray:
     """(N, knots − 1) piecewise-linear functions of ``s`` (hats at its quantiles, the first left
     out: the intercept spans it)."""
     at = np.unique(np.quantile(s, np.linspace(0, 1, knots)))
-    return np.column_stack([np.interp(s, at, np.eye(len(at))[j]) for j in range(1, len(at))])
+    return np.column_stack([np.interp(s, at, np.eye(len(at))[j]) for j in range(1, len(at))]) if len(at) > 1 \
+        else np.zeros((len(s), 0))                      # a constant signal: nothing beyond the intercept
 
 
 def _residual_ss(e: np.ndarray, X: np.ndarray) -> tuple[float, int]:
@@ -144,7 +145,7 @@ def relation_break(model, rec, run: RunResult, alpha: float) -> dict:
         q = _basis(np.column_stack([X, *(_pieces(s[ok], knots) for s in past)]))
         if len(t) < 4 * (q.shape[1] + X.shape[1]):
             continue
-        out = lambda M: M - q @ (q.T @ M)                    # beyond the time-invariant alternative
+        out = lambda M, q=q: M - q @ (q.T @ M)               # beyond the time-invariant alternative
         e = out(eps[ok, i])
         for at in t[np.linspace(BREAK_TRIM * len(t), (1 - BREAK_TRIM) * len(t), BREAKS).astype(int)]:
             split = out(X * (t > at)[:, None])
