@@ -37,7 +37,7 @@ from . import transform as T
 from .calibrate import calibrate
 from .correct import emit_filter, header_lines, refit_jointly, write_model_file
 from .cv import DEFAULT_BLOCKS, DEFAULT_FOLDS, Folds, ekf_run, fold_loglik
-from .detect import Consistency, consistency, judge, normalised_innovations, remaining, unexplained
+from .detect import Consistency, consistency, judge, normalised_innovations, relation_break, remaining, unexplained
 from .errors import DiagnosisError
 from .evidence import weigh
 from .figures import diagnosis_figures, plot_residuals
@@ -375,7 +375,8 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
                                                           "regime": loc.regime},
                              "note": "no candidate explains the mismatch: it remains as detected"}
         if loc.equations and loc.equations[0] in loc.disturbance:     # what it follows: a candidate to try
-            data["remaining"].update(explain(before_naming, rec, loc, out if figures else None, tried=additive))
+            data["remaining"].update(explain(before_naming, rec, loc, out if figures else None, tried=additive,
+                                             confirm=lambda: relation_break(before_naming, rec, nominal_run, alpha)))
             data["remaining"].update(unexplained(data["remaining"], before_naming, rec, nominal_run, alpha))
             if data["remaining"].get("figure"):
                 meta["figures"].append(Path(data["remaining"].pop("figure")))

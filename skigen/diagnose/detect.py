@@ -299,7 +299,7 @@ def remaining(model, rec, run: RunResult, equations, alpha: float, out_dir=None,
     loc = locate(model, rec, run, v.consistency, alpha, equations=equations, tested=v.tested)
     out["where"] = {"equations": loc.equations, "windows": [[float(a), float(b)] for a, b in loc.windows],
                     "regime": loc.regime}
-    out.update(explain(model, rec, loc, out_dir, names, tried))
+    out.update(explain(model, rec, loc, out_dir, names, tried, confirm=lambda: relation_break(model, rec, run, alpha)))
     return out | unexplained(out, model, rec, run, alpha)
 
 

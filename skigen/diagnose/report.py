@@ -303,6 +303,8 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
                      + (f", {at['regime']}" if at.get("regime") else "") + ".")
             if rem.get("tried"):
                 L.append(rem["tried"] + ".")
+            if rem.get("unconfirmed_step"):
+                L.append(rem["unconfirmed_step"][0].upper() + rem["unconfirmed_step"][1:] + ".")
             if rem.get("explained_by"):
                 L.append(f"What is left follows `{rem['explained_by']}` best{' outside those candidates' if rem.get('tried') else ''} (weighted R² {rem['r2']:.2f} for "
                          f"`{rem['shape']}`); to test it: `--candidate '{rem['suggested_candidate']}'`.")
