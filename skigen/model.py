@@ -14,6 +14,7 @@ names the symbol, equation or matrix at fault::
 from __future__ import annotations
 
 import keyword
+import sys
 from dataclasses import dataclass, field
 
 import casadi as ca
@@ -38,7 +39,16 @@ RESERVED_PREFIXES = ("std_", "innov_", "prior_var_", "w_")
 
 
 class ModelError(ValueError):
-    """A model declaration that cannot be used; the message names the culprit."""
+    """A model declaration that cannot be used; the message names the culprit, ``where`` the
+    (file, line) that declared it when known."""
+
+    where: tuple[str, int] | None = None
+
+
+def _caller() -> tuple[str, int]:
+    """(file, line) of the call into the :class:`Model` method that calls this."""
+    frame = sys._getframe(2)
+    return frame.f_code.co_filename, frame.f_lineno
 
 
 def function_name_problem(name: str) -> str | None:
@@ -125,6 +135,7 @@ class Model:
     Q: np.ndarray | None = None
     R: np.ndarray | None = None
     P0: np.ndarray | None = None
+    sites: dict = field(default_factory=dict, repr=False, compare=False)   # what → (file, line) declaring it
 
     def __post_init__(self):
         if not (isinstance(self.name, str) and self.name.isidentifier() and self.name.isascii()
@@ -183,6 +194,7 @@ class Model:
         std = _non_negative(std, f"state '{name}': std")
         process_std = _non_negative(process_std, f"state '{name}': process_std")
         self.states.append(Variable(name, sym, unit, role))
+        self.sites[f"state '{name}'"] = _caller()
         self.x0.append(initial)
         self.x_std.append(std)
         self.q_std.append(process_std)
@@ -249,6 +261,7 @@ class Model:
         except (NotImplementedError, TypeError, RuntimeError):
             raise ModelError(f"output '{name}': expected a CasADi expression or a number, got {expr!r}") from None
         self.outputs.append(Variable(name, expr, unit))
+        self.sites[f"output '{name}'"] = _caller()
         self.r_std.append(noise_std)
 
     def dynamics(self, equations: dict):
@@ -260,6 +273,7 @@ class Model:
                 raise ModelError(f"dynamics given for '{name}', which is not a declared state "
                                  f"(states: {', '.join(self.state_names)})")
             self.rhs[name] = ca.SX(expr)
+            self.sites[f"dynamics of '{name}'"] = _caller()
 
     def input_history(self, u: ca.SX, length: int) -> list[ca.SX]:
         """Symbols for u[k-1], …, u[k-length]: exact memory carried by the filter."""
@@ -297,6 +311,8 @@ class Model:
             if t.expr.shape not in ((1, 1), (len(equations), 1)):
                 raise ModelError(f"basis term '{t.name}' has shape {t.expr.shape}; expected a scalar "
                                  f"or a column of {len(equations)} (one per equation)")
+        site = _caller()
+        self.sites.update({f"{kind} '{t.name}'": site for t in basis for kind in ("term", "basis term")})
         count = sum(len(equations) if t.expr.shape == (1, 1) and len(equations) > 1 else 1
                     for t in basis)
         self.unknowns.append(UnknownBlock(equations, list(basis),
@@ -353,7 +369,17 @@ class Model:
 
     # ------------------------------------------------------------ validation
     def check(self) -> "Model":
-        """Validate the declaration; raise :class:`ModelError` naming the problem."""
+        """Validate the declaration; raise :class:`ModelError` naming the problem (and, as its
+        ``where``, the line that declared it: a model file's loader says the line)."""
+        try:
+            return self._check()
+        except ModelError as exc:
+            said = str(exc)
+            exc.where = exc.where or next((site for what, site in self.sites.items() if said.startswith(what)
+                                           or said.startswith(f"no dynamics for state(s) {what[7:-1]}")), None)
+            raise
+
+    def _check(self) -> "Model":
         if not self.states:
             raise ModelError(f"model '{self.name}' declares no states")
         if not self.outputs:

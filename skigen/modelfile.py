@@ -57,7 +57,13 @@ def load_model(spec: str) -> Model:
     model = getattr(module, attr, None)
     if not isinstance(model, Model):
         raise ModelFileError(f"'{spec}' defines no skigen.Model named '{attr}'")
-    return model.check()
+    try:
+        return model.check()
+    except ModelError as exc:             # the line that declared what the check refused
+        file = getattr(module, "__file__", None)
+        if exc.where and file and Path(exc.where[0]).resolve() == Path(file).resolve():
+            raise ModelError(f"model file '{spec}', line {exc.where[1]}: {exc}") from None
+        raise
 
 
 def _module_name(path: Path) -> tuple[str, str | None]:

@@ -1,4 +1,6 @@
 """Model declaration: what it builds, and the errors that name the culprit."""
+import re
+
 import casadi as ca
 import numpy as np
 import pytest
@@ -150,3 +152,23 @@ def test_a_model_name_casadi_cannot_use_is_refused_at_declaration(name, why):
     with pytest.raises(ModelError, match=f"model name '{name}' cannot name CasADi Functions: {why}"):
         Model(name, dt=0.1)
     Model("my_ship2", dt=0.1)
+
+
+@pytest.mark.parametrize("body, line, said", [
+    ("x = m.state('x')\nv = m.state('v')\nm.dynamics({x: v})\nm.output('y', x, noise_std=0.1)\n", 6,
+     "no dynamics for state(s) v"),
+    ("x = m.state('x')\nc = ca.SX.sym('c')\nm.dynamics({x: -c * x})\nm.output('y', x, noise_std=0.1)\n", 7,
+     "dynamics of 'x' uses symbol 'c'"),
+    ("x = m.state('x', initial=0.0)\nm.dynamics({x: -x})\nm.output('y', x, noise_std=0.1)\n"
+     "m.unknown(x, [term('inv', 1 / x)])\n", 8, "term 'inv' of the unknown on 'x' is inf"),
+])
+def test_a_model_file_the_check_refuses_names_the_line(tmp_path, body, line, said):
+    """Errors found when the loaded model is checked (no dynamics for a state, an undeclared
+    symbol, a term not finite at the start) named the symbol but not the line; they name the line
+    that declared it, as errors raised while the file runs do."""
+    from skigen.modelfile import load_model
+    path = tmp_path / "bad.py"
+    path.write_text("import casadi as ca\nfrom skigen import Model\nfrom skigen.library import term\n"
+                    "m = Model('bad', dt=0.1)\n".replace("m = Model", "model = m = Model") + body)
+    with pytest.raises(ModelError, match=rf"model file '.*bad.py', line {line}: {re.escape(said)}"):
+        load_model(str(path))
