@@ -40,7 +40,7 @@ from .failure import explain, nearer, sigma_reach
 from .emit.c import Status
 from .grid import clock, first_known
 from .guard import Guard, bound_std, reinit
-from .model import MODE_OFF, Model, _complex, mode_error
+from .model import Model
 from .progress import note, progress
 from .recording import Recording, write_table
 
@@ -223,6 +223,7 @@ class RunSummary:
         return self
 
     TOGETHER = 0.99   # weights whose final posterior correlation is beyond this: one combination known
+    INFORMED = 0.5    # ... each known too where its std is under this share of its prior's
 
     def together(self) -> list[str]:
         """Pairs of weights or estimated parameters the recording fixes only in combination (final
@@ -243,10 +244,13 @@ class RunSummary:
                     i, j = idx[a], idx[b]
                     comb = self.last[0][i] + k * self.last[0][j]
                     var = P[a, a] + k * k * P[b, b] + 2 * k * P[a, b]
+                    each = max(sd[a] / np.sqrt(aug.P0[i, i]), sd[b] / np.sqrt(aug.P0[j, j])) < self.INFORMED
                     out.append(f"  {aug.names[j]} and {aug.names[i]} move together (correlation {r[a, b]:+.5f}): the "
                                f"recording fixes {aug.names[i]} {'+' if k >= 0 else '−'} {abs(k):.4g}·{aug.names[j]} = "
-                               f"{comb:+.4g} ± {2 * np.sqrt(max(var, 0)):.2g}, not each (their terms are nearly one "
-                               f"on this recording: another excitation, or one term fewer)")
+                               f"{comb:+.4g} ± {2 * np.sqrt(max(var, 0)):.2g}"
+                               + (", far better than either (each within its ± 2σ above, a fraction of its prior's)"
+                                  if each else ", not each (their terms are nearly one on this recording: another "
+                                               "excitation, or one term fewer)"))
         return out
 
     def event_counts(self) -> list[str]:
@@ -284,10 +288,10 @@ class RunSummary:
     def integration(self) -> str | None:
         """Where the integration step misplaces a mode of the dynamics at the final estimates (the
         rates' Jacobian at the last posterior mean and at the declared start's states with the
-        final weights and parameters, inputs and history 0) by MODE_OFF of its
-        damping (:func:`~skigen.model.mode_error`): the weights and parameters that set that mode
-        absorb the step's error, beyond their ± 2σ, whatever the verdict below. A model whose
-        damping is all in its unknown terms shows no mode at its declared start."""
+        final weights and parameters, inputs and history 0; :meth:`~skigen.model.Model.step_note`):
+        the weights and parameters that set that mode absorb the step's error, beyond their ± 2σ,
+        whatever the verdict below. A model whose damping is all in its unknown terms shows no mode
+        at its declared start."""
         aug = self.filter.aug
         m = aug.model
         if aug.rates_jacobian is None or self.last is None or not np.isfinite(self.last[0]).all():
@@ -295,21 +299,8 @@ class RunSummary:
         start = np.r_[m.x0, self.last[0][len(m.states):]]
         jac = [np.asarray(aug.rates_jacobian(z, np.zeros(len(m.inputs)), np.zeros(len(m.memory)), aug.fixed_values),
                           float) for z in (self.last[0], start)]
-        h = m.dt / m.substeps
-        said, A = max(((mode_error(A, m.discretization, h), A) for A in jac),
-                      key=lambda e: -1.0 if e[0] is None else e[0][0])
-        if said is None or said[0] < MODE_OFF:
-            return None
-        n = m.substeps
-        while n < 4096 and (e := mode_error(A, m.discretization, m.dt / n)) is not None and e[0] >= MODE_OFF:
-            n *= 2
-        lam, step = said[1], said[2]
-        what = f"decay rate {-lam.real:.3g} → {-step.real:.3g} /s" + (
-            f", frequency {abs(lam.imag):.4g} → {abs(step.imag):.4g} rad/s" if lam.imag else "")
-        return (f"integration: the {m.discretization} step of {h:g} s moves the mode at {_complex(lam)} /s (the "
-                f"rates' Jacobian with the final estimates) to {_complex(step)} /s ({what}): what sets that mode in "
-                f"the estimates absorbs the step's error, beyond their ± 2σ and whatever the verdict; use "
-                f"discretization=\"rk4\"" + (f" or substeps={n}" if n < 4096 else "") + " and run again")
+        note = m.step_note(jac, "with the final estimates")
+        return note and f"integration: {note}, whatever the verdict; run again"
 
     REFUSED = 0.05   # a filter that gates, or fails on, more than 1 in 20 samples with a reading is not following it
 
