@@ -254,7 +254,8 @@ class Wraps:
                 return [f"output '{name}': its readings jump by about {text} {self.jumps[turn]} time(s) (first at "
                         f"t = {clock(origin + self.first[turn])} s) and stay within one turn ({self.lo:.4g} to "
                         f"{self.hi:.4g}): an angle in {unit} wrapped to one turn, while the model's is continuous: "
-                        f"the filter takes each jump for outliers and restarts. Unwrap it before the run "
+                        f"each jump reads as a turn the plant did not make (a filter gates it as outliers and "
+                        f"restarts; a fit takes it for a disturbance). Unwrap it first "
                         f"(numpy.unwrap(angle{period}))"]
         return []
 

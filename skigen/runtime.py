@@ -352,7 +352,9 @@ class RunSummary:
                 if not lo <= value <= hi else []) + ([f"{z:.1f} prior std from its declared {p.value:g}"]
                                                     if z > self.PRIOR_Z else [])
         ratio = value / p.value if p.value and value else np.nan
-        if said and np.isfinite(ratio) and not 0.2 < ratio < 5:
+        if said and np.isfinite(ratio) and ratio < 0:
+            said.append("of the opposite sign: check the sign conventions of the inputs and outputs")
+        elif said and np.isfinite(ratio) and not 0.2 < ratio < 5:
             said.append(f"{ratio:.3g}× it: check the units and mapping")
         return "   " + "; ".join(said) if said else ""
 
