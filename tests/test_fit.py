@@ -822,6 +822,10 @@ def test_validation_leaves_out_a_stuck_sensor_and_cuts_at_input_holes():
     assert checks[0]["rmse"]["angle"] == pytest.approx(clean["rmse"]["angle"], rel=0.03)
     assert [len(c["notes"]) for c in checks] == [2, 0]
     assert "stuck sensor" in checks[0]["notes"][0] and "validated as 2 recordings" in checks[0]["notes"][1]
+    clean = _pendulum_frame(np.random.default_rng(9))           # and what reading it said (on the terminal only)
+    rec = load_recording(clean.iloc[np.r_[0:10, 9:len(clean)]], model)            # one stamp twice
+    (check,) = validate(res, [rec])
+    assert rec.notes and check["notes"] == rec.said(), (rec.notes, check["notes"])
 
 
 def test_an_estimate_on_its_bound_is_named():

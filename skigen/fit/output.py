@@ -54,9 +54,12 @@ def validate(result: FitResult, recordings, init_samples: int = 50) -> list[dict
 
 
 def _validation_parts(recordings):
-    """(part, notes) of each recording's usable parts; the notes on its first part."""
+    """(part, notes) of each recording's usable parts; the notes (its reading's, then what the
+    validation did) on its first part: a short input gap held in a validation log was said on
+    the terminal only, not in fit.json or report.md."""
     for r in recordings:
         parts, notes = r.usable()
+        notes = r.said() + notes
         if r.input_holes:
             notes = notes + [r.hole_note(f"validated as {len(parts)} recordings")]
         for i, part in enumerate(parts):
