@@ -374,9 +374,10 @@ class Model:
         try:
             return self._check()
         except ModelError as exc:
-            said = str(exc)
-            exc.where = exc.where or next((site for what, site in self.sites.items() if said.startswith(what)
-                                           or said.startswith(f"no dynamics for state(s) {what[7:-1]}")), None)
+            culprit, missing = str(exc), "no dynamics for state(s) "
+            if culprit.startswith(missing):                  # the first state without an equation
+                culprit = f"state '{culprit[len(missing):].split(',')[0]}'"
+            exc.where = exc.where or next((site for what, site in self.sites.items() if culprit.startswith(what)), None)
             raise
 
     def _check(self) -> "Model":
