@@ -356,7 +356,12 @@ class RunSummary:
             said.append("of the opposite sign: check the sign conventions of the inputs and outputs")
         elif said and np.isfinite(ratio) and not 0.2 < ratio < 5:
             said.append(f"{ratio:.3g}× it: check the units and mapping")
+        if not said and p.std and self.last[1][i] >= self.BARELY * p.std:      # as the weights' table says
+            said.append(f"std {self.last[1][i] / p.std:.0%} of its prior's: the recording barely informed it "
+                        f"(its term not excited?)")
         return "   " + "; ".join(said) if said else ""
+
+    BARELY = 0.9      # an estimate whose std ends above this share of its prior's: the recording added little
 
     def _mark(self, i: int, kept: bool | None) -> str:
         """What the weight table says beside weight ``i``: never informed, or (SKI, ``kept`` not

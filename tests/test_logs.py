@@ -524,6 +524,9 @@ def test_an_estimate_outside_its_bounds_or_far_from_its_prior_is_remarked():
     said = row(df.assign(u=100 * df.u))
     assert "outside its bounds [0.5, 10], which the online filter does not hold; 4.0 prior std from its declared 2; " \
            "0.0101× it: check the units and mapping" in said, said
+    said = row(df.assign(u=0.0))                                 # never excited: left at its prior, said nowhere
+    assert said.split()[1] == "+2" and said.endswith("of its prior's: the recording barely informed it (its term not "
+                                                     "excited?)"), said
     said = row(df.assign(u=-df.u))                               # a sign convention, not a unit (−0.244× was said)
     assert said.endswith("of the opposite sign: check the sign conventions of the inputs and outputs"), said
 
