@@ -18,6 +18,7 @@ follows), :mod:`report` and :mod:`figures`.
 """
 from __future__ import annotations
 
+import functools
 import sys
 from time import perf_counter
 from dataclasses import dataclass, field
@@ -375,9 +376,10 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
                                                           "regime": loc.regime},
                              "note": "no candidate explains the mismatch: it remains as detected"}
         if loc.equations and loc.equations[0] in loc.disturbance:     # what it follows: a candidate to try
+            changed = functools.cache(lambda: relation_break(before_naming, rec, nominal_run, alpha))
             data["remaining"].update(explain(before_naming, rec, loc, out if figures else None, tried=additive,
-                                             confirm=lambda: relation_break(before_naming, rec, nominal_run, alpha)))
-            data["remaining"].update(unexplained(data["remaining"], before_naming, rec, nominal_run, alpha))
+                                             confirm=changed))
+            data["remaining"].update(unexplained(data["remaining"], before_naming, rec, nominal_run, alpha, changed))
             if data["remaining"].get("figure"):
                 meta["figures"].append(Path(data["remaining"].pop("figure")))
     _gain_ratios(nominal, data["findings"])

@@ -22,6 +22,7 @@ innovations regressed on them is χ² with as many degrees of freedom as indepen
 """
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -184,9 +185,7 @@ def independence(eps: np.ndarray, Z: np.ndarray) -> tuple[float, int]:
     e, z = eps[ok], Z[ok] - Z[ok].mean(axis=0)
     if len(e) <= 2 * Z.shape[1]:
         return 1.0, 0
-    q, r = np.linalg.qr(z)
-    d = np.abs(np.diag(r))
-    q = q[:, d > 1e-8 * max(d.max(), 1e-300)]
+    q = _basis(z)
     stat = len(e) * float(np.sum((q.T @ e) ** 2)) / max(float(np.dot(e, e)), 1e-300)
     return float(stats.chi2.sf(stat, q.shape[1])), q.shape[1]
 
@@ -299,17 +298,19 @@ def remaining(model, rec, run: RunResult, equations, alpha: float, out_dir=None,
     loc = locate(model, rec, run, v.consistency, alpha, equations=equations, tested=v.tested)
     out["where"] = {"equations": loc.equations, "windows": [[float(a), float(b)] for a, b in loc.windows],
                     "regime": loc.regime}
-    out.update(explain(model, rec, loc, out_dir, names, tried, confirm=lambda: relation_break(model, rec, run, alpha)))
-    return out | unexplained(out, model, rec, run, alpha)
+    changed = functools.cache(lambda: relation_break(model, rec, run, alpha))
+    out.update(explain(model, rec, loc, out_dir, names, tried, confirm=changed))
+    return out | unexplained(out, model, rec, run, alpha, changed)
 
 
-def unexplained(said: dict, model, rec, run: RunResult, alpha: float) -> dict:
+def unexplained(said: dict, model, rec, run: RunResult, alpha: float, changed=None) -> dict:
     """Where no shape of a state or input explains what remains, nor a step in time: a change in
-    how the innovations follow the past (:func:`relation_break`), else a spectral line
-    (:func:`periodic_line`); {} otherwise."""
+    how the innovations follow the past (:func:`relation_break`, or ``changed()`` where the step's
+    confirmation computed it already), else a spectral line (:func:`periodic_line`); {} otherwise."""
     if said.get("explained_by") or said.get("changes_at") is not None:
         return {}
-    return relation_break(model, rec, run, alpha) or periodic_line(said, run, model.output_names, model.dt, alpha)
+    return ((changed or (lambda: relation_break(model, rec, run, alpha)))()
+            or periodic_line(said, run, model.output_names, model.dt, alpha))
 
 
 def periodic_line(said: dict, run: RunResult, outputs, dt: float, alpha: float) -> dict:
