@@ -55,7 +55,7 @@ def timed_batch(paths, out: Path, filt: str, backend: str, workers=None, schedul
     if scheduler:
         cluster, client = None, Client(scheduler, timeout=10)
     else:
-        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address=None,
+        cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True, dashboard_address="127.0.0.1:0",
                                silence_logs=logging.CRITICAL)
         client = Client(cluster)
     t1 = time.perf_counter()

@@ -27,7 +27,7 @@ GOOD = [f"flight_{i:02d}" for i in range(20)]
 def client():
     from distributed import Client, LocalCluster
     import logging
-    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+    cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address="127.0.0.1:0",
                            silence_logs=logging.CRITICAL)
     c = Client(cluster)
     yield c
@@ -209,6 +209,23 @@ def test_the_terminal_says_when_the_fits_call_their_error_bars_optimistic(tmp_pa
                                                           None, 0, 1.0, 1, {"ok": 1}).lines())
 
 
+def test_a_log_in_other_units_is_said_and_two_sided_findings_keep_their_columns(tmp_path):
+    """A fleet's roll angle logged in degrees: its diagnosis said 'check the units' in its report,
+    the fleet's row and terminal not (they named a gyro saturation instead); and its two findings,
+    the gyro's lower and upper saturation, shared one column: the lower was lost without a word."""
+    from skigen.batch import BatchResult
+    from skigen.batch.task import _finding_key
+    hint = "check the units: output 'phi_m' [rad] is 57.05× the nominal free run: is the recording in degrees …"
+    rows = [dict(log="f03", status="ok", notes=[hint, "other"]), dict(log="f01", status="ok", notes=["other"])]
+    lines = BatchResult(tmp_path, rows, [], "file name", tmp_path / "summary.csv", None, 0, 1.0, 1, {"ok": 2}).lines()
+    assert lines[1:] == ["  check the units: f03: output 'phi_m' [rad] is 57.05× the nominal free run: is the "
+                         "recording in degrees …"], lines
+    found = [dict(effect="sensor_saturation", output="p_m", equation="p", side=side) for side in ("lower", "upper")]
+    assert [_finding_key(f) for f in found] == ["sensor_saturation@p_m@lower", "sensor_saturation@p_m@upper"]
+    assert _finding_key(dict(effect="input_delay", equation="v", through="u")) == "input_delay@v@u"
+    assert _finding_key(dict(effect="constant", input="g", equation="v")) == "constant@g"
+
+
 def test_a_step_is_a_move_and_a_slow_drift_is_not():
     rows = []
     for k in range(100):
@@ -251,6 +268,8 @@ def test_clear_errors(fleet, tmp_path):
         batch("nope.py", str(fleet / "flight_00.csv"), tmp_path)
     with pytest.raises(BatchError, match=r"SKI needs basis weights \(model.unknown\(...\)\); the EKF or UKF runs"):
         batch("models/cart.py", str(fleet / "flight_00.csv"), tmp_path, filter="ski")
+    with pytest.raises(BatchError, match=r"^logs: file names or globs, not a DataFrame \(.*df.to_parquet"):
+        batch(MODEL, [pd.DataFrame({"t": [0.0, 0.02], "delta": 0.0, "phi": 0.0})], tmp_path)
     with pytest.raises(BatchError, match=r"no log file matches '.*nothing_\*\.csv'"):   # the logs first
         batch("models/cart.py", str(fleet / "nothing_*.csv"), tmp_path, filter="ski")
 

@@ -804,6 +804,34 @@ def test_a_joint_fit_says_when_the_recordings_residuals_differ():
     assert f"RMSE {rmse[0]:.3g} (DataFrame #1) to {rmse[1]:.3g} (DataFrame #2)" in said[0]
 
 
+def test_a_recording_in_other_units_is_said():
+    """A fleet's roll angle logged in degrees was fitted to RMSE 8.9 (0.01 on the others) under the
+    note every healthy flight gets; the declared model's free run times 180/π is the recording: said,
+    naming it, and of no other."""
+    model = pendulum(PENDULUM)
+    a, b = (_pendulum_frame(np.random.default_rng(k), N=300) for k in (10, 11))
+    b["angle"] = np.degrees(b["angle"])
+    with pytest.raises(FitError, match=r"diverges|amplifies") as exc:          # a pendulum in degrees: chaotic
+        fit(model, [a, b], show_progress=False)
+    said = str(exc.value).rpartition(" (check the units: ")[2]
+    assert said.endswith("is the recording in degrees where the model declares radians? (DataFrame #2))"), said
+    assert float(said.split(" is ")[1].split("×")[0]) == pytest.approx(180 / np.pi, rel=0.01)
+    b["angle"] = np.radians(b["angle"]) * 1.02                                   # within 3 % of no unit
+    assert not [n for n in fit(model, [a, b], show_progress=False).notes if "units" in n]
+    m, y, v, u = _linear()                       # the velocity read in mm/s, the position in m: fitted, and said
+    k = m.parameter("k", 4.0)
+    m.dynamics({y: v, v: -k * y - 0.5 * v + u})
+    m.output("pos", y, noise_std=0.01)
+    m.output("vel", v, noise_std=0.01)
+    rec = _excited(m)
+    rec = dataclasses.replace(rec, outputs=rec.outputs * [1.0, 1000.0])
+    res = fit(m, rec, show_progress=False)
+    assert [n for n in res.notes if "units" in n] == [
+        f"check the units: output 'vel' is {res.notes[0].split(' is ')[1].split('×')[0]}× the nominal free run: "
+        f"is the recording in a unit 1000× smaller (mm for m, mV for V)?"], res.notes
+    assert res.parameters["k"]["value"] == pytest.approx(4.0, rel=0.05)
+
+
 def test_validation_leaves_out_a_stuck_sensor_and_cuts_at_input_holes():
     """A held-out recording is read as the fit reads its own: the readings of a sensor stuck for
     2 s are left out of the RMSE (counted, the frozen angle scores 0.477 rad against 0.0104 without

@@ -189,6 +189,22 @@ def test_a_log_whose_clock_runs_off_the_model_rate_is_said(flight, stretch, said
            f"{stretch:g}× the true time" in notes[0], notes
 
 
+@pytest.mark.parametrize("stretch, said", [(1.0, None), (1.02, "2.0% longer")])
+def test_single_readings_missing_are_gaps_not_a_slow_clock(flight, stretch, said, tmp_path):
+    """A gyro missing 4 % of its single readings (empty cells, a 2-interval gap each) was said to
+    run on a clock 5 % slow; its pace leaves those gaps out, and a clock truly 2 % slow is still said."""
+    holed = flight.assign(t=flight.t * stretch)
+    holed.loc[np.random.default_rng(0).choice(np.arange(1, len(holed) - 1), len(holed) // 25, replace=False),
+              "phi"] = np.nan
+    notes = [n for n in load_recording(holed, MODEL).notes if "first stamps are" in n]
+    holed.to_csv(tmp_path / "log.csv", index=False)
+    grid = skigen.recording.stream_recording(tmp_path / "log.csv", MODEL)
+    list(grid)
+    assert [n for n in grid.notes if "first stamps are" in n] == notes
+    assert [n.split(":")[0] for n in notes] == (["input 'delta'", "output 'phi'"] if said else []), notes
+    assert said is None or all(f"{said} than the model's dt" in n for n in notes), notes
+
+
 def test_each_event_says_when_it_first_happened_and_epoch_times_read_as_times(flight):
     """A finite but absurd input (1e39 V) makes one step non-finite: the summary says when; a
     log stamped in epoch seconds prints its times to the millisecond, not as 1.77236e+09."""

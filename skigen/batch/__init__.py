@@ -27,7 +27,7 @@ import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..fit import OPTIMISTIC
+from ..fit import OPTIMISTIC, UNITS
 from ..modelfile import canonical_spec
 from ..progress import progress
 from ..sources import printable
@@ -87,6 +87,9 @@ class BatchResult:
             elif r["status"] == "ok" and r.get("verdict") not in (None, "consistent"):
                 out.append(f"  {r['verdict']}: {r['log']}: mean NIS {r.get('mean_nis') or float('nan'):.3g} (expected "
                            f"{r.get('nis_expected') or float('nan'):.3g}); see {self.out_dir / r['log'] / 'summary.txt'}")
+            if r["status"] == "ok":
+                out += [f"  {n.split(': ', 1)[0]}: {r['log']}: {n.split(': ', 1)[1]}" for n in r.get("notes") or []
+                        if str(n).startswith(UNITS)]
             if r.get("mismatch") and r["status"] == "ok":
                 out.append(f"  mismatch: {r['log']}: " + ("; ".join(r.get("findings") or []) or "nothing named")
                            + ("; a mismatch remains" if r.get("remains") else ""))
@@ -108,7 +111,11 @@ def expand_logs(patterns, outside: Path | None = None) -> list[Path]:
         patterns = [patterns]
     outside = None if outside is None else Path(outside).resolve()
     files: dict = {}
-    for pat in map(str, patterns):
+    for pat in patterns:
+        if not isinstance(pat, (str, os.PathLike)):
+            raise BatchError(f"logs: file names or globs, not a {type(pat).__name__} (a batch reads each log in "
+                             f"its worker: write a DataFrame to a file first, e.g. df.to_parquet('flight.parquet'))")
+        pat = str(pat)
         if _glob.has_magic(pat):
             found = sorted(p for p in _glob.glob(pat, recursive=True) if _a_log(Path(p)))
         else:
@@ -179,7 +186,8 @@ def _client(workers, scheduler, connect_timeout):
     n = int(workers or CPU_COUNT)
     if n < 1:
         raise BatchError(f"workers must be at least 1, got {workers}")
-    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                           dashboard_address="127.0.0.1:0",   # a free port: None still takes 8787, and warns beside another batch
                            silence_logs=logging.CRITICAL)
     return Client(cluster), cluster, n
 

@@ -152,9 +152,17 @@ def per_measured(c: dict) -> tuple:
     return _num(c["nis_mean"] * per), _num(c["nis_expected"] * per)
 
 
+def _finding_key(f: dict) -> str:
+    """A finding's column in the fleet summary: effect@where[@through][@side] (a sensor's lower and
+    upper saturation are two columns, not one overwriting the other)."""
+    at = f.get("output") or (f["input"] if f["effect"] == "constant" else f["equation"])
+    return "@".join([f["effect"], at] + [f[k] for k in ("through", "side") if f.get(k)])
+
+
 def _diagnose(spec, digest, path, tmp: Path, final: Path, opt: dict, row: dict) -> None:
     from ..diagnose import diagnose
     from ..diagnose.report import where
+    from ..fit import UNITS
     from ..recording import load_recording
     model = _model(spec, digest)
     rec = load_recording(path, model, **opt["read"])
@@ -167,7 +175,8 @@ def _diagnose(spec, digest, path, tmp: Path, final: Path, opt: dict, row: dict) 
     d = report.data
     span = d["diagnosed"]                      # the longest stretch between input holes
     row.update(samples=span["samples"], duration_s=_num(span["end"] - span["start"]), start=_num(span["start"]))
-    row["notes"] = d["notes"] + [f"consistent only with {c}" for c in d["remaining"].get("noise_covers", [])]
+    row["notes"] = ([f"{UNITS}: {u}" for u in d["remaining"].get("units", [])] + d["notes"]
+                    + [f"consistent only with {c}" for c in d["remaining"].get("noise_covers", [])])
     row["mean_nis"], row["nis_expected"] = per_measured(d["consistency"])
     row["mismatch"] = bool(d["mismatch_detected"])
     row["remains"] = bool(d["remaining"].get("mismatch"))
@@ -175,8 +184,7 @@ def _diagnose(spec, digest, path, tmp: Path, final: Path, opt: dict, row: dict) 
                        + (f" ± {f['std']:.2g})" if f.get("std") is not None and np.isfinite(f["std"]) else ")")
                        + "".join(f", or {where(a)} ({a['coefficient']:.4g})" for a in f.get("as_good", []))
                        for f in d["findings"]]
-    row["quantities"] = {f"{f['effect']}@{f.get('output') or (f['input'] if f['effect'] == 'constant' else f['equation'])}" + (f"@{f['through']}" if f.get("through") else ""): [_num(f["coefficient"]),
-                                                            _num(f["std"]) if f.get("std") is not None else None]
+    row["quantities"] = {_finding_key(f): [_num(f["coefficient"]), _num(f["std"]) if f.get("std") is not None else None]
                          for f in d["findings"]}
     row["quantities"].update({name: [_num(p["calibrated"]), _num(p["std"])]    # the declared constants, calibrated
                               for name, p in d["noise"].get("parameters", {}).items()})

@@ -697,8 +697,8 @@ def _integration_hint(nominal: Model) -> str | None:
 
 
 CONVERSIONS = {180 / np.pi: "degrees where the model declares radians", np.pi / 180: "radians where the model declares degrees",
-               1e3: "a unit 1000× smaller (mm for m, mV for V?)", 1e-3: "a unit 1000× larger (m for mm, kV for V?)",
-               1e2: "a unit 100× smaller (cm for m, % for a fraction?)", 1e-2: "a unit 100× larger (a fraction for %?)",
+               1e3: "a unit 1000× smaller (mm for m, mV for V)", 1e-3: "a unit 1000× larger (m for mm, kV for V)",
+               1e2: "a unit 100× smaller (cm for m, % for a fraction)", 1e-2: "a unit 100× larger (a fraction for %)",
                3.6: "km/h where the model declares m/s", 1 / 3.6: "m/s where the model declares km/h",
                1 / 0.3048: "feet where the model declares metres", 0.3048: "metres where the model declares feet",
                30 / np.pi: "rpm where the model declares rad/s", np.pi / 30: "rad/s where the model declares rpm"}

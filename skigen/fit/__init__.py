@@ -10,6 +10,7 @@ for the error bars.
 """
 from __future__ import annotations
 
+import contextlib
 import copy
 import functools
 import math
@@ -271,166 +272,167 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     declared = isinstance(starts, str)
     if declared and starts != "declared":
         raise ValueError(f"starts must be a list or 'declared', got '{starts}'")
-    twice = _repeated(recs)
-    recs, starts, notes = _usable(recs, None if declared else starts)
-    notes += twice
-    estimate = _check_estimate(model, estimate, notes)
-    if shooting is not None and (method != "output-error" or int(shooting) < 2):
-        raise ValueError("shooting applies to output error and needs at least 2 samples per interval")
-    lengths = [len(r.t) for r in recs]
-    prob, solver, jac_g = _problem(model, lengths, method, estimate, shooting, max_iter, tol)
-    V = prob.variables
-    blocks = [data_matrix(model, r) for r in recs]
-    data = np.concatenate([np.ravel(b, order="F") for b in blocks])
-    if method == "filter-error":                 # the NLP's parameter: [scale; data; starts]
-        tested = [None] * len(recs)
-        data = np.r_[data, _starts(model, recs, starts, declared, notes, tested)]
-    elif starts is not None or declared:
-        raise ValueError("starts applies to filter error (output error estimates the initial states)")
-    theta0 = np.array(prob.solver_inputs["x0"], float)
-    if method == "output-error":
-        X = _filtered_states(prob, theta0, blocks)
-        theta0 = _initial_guess(model, prob, recs, theta0, X)
-    nominal = np.array(V.scale)
-    rho0, _ = (np.asarray(v) for v in prob.residuals(theta0 / nominal, np.r_[nominal, data]))
-    where = _first_bad(rho0, lengths, recs)
-    if where:
-        why = model.unstable_step()
-        hint = (f": {why}" if why else "; use shorter shooting intervals" if shooting else
-                "; give a shooting interval (shooting=... samples, --shooting) to fit it by multiple shooting")
-        raise FitError(f"the simulation of '{model.name}' at the initial values diverges in {where}{hint}")
-    if method == "output-error":
-        _refuse_a_runaway_simulation(model, recs, X)
-    declared_problem, weighted = (prob, solver, jac_g), False
-    if method == "output-error" and np.nanmax(np.nanmean(rho0 ** 2, axis=1)) > STRAY:
-        weighted = True                                     # a free run strays far beyond the sensor noise
-        prob, solver, jac_g = _problem(_weighted_by_free_run(model, rho0), lengths, method, estimate, shooting,
-                                       max_iter, tol)
+    twice, units = _repeated(recs), _units(model, recs)
+    with _said_with(units):
+        recs, starts, notes = _usable(recs, None if declared else starts)
+        notes = units + notes + twice
+        estimate = _check_estimate(model, estimate, notes)
+        if shooting is not None and (method != "output-error" or int(shooting) < 2):
+            raise ValueError("shooting applies to output error and needs at least 2 samples per interval")
+        lengths = [len(r.t) for r in recs]
+        prob, solver, jac_g = _problem(model, lengths, method, estimate, shooting, max_iter, tol)
         V = prob.variables
-    scale, J0, prior = _scales(prob, theta0, data)
-    p = np.r_[scale, data]
-    unseen = [o for j, o in enumerate(model.output_names) if not any(np.isfinite(r.outputs[:, j]).any() for r in recs)]
-    held = [V.names.index(f"R_scale_{o}") for o in unseen if f"R_scale_{o}" in V.names]
-    if held:                                    # a never-measured output's noise: nothing to calibrate it on
-        notes.append(f"output(s) {', '.join(map(repr, unseen))} never measured in these recordings: their noise "
-                     f"is held at its declared value")
-    with np.errstate(over="ignore", invalid="ignore"):
-        dead = [i for i, k in enumerate(V.kinds) if k == "noise" and V.names[i].startswith("Q_scale_")
-                and i not in held and not np.any(J0[:, i]) and not prior.ravel()[i]]
-    unseen_states = [V.names[i].removeprefix("Q_scale_") for i in dead]
-    if dead:                                    # a state no output sees: its noise moves no prediction
-        held += dead
-        notes.append(unseen_noise_note(unseen_states))
-    free = [i for i in range(len(V)) if i not in held]
-    G = _dense(jac_g(theta0 / scale, p))
-    lost = unidentified(J0[:, free], prior.ravel()[free], [V.names[i] for i in free], G[:, free])
-    lost = [_acts_elsewhere(prob, theta0, scale, p, V, model, s) for s in lost]
-    if lost and method != "output-error":
-        raise _not_identifiable(model, lost)
-    lower = _resolution_floor(model, V, recs, prob.solver_inputs["lbx"])
-    inputs = dict(prob.solver_inputs, x0=np.maximum(theta0, lower) / scale, lbx=lower / scale,
-                  ubx=prob.solver_inputs["ubx"] / scale, p=p)
-    for i in held:
-        inputs["lbx"][i] = inputs["ubx"][i] = inputs["x0"][i]
-    if noise_caps is None:                     # the user's declared noise, where noise_from gives it
-        q = np.diag(noise_from[0] if noise_from is not None else model.process_noise())
-        noise_caps = {k: float(q[i]) for k in model.kinematic() if (i := model.state_names.index(k)) < len(q)
-                      and q[i] > 0}
-    for i, top in _capped(V, model, noise_caps):
-        inputs["ubx"][i] = min(inputs["ubx"][i], top)
-        inputs["x0"][i] = min(inputs["x0"][i], top)
-    declared_noise = inputs["x0"]
-    if method == "filter-error":
-        inputs["x0"] = _noise_start(prob, inputs)
-    if show_progress:
-        note(f"fitting '{model.name}' by {method}: {len(V)} unknowns, {sum(lengths)} samples")
-    negligible = None if prob.nlp["g"].shape[0] else functools.partial(_negligible_gain, prob, inputs)
-    try:
-        sol, stats = _solve(prob, solver, inputs, negligible, model.name if show_progress else None)
-    except FitError:
-        if lost:
-            raise _not_identifiable(model, lost) from None
-        raise
-    if weighted and (polished := _polished(declared_problem, sol, scale, data, lower, inputs, show_progress,
-                                           model.name)):
-        (prob, solver, jac_g), scale, p, inputs, sol, more = polished
-        V = prob.variables
-        stats = dict(more, iter_count=stats["iter_count"] + more["iter_count"])
-    robust = method == "output-error"      # simulation residuals may be coloured; innovations are white
-    xi, rho, nll, C, info = _at_optimum(prob, jac_g, sol, inputs, lengths, robust)
-    if lost:          # seen at the start only: the free run there may not move what tells them apart
-        J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(xi, p))
-        if again := unidentified(J[:, free], prior.ravel()[free], [V.names[i] for i in free],
-                                 _dense(jac_g(xi, p))[:, free]):
-            raise _not_identifiable(model, [_acts_elsewhere(prob, xi * scale, scale, p, V, model, s) for s in again])
-        notes.append(f"output error: at the starting values the free run did not tell every quantity apart "
-                     f"({'; '.join(lost)}); at the optimum it does")
-    if method == "filter-error":
-        for again in _noise_restarts(prob, model, inputs, declared_noise, sol, xi, C, noise_from):
-            more, more_stats = _solve(prob, solver, again, negligible, model.name if show_progress else None)
-            if float(more["f"]) < float(sol["f"]):
-                sol, stats = more, dict(more_stats, iter_count=stats["iter_count"] + more_stats["iter_count"])
-                xi, rho, nll, C, info = _at_optimum(prob, jac_g, sol, inputs, lengths, robust)
-        if (again := _held_noise_start(prob, solver, inputs, declared_noise, xi, negligible)) is not None:
-            more, more_stats = _solve(prob, solver, again, negligible, model.name if show_progress else None)
-            if float(more["f"]) < float(sol["f"]) - HELD_GAIN:
-                notes.append(f"filter error: a second optimum, {float(sol['f']) - float(more['f']):.3g} nat more "
-                             f"likely, was reached from the parameters fitted with the declared noise held (the "
-                             f"first had given the process noise {np.exp(np.max(xi[_q_rows(prob)])):.3g}× its "
-                             f"declared variance)")
-                sol, stats = more, dict(more_stats, iter_count=stats["iter_count"] + more_stats["iter_count"])
-                xi, rho, nll, C, info = _at_optimum(prob, jac_g, sol, inputs, lengths, robust)
-    status = stats["return_status"]
-    value = xi * scale
-    std = np.sqrt(np.clip(np.diag(C), 0, None)) * scale
-    fisher_std = dict(zip(V.names, np.sqrt(np.clip(info["fisher_var"], 0, None)) * scale))
-    C = C * np.outer(scale, scale)
-    fitted_at = [i for i, k in enumerate(V.kinds) if k in ("parameter", "weight")
-                 and V.names[i] in estimate]
-    Y = np.asarray(prob.predict(xi, p)).T
-    result = _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_at,
-                     nll, Y, stats, status, perf_counter() - t0, float(sol["f"]), info, robust)
-    if unseen_states:
-        result.noise["unseen"] = unseen_states
-    for i, side in _flat_sides(prob, xi, inputs, std / scale, info["information"], fitted_at).items():
-        ({**result.parameters, **result.weights})[V.names[i]]["flat"] = side
-    if method == "filter-error":
-        fitted_start = _fitted_starts(result.model, recs, tested)
-        back = [fs.consistent for fs in fitted_start if fs is not None]   # all: judged off at wrong values
-        result.initial_states = [{} if rs is None or rs.consistent else
-                                 {n: dict(value=float(v), std=float(s)) for n, v, s in zip(rs.names, rs.mean, rs.std)}
-                                 for rs in fitted_start]
-        for report, rec, Yr, rs in zip(result.recordings, recs, result.predictions, tested):
-            if rs is not None and not rs.consistent:    # the head, where the filter learns the start, left out
-                e = rec.outputs[rs.head:] - Yr[rs.head:]
-                report.update(rmse={o: rms(e[:, j]) for j, o in enumerate(model.output_names)}, rmse_from=rs.head)
-    result.notes = (notes + _unseen_notes(result) + _bound_notes(result.parameters) + _far_notes(result.parameters)
-                    + _prior_notes(model, result.parameters, fisher_std)
-                    + _correlated(result.correlation, {*result.parameters, *result.weights})
-                    + _unequal_residuals(result.recordings, model.output_names))
-    driven = [n for n, q in zip(model.state_names, np.diag(model.process_noise())) if q > 0]
-    if method == "filter-error" and not driven:
-        result.notes.append(f"'{model.name}' declares no process noise on any state, so filter error calibrates "
-                            f"none: it is output error through a filter, and process noise in the plant goes to "
-                            f"the sensor noise and narrows the error bars. Declare a process_std on the states "
-                            f"it drives to have it calibrated")
-    if method == "filter-error":
-        result.notes += _absorbing(model, result.noise) + _following(result.model, recs, tested)
-    if method == "output-error" and (params := list(result.parameters) + list(result.weights)):
-        result.notes += _unexplained_residuals(model, recs, result.predictions, params)
-    A = result.model.state_jacobian()         # a yaw damping 6.81 ± 0.045 for 8 under Euler, said nowhere
-    if A is not None and (step := result.model.step_note([A], "with the fitted parameters")):
-        result.notes.append(f"integration: {step} and fit again")
-    result.fitted_recordings = recs
-    if method == "filter-error" and back and all(back):
-        again = fit(model, recs, method=method, estimate=estimate, max_iter=max_iter, tol=tol, starts="declared",
-                    show_progress=show_progress, noise_from=noise_from, noise_caps=noise_caps)
-        again.notes.append(f"filter error: the recordings' start, judged against the declared one at the starting "
-                           f"values, agrees with it at the fitted ones: refitted from the declared start, "
-                           f"{result.objective - again.objective:.3g} nat more likely")
-        again.seconds += result.seconds
-        return again
-    return result
+        blocks = [data_matrix(model, r) for r in recs]
+        data = np.concatenate([np.ravel(b, order="F") for b in blocks])
+        if method == "filter-error":                 # the NLP's parameter: [scale; data; starts]
+            tested = [None] * len(recs)
+            data = np.r_[data, _starts(model, recs, starts, declared, notes, tested)]
+        elif starts is not None or declared:
+            raise ValueError("starts applies to filter error (output error estimates the initial states)")
+        theta0 = np.array(prob.solver_inputs["x0"], float)
+        if method == "output-error":
+            X = _filtered_states(prob, theta0, blocks)
+            theta0 = _initial_guess(model, prob, recs, theta0, X)
+        nominal = np.array(V.scale)
+        rho0, _ = (np.asarray(v) for v in prob.residuals(theta0 / nominal, np.r_[nominal, data]))
+        where = _first_bad(rho0, lengths, recs)
+        if where:
+            why = model.unstable_step()
+            hint = (f": {why}" if why else "; use shorter shooting intervals" if shooting else
+                    "; give a shooting interval (shooting=... samples, --shooting) to fit it by multiple shooting")
+            raise FitError(f"the simulation of '{model.name}' at the initial values diverges in {where}{hint}")
+        if method == "output-error":
+            _refuse_a_runaway_simulation(model, recs, X)
+        declared_problem, weighted = (prob, solver, jac_g), False
+        if method == "output-error" and np.nanmax(np.nanmean(rho0 ** 2, axis=1)) > STRAY:
+            weighted = True                                     # a free run strays far beyond the sensor noise
+            prob, solver, jac_g = _problem(_weighted_by_free_run(model, rho0), lengths, method, estimate, shooting,
+                                           max_iter, tol)
+            V = prob.variables
+        scale, J0, prior = _scales(prob, theta0, data)
+        p = np.r_[scale, data]
+        unseen = [o for j, o in enumerate(model.output_names) if not any(np.isfinite(r.outputs[:, j]).any() for r in recs)]
+        held = [V.names.index(f"R_scale_{o}") for o in unseen if f"R_scale_{o}" in V.names]
+        if held:                                    # a never-measured output's noise: nothing to calibrate it on
+            notes.append(f"output(s) {', '.join(map(repr, unseen))} never measured in these recordings: their noise "
+                         f"is held at its declared value")
+        with np.errstate(over="ignore", invalid="ignore"):
+            dead = [i for i, k in enumerate(V.kinds) if k == "noise" and V.names[i].startswith("Q_scale_")
+                    and i not in held and not np.any(J0[:, i]) and not prior.ravel()[i]]
+        unseen_states = [V.names[i].removeprefix("Q_scale_") for i in dead]
+        if dead:                                    # a state no output sees: its noise moves no prediction
+            held += dead
+            notes.append(unseen_noise_note(unseen_states))
+        free = [i for i in range(len(V)) if i not in held]
+        G = _dense(jac_g(theta0 / scale, p))
+        lost = unidentified(J0[:, free], prior.ravel()[free], [V.names[i] for i in free], G[:, free])
+        lost = [_acts_elsewhere(prob, theta0, scale, p, V, model, s) for s in lost]
+        if lost and method != "output-error":
+            raise _not_identifiable(model, lost)
+        lower = _resolution_floor(model, V, recs, prob.solver_inputs["lbx"])
+        inputs = dict(prob.solver_inputs, x0=np.maximum(theta0, lower) / scale, lbx=lower / scale,
+                      ubx=prob.solver_inputs["ubx"] / scale, p=p)
+        for i in held:
+            inputs["lbx"][i] = inputs["ubx"][i] = inputs["x0"][i]
+        if noise_caps is None:                     # the user's declared noise, where noise_from gives it
+            q = np.diag(noise_from[0] if noise_from is not None else model.process_noise())
+            noise_caps = {k: float(q[i]) for k in model.kinematic() if (i := model.state_names.index(k)) < len(q)
+                          and q[i] > 0}
+        for i, top in _capped(V, model, noise_caps):
+            inputs["ubx"][i] = min(inputs["ubx"][i], top)
+            inputs["x0"][i] = min(inputs["x0"][i], top)
+        declared_noise = inputs["x0"]
+        if method == "filter-error":
+            inputs["x0"] = _noise_start(prob, inputs)
+        if show_progress:
+            note(f"fitting '{model.name}' by {method}: {len(V)} unknowns, {sum(lengths)} samples")
+        negligible = None if prob.nlp["g"].shape[0] else functools.partial(_negligible_gain, prob, inputs)
+        try:
+            sol, stats = _solve(prob, solver, inputs, negligible, model.name if show_progress else None)
+        except FitError:
+            if lost:
+                raise _not_identifiable(model, lost) from None
+            raise
+        if weighted and (polished := _polished(declared_problem, sol, scale, data, lower, inputs, show_progress,
+                                               model.name)):
+            (prob, solver, jac_g), scale, p, inputs, sol, more = polished
+            V = prob.variables
+            stats = dict(more, iter_count=stats["iter_count"] + more["iter_count"])
+        robust = method == "output-error"      # simulation residuals may be coloured; innovations are white
+        xi, rho, nll, C, info = _at_optimum(prob, jac_g, sol, inputs, lengths, robust)
+        if lost:          # seen at the start only: the free run there may not move what tells them apart
+            J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(xi, p))
+            if again := unidentified(J[:, free], prior.ravel()[free], [V.names[i] for i in free],
+                                     _dense(jac_g(xi, p))[:, free]):
+                raise _not_identifiable(model, [_acts_elsewhere(prob, xi * scale, scale, p, V, model, s) for s in again])
+            notes.append(f"output error: at the starting values the free run did not tell every quantity apart "
+                         f"({'; '.join(lost)}); at the optimum it does")
+        if method == "filter-error":
+            for again in _noise_restarts(prob, model, inputs, declared_noise, sol, xi, C, noise_from):
+                more, more_stats = _solve(prob, solver, again, negligible, model.name if show_progress else None)
+                if float(more["f"]) < float(sol["f"]):
+                    sol, stats = more, dict(more_stats, iter_count=stats["iter_count"] + more_stats["iter_count"])
+                    xi, rho, nll, C, info = _at_optimum(prob, jac_g, sol, inputs, lengths, robust)
+            if (again := _held_noise_start(prob, solver, inputs, declared_noise, xi, negligible)) is not None:
+                more, more_stats = _solve(prob, solver, again, negligible, model.name if show_progress else None)
+                if float(more["f"]) < float(sol["f"]) - HELD_GAIN:
+                    notes.append(f"filter error: a second optimum, {float(sol['f']) - float(more['f']):.3g} nat more "
+                                 f"likely, was reached from the parameters fitted with the declared noise held (the "
+                                 f"first had given the process noise {np.exp(np.max(xi[_q_rows(prob)])):.3g}× its "
+                                 f"declared variance)")
+                    sol, stats = more, dict(more_stats, iter_count=stats["iter_count"] + more_stats["iter_count"])
+                    xi, rho, nll, C, info = _at_optimum(prob, jac_g, sol, inputs, lengths, robust)
+        status = stats["return_status"]
+        value = xi * scale
+        std = np.sqrt(np.clip(np.diag(C), 0, None)) * scale
+        fisher_std = dict(zip(V.names, np.sqrt(np.clip(info["fisher_var"], 0, None)) * scale))
+        C = C * np.outer(scale, scale)
+        fitted_at = [i for i, k in enumerate(V.kinds) if k in ("parameter", "weight")
+                     and V.names[i] in estimate]
+        Y = np.asarray(prob.predict(xi, p)).T
+        result = _result(model, prob, recs, lengths, method, estimate, value, std, C, fitted_at,
+                         nll, Y, stats, status, perf_counter() - t0, float(sol["f"]), info, robust)
+        if unseen_states:
+            result.noise["unseen"] = unseen_states
+        for i, side in _flat_sides(prob, xi, inputs, std / scale, info["information"], fitted_at).items():
+            ({**result.parameters, **result.weights})[V.names[i]]["flat"] = side
+        if method == "filter-error":
+            fitted_start = _fitted_starts(result.model, recs, tested)
+            back = [fs.consistent for fs in fitted_start if fs is not None]   # all: judged off at wrong values
+            result.initial_states = [{} if rs is None or rs.consistent else
+                                     {n: dict(value=float(v), std=float(s)) for n, v, s in zip(rs.names, rs.mean, rs.std)}
+                                     for rs in fitted_start]
+            for report, rec, Yr, rs in zip(result.recordings, recs, result.predictions, tested):
+                if rs is not None and not rs.consistent:    # the head, where the filter learns the start, left out
+                    e = rec.outputs[rs.head:] - Yr[rs.head:]
+                    report.update(rmse={o: rms(e[:, j]) for j, o in enumerate(model.output_names)}, rmse_from=rs.head)
+        result.notes = (notes + _unseen_notes(result) + _bound_notes(result.parameters) + _far_notes(result.parameters)
+                        + _prior_notes(model, result.parameters, fisher_std)
+                        + _correlated(result.correlation, {*result.parameters, *result.weights})
+                        + _unequal_residuals(result.recordings, model.output_names))
+        driven = [n for n, q in zip(model.state_names, np.diag(model.process_noise())) if q > 0]
+        if method == "filter-error" and not driven:
+            result.notes.append(f"'{model.name}' declares no process noise on any state, so filter error calibrates "
+                                f"none: it is output error through a filter, and process noise in the plant goes to "
+                                f"the sensor noise and narrows the error bars. Declare a process_std on the states "
+                                f"it drives to have it calibrated")
+        if method == "filter-error":
+            result.notes += _absorbing(model, result.noise) + _following(result.model, recs, tested)
+        if method == "output-error" and (params := list(result.parameters) + list(result.weights)):
+            result.notes += _unexplained_residuals(model, recs, result.predictions, params)
+        A = result.model.state_jacobian()         # a yaw damping 6.81 ± 0.045 for 8 under Euler, said nowhere
+        if A is not None and (step := result.model.step_note([A], "with the fitted parameters")):
+            result.notes.append(f"integration: {step} and fit again")
+        result.fitted_recordings = recs
+        if method == "filter-error" and back and all(back):
+            again = fit(model, recs, method=method, estimate=estimate, max_iter=max_iter, tol=tol, starts="declared",
+                        show_progress=show_progress, noise_from=noise_from, noise_caps=noise_caps)
+            again.notes.append(f"filter error: the recordings' start, judged against the declared one at the starting "
+                               f"values, agrees with it at the fitted ones: refitted from the declared start, "
+                               f"{result.objective - again.objective:.3g} nat more likely")
+            again.seconds += result.seconds
+            return again
+        return result
 
 
 def _fitted_starts(fitted: Model, recs, tested) -> list:
@@ -761,6 +763,7 @@ def _unequal_residuals(reports: list[dict], outputs, least: int = 50) -> list[st
     return out
 
 
+UNITS = "check the units"     # a note's opening: an output read in other units than the model's
 OPTIMISTIC = "output error: the free-run residuals exceed the declared sensor noise"   # a note's opening
 
 
@@ -891,6 +894,28 @@ def _noise_shift(V, model: Model, noise: list[int], Q, R) -> np.ndarray:
               **dict(zip(model.output_names, np.diag(np.asarray(R, float))))}
     target = [V.names[i].split("_", 2)[2] for i in noise]
     return np.array([np.log(theirs[n] / ours[n]) if ours[n] > 0 and theirs[n] > 0 else 0.0 for n in target])
+
+
+@contextlib.contextmanager
+def _said_with(units: list[str]):
+    """A fit that fails on a recording in other units says so beside its reason (a pendulum's angle
+    in degrees was refused as chaotic)."""
+    try:
+        yield
+    except FitError as exc:
+        if not units:
+            raise
+        exc.args = (f"{exc} ({'; '.join(units)})", *exc.args[1:])
+        raise
+
+
+def _units(model: Model, recs: list[Recording]) -> list[str]:
+    """A note per output read in other units than the model's (the declared model's free run times a
+    unit conversion, :func:`~skigen.diagnose.unit_hints`): a roll angle logged in degrees was fitted
+    to RMSE 8.9 (0.01 on its fleet) under the usual note on optimistic error bars."""
+    from ..diagnose import unit_hints
+    return [f"{UNITS}: {hint}" + (f" ({rec.path})" if len(recs) > 1 else "")
+            for rec in recs for hint in unit_hints(model, rec)]
 
 
 def _usable(recs: list[Recording], starts) -> tuple[list[Recording], list | None, list[str]]:
