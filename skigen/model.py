@@ -401,16 +401,22 @@ class Model:
                 raise ModelError(f"output '{v.name}' depends on no state or parameter (it is "
                                  f"{'a constant' if ca.SX(v.sym).is_constant() else 'a function of the inputs alone'}): "
                                  f"its readings cannot tell the filter anything; write what the sensor reads")
-        names = set()
+        names = {}
         for wname, eq, t, _ in self.weights():
+            if not t.name.strip():
+                raise ModelError(f"a basis term on equation '{eq}' (key '{t.key}') has an empty name: name it "
+                                 f"(the name labels its weight in the summaries and the generated C)")
             _check_symbols(t.expr, known, f"basis term '{t.name}'")
             if ca.SX(t.expr).is_zero():
                 raise ModelError(f"basis term '{t.name}' (key '{t.key}') on equation '{eq}' is identically 0: "
                                  f"its weight could have no effect")
             if wname in names:
                 raise ModelError(f"basis term '{t.name}' (key '{t.key}') is declared twice on equation '{eq}': "
-                                 f"each term enters an equation once")
-            names.add(wname)
+                                 f"each term enters an equation once" if names[wname] == t.name else
+                                 f"basis terms '{names[wname]}' and '{t.name}' on equation '{eq}' have the same "
+                                 f"key '{t.key}' (their names written as identifiers): give one its own "
+                                 f"(term(name, expr, key=...))")
+            names[wname] = t.name
         clash = set(names) & set(self.names)
         if clash:
             raise ModelError(f"weight name(s) {', '.join(sorted(clash))} collide with a declared name")
@@ -526,8 +532,7 @@ class Model:
             f", frequency {abs(lam.imag):.4g} → {abs(step.imag):.4g} rad/s" if lam.imag else "")
         return (f"the {self.discretization} step of {self.dt / self.substeps:g} s moves the mode at {_complex(lam)} /s "
                 f"(the rates' Jacobian {where}) to {_complex(step)} /s ({what}): what sets that mode may absorb the "
-                f"step's error, beyond its ± 2σ; use discretization=\"rk4\""
-                + (f" or substeps={n}" if n < 4096 else ""))
+                f"step's error, beyond its ± 2σ; " + _finer(self.discretization, n))
 
     def state_jacobian(self) -> np.ndarray | None:
         """∂(dx/dt)/∂x at the declared initial state, parameters at their values, inputs and
@@ -632,6 +637,13 @@ def _step_gain(method: str, z):
 MODE_OFF = 0.01    # a step that moves a mode by this share of its damping misplaces it (a yaw damping
                    # fitted 5σ low under Euler with 4 substeps was 3.6 % off, under the 0.1 once used)
 LIGHT = 0.05       # ... a lightly damped mode's damping counted as at least this share of |λ|
+
+
+def _finer(method: str, substeps: int) -> str:
+    """What makes the step ``method`` finer: RK4 (unless it is already), or ``substeps``
+    (under 4096), or a shorter dt."""
+    ways = ([] if method == "rk4" else ['discretization="rk4"']) + ([f"substeps={substeps}"] if substeps < 4096 else [])
+    return "use " + " or ".join(ways) if ways else "use a shorter dt"
 
 
 def mode_error(A: np.ndarray, method: str, h: float) -> tuple[float, complex, complex] | None:

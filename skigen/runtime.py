@@ -291,10 +291,11 @@ class RunSummary:
         final weights and parameters, inputs and history 0; :meth:`~skigen.model.Model.step_note`):
         the weights and parameters that set that mode absorb the step's error, beyond their ± 2σ,
         whatever the verdict below. A model whose damping is all in its unknown terms shows no mode
-        at its declared start."""
+        at its declared start. None where the filter failed on more than REFUSED of the samples:
+        its estimates are not the recording's (a mode at 2.9e58 /s was said)."""
         aug = self.filter.aug
         m = aug.model
-        if aug.rates_jacobian is None or self.last is None or not np.isfinite(self.last[0]).all():
+        if aug.rates_jacobian is None or self.last is None or not np.isfinite(self.last[0]).all() or self.failing():
             return None
         start = np.r_[m.x0, self.last[0][len(m.states):]]
         jac = [np.asarray(aug.rates_jacobian(z, np.zeros(len(m.inputs)), np.zeros(len(m.memory)), aug.fixed_values),
@@ -303,6 +304,11 @@ class RunSummary:
         return note and f"integration: {note}, whatever the verdict; run again"
 
     REFUSED = 0.05   # a filter that gates, or fails on, more than 1 in 20 samples with a reading is not following it
+
+    def failing(self) -> bool:
+        """Whether the filter failed on more than REFUSED of the samples with a reading: its
+        estimates are then not the recording's."""
+        return self.events[Status.NUMERICAL_FAILURE] > self.REFUSED * self.present
 
     def verdict(self) -> str:
         """The mean NIS against its two-sided 99 % band: a consistent filter's summed NIS is χ² with
@@ -320,7 +326,7 @@ class RunSummary:
             return (f"inconsistent: of the {self.present} samples with a reading, {said} (more than 1 in "
                     f"{1 / self.REFUSED:.0f}): the filter is not following the recording, and the mean NIS of the "
                     f"readings it used ({mean:.3g} times their predicted variance) leaves out those that disagreed"
-                    + ("; why the first step failed is said above" if failed else "")
+                    + ("; why the first step failed is said above" if failed and self.failure else "")
                     + ". Check the units and mapping of the inputs and outputs; `skigen diagnose` says where and "
                       "what is missing")
         if mean > hi:
@@ -368,7 +374,9 @@ class RunSummary:
         None) kept or pruned, with how far from 0 where the label alone misleads."""
         mean, std = self.last[0][i], self.last[1][i]
         if std >= 0.99 * np.sqrt(self.filter.aug.P0[i, i]):
-            return "   its prior's std: the recording never informed it (its term not excited?)"
+            return "   its prior's std: " + ("the filter failed on most steps (below), not the recording's word"
+                                              if self.failing() else
+                                              "the recording never informed it (its term not excited?)")
         if kept is None:
             return ""
         z = abs(mean) / std if std > 0 else np.inf

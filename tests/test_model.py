@@ -78,6 +78,9 @@ def test_direction_term_shares_one_weight():
     (lambda m, x, v, u: m.unknown(v, [term("b", ca.vertcat(1, 2))]), "basis term 'b' has shape (2, 1)"),
     (lambda m, x, v, u: (m.unknown(v, [term("1", 1, key="one")]), m.unknown(v, [term("1", 1, key="one")])),
      "basis term '1' (key 'one') is declared twice on equation 'v'"),
+    (lambda m, x, v, u: m.unknown(v, [term("x-y", x), term("x y", x ** 2)]),
+     "basis terms 'x-y' and 'x y' on equation 'v' have the same key 'x_y'"),
+    (lambda m, x, v, u: m.unknown(v, [term("", x, key="xx")]), "a basis term on equation 'v' (key 'xx') has an empty name"),
     (lambda m, x, v, u: m.unknown(v, [term("x cubed", x ** 3, key="x cubed")]),
      "basis term 'x cubed' has key 'x cubed'; a key must be an identifier"),
     (lambda m, x, v, u: m.unknown(v, [term("b", 1)], prior_variance=[1, 2]), "2 entries for 1 weights"),
@@ -172,3 +175,18 @@ def test_a_model_file_the_check_refuses_names_the_line(tmp_path, body, line, sai
                     "m = Model('bad', dt=0.1)\n".replace("m = Model", "model = m = Model") + body)
     with pytest.raises(ModelError, match=rf"model file '.*bad.py', line {line}: {re.escape(said)}"):
         load_model(str(path))
+
+
+@pytest.mark.parametrize("method", ["euler", "rk4"])
+def test_the_step_note_offers_what_makes_the_step_finer(method):
+    """A roll model already on RK4 was told 'use discretization="rk4" or substeps=8'; the note
+    offers RK4 only to a model not on it, and substeps where they are enough."""
+    m = Model("fast", dt=0.01, discretization=method)
+    x = m.state("x", std=1.0)
+    m.dynamics({x: -200.0 * x})
+    m.output("y", x, noise_std=0.1)
+    note = m.step_note([np.array([[-200.0]])], "here")
+    assert note is not None and ('discretization="rk4" or substeps=' in note) == (method == "euler"), note
+    assert re.search(r"; use (discretization=\"rk4\" or )?substeps=\d+$", note), note
+    assert m.step_note([np.array([[-1e9]])], "here").endswith(
+        "use a shorter dt" if method == "rk4" else 'use discretization="rk4"')
