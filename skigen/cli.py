@@ -181,6 +181,7 @@ def _generate(args) -> int:
 
 def _diagnose(args) -> int:
     from .diagnose import DiagnosisError, diagnose
+    from .diagnose.detect import timed
     from .diagnose.report import finding_line, lifted, noise_covers_sentence, where
 
     try:
@@ -230,7 +231,7 @@ def _diagnose(args) -> int:
         print("what remains: " + ("a mismatch remains" + (f"; {rem['tried']}" if rem.get("tried") else "")
                                   + (f"; it follows {rem['explained_by']}{' outside those' if rem.get('tried') else ''}: "
                                      f"try --candidate '{rem['suggested_candidate']}'" if rem.get("explained_by") else "")
-                                  + (f"; {rem['note']}" if rem.get("changes_at") is not None else "")
+                                  + (f"; {rem['note']}" if timed(rem) else "")
                                   + (f"; {rem['periodic']['note']}" if rem.get("periodic") else "")
                                   if rem["mismatch"] else "the corrected model is consistent"))
     if (d["remaining"] or {}).get("noise_covers"):

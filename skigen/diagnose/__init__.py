@@ -389,6 +389,11 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
                        f"physics; diagnose the stretches apart")
         for f in data["findings"]:
             _note(f, f"fitted across a change at t = {at:.4g} s: see the notes")
+    if data["remaining"].get("drifts") is not None and data["findings"]:
+        caveats.append("what remains drifts over time: the findings fit one model to a recording whose system or "
+                       "sensors drift, and may stand for the drift rather than for missing physics")
+        for f in data["findings"]:
+            _note(f, "fitted across a drift in time: see the notes")
     if data["remaining"].get("mismatch") and (hint := _integration_hint(nominal)):
         data["remaining"]["integration"] = hint
     if units:

@@ -303,11 +303,16 @@ def remaining(model, rec, run: RunResult, equations, alpha: float, out_dir=None,
     return out | unexplained(out, model, rec, run, alpha, changed)
 
 
+def timed(said: dict) -> bool:
+    """Whether what remains was said to change in time (a step, a drift; :func:`~skigen.diagnose.suggest.explain`)."""
+    return said.get("changes_at") is not None or said.get("drifts") is not None
+
+
 def unexplained(said: dict, model, rec, run: RunResult, alpha: float, changed=None) -> dict:
     """Where no shape of a state or input explains what remains, nor a step in time: a change in
     how the innovations follow the past (:func:`relation_break`, or ``changed()`` where the step's
     confirmation computed it already), else a spectral line (:func:`periodic_line`); {} otherwise."""
-    if said.get("explained_by") or said.get("changes_at") is not None:
+    if said.get("explained_by") or timed(said):
         return {}
     return ((changed or (lambda: relation_break(model, rec, run, alpha)))()
             or periodic_line(said, run, model.output_names, model.dt, alpha))
@@ -319,7 +324,7 @@ def periodic_line(said: dict, run: RunResult, outputs, dt: float, alpha: float) 
     (:func:`periodic`, at α over the outputs): a disturbance periodic in time the model has no
     input for (waves at 9 s on a ship's yaw left "a mismatch remains" and nothing else); {}
     otherwise."""
-    if said.get("explained_by") or said.get("changes_at") is not None:
+    if said.get("explained_by") or timed(said):
         return {}
     eps = normalised_innovations(run)
     lines = [(name, *periodic(eps[:, i], dt)) for i, name in enumerate(outputs)]

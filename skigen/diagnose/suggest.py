@@ -19,7 +19,9 @@ run, it was "judged as the catalog's" and the same suggestion came back — but
 said, beside the best shape outside them. Where a single step in time explains it better than
 any shape of a state or input (by STEP_MARGIN of R²: a tie at 0.48 was taken for a change), the
 system changed during the recording (a battery that sags partway): that is said instead of a
-candidate. (HINT_R2 was 0.05: a cubic of a capacitor's voltage at R² 0.07 was suggested.) A
+candidate; where a straight line in time explains it at least as well as any step (one number
+fewer), something drifts (a sensor's bias warming up), said as a drift, not as a change.
+(HINT_R2 was 0.05: a cubic of a capacitor's voltage at R² 0.07 was suggested.) A
 step or a shape that spans less than STEP_Z of the disturbance's std is not said: within its
 band, d's R² is that of its noise.
 """
@@ -88,6 +90,13 @@ def _step(t: np.ndarray, d: np.ndarray, sd: np.ndarray, w: np.ndarray, n: int = 
     return max([best, *map(score, near)])
 
 
+def _ramp(t: np.ndarray, d: np.ndarray, sd: np.ndarray, w: np.ndarray) -> tuple[float, float]:
+    """(R², slope per s): a straight line in time for ``d``, R² −inf where it is not resolved (a
+    sensor's bias drifting 1 K over 2 h was read as a step at 4197 s, R² 0.73: "the system changed")."""
+    r2, coef = _r2(d, w, t)
+    return (r2 if _resolved(coef, t, sd) else -np.inf), float(coef[1])
+
+
 def _resolved(coef: np.ndarray, phi: np.ndarray, sd: np.ndarray) -> bool:
     """Whether the shape fitted (``coef`` on ``phi``) spans STEP_Z of the disturbance's median std:
     the R² of a disturbance within its band is that of its noise."""
@@ -154,18 +163,29 @@ def explain(model, rec, loc: Location, out_dir=None, names=None, tried=None, con
                 best = (r2, name, formula, phi, coef)
     said = {}
     step_r2, at = _step(rec.t, d, sd, w) if rec is not None else (-np.inf, 0.0)
-    if step_r2 >= HINT_R2 and step_r2 > max(best[0], closest[0]) + STEP_MARGIN and confirm is not None \
+    ramp_r2, rate = _ramp(rec.t, d, sd, w) if rec is not None else (-np.inf, 0.0)
+    drift = ramp_r2 >= step_r2               # a straight line in time, one number fewer than a step's
+    timed = max(step_r2, ramp_r2)
+    what = "a drift in time" if drift else f"a step at t = {at:.4g} s"
+    if timed >= HINT_R2 and timed > max(best[0], closest[0]) + STEP_MARGIN and confirm is not None \
             and not confirm():
-        said["unconfirmed_step"] = (f"a step at t = {at:.4g} s explains the disturbance in {eq} best (R² {step_r2:.2g}), "
-                                    f"but the innovations follow the states and inputs as before it: not said as a "
+        said["unconfirmed_step"] = (f"{what} explains the disturbance in {eq} best (R² {timed:.2g}), but the "
+                                    f"innovations follow the states and inputs as before it: not said as a "
                                     f"change (a misfit that grows where the states go late in the recording)")
-    elif step_r2 >= HINT_R2 and step_r2 > max(best[0], closest[0]) + STEP_MARGIN:    # the system changed
+    elif timed >= HINT_R2 and timed > max(best[0], closest[0]) + STEP_MARGIN:    # the system changed
         shape = f"the best shape of a state or input, {closest[2]}, {closest[0]:.2g}" if closest[2] else \
             "no shape of a state or input spans its band"
+        if drift:
+            return {"explained_by": None, "r2": None, "suggested_candidate": None, "drifts": rate,
+                    "note": f"what remains in {eq} drifts over time: a straight line in time explains it best (R² "
+                            f"{ramp_r2:.2g}; the best step {step_r2:.2g}; {shape}): something "
+                            f"drifts during the recording (a sensor's bias or gain warming up, wear, a leak), not "
+                            f"a shape of the states and inputs; the catalog has no drift, and the findings may "
+                            f"stand for it"}
         return {"explained_by": None, "r2": None, "suggested_candidate": None, "changes_at": at,
                 "note": f"what remains in {eq} changes over time: a step at t = {at:.4g} s explains it best (R² "
-                        f"{step_r2:.2g}; {shape}): the system changed during the recording (a battery, a "
-                        f"payload, a failure); diagnose the stretches before and after it apart"}
+                        f"{step_r2:.2g}; a drift {ramp_r2:.2g}; {shape}): the system changed during the recording "
+                        f"(a battery, a payload, a failure); diagnose the stretches before and after it apart"}
     if catalog and closest[0] >= HINT_R2:
         said["tried"] = (f"what remains in {eq} follows {closest[2]} best (R² {closest[0]:.2g}), the shape of the "
                          f"{catalog} the diagnosis tried there and did not adopt")
