@@ -25,7 +25,7 @@ import numpy as np
 from scipy.linalg import null_space
 from scipy.signal import lfilter
 
-__all__ = ["covariance", "autoregression", "coloured_score_covariance", "unidentified"]
+__all__ = ["covariance", "autoregression", "coloured_score_covariance", "unidentified", "recording_shifts"]
 
 UNSEEN = 1e-12       # relative eigenvalue of the normalised information below which a direction has none
 SINGULAR = 1e-9      # relative eigenvalue of the normalised Fisher information below which a direction is lost
@@ -136,4 +136,27 @@ def unidentified(J: np.ndarray, prior: np.ndarray, names: list[str], G: np.ndarr
         combo = " ".join(f"{v[i]:+.2f}·{kept[i]}" for i in big)
         out.append(f"{', '.join(repr(kept[i]) for i in big)} cannot be told apart "
                    f"(the data do not see {combo}, in scaled units)")
+    return out
+
+
+def recording_shifts(J: np.ndarray, w: np.ndarray, lengths: list[int], prior: np.ndarray,
+                     cols: list[int]) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per recording, (δ, its covariance): the one Gauss–Newton step from the pooled fit that the
+    recording alone takes in the variables ``cols`` (its own copy of them, the others'
+    re-estimated: Rao's score test of its own values is δᵀ C⁻¹ δ, χ² under a right model whose
+    innovations are white).
+
+    J: (Σ N_r · n_rho) × p Jacobian of the pseudo-residuals, sample-major; w: the residuals whose
+    J-weighted sum is the gradient of −log L, same order; prior: prior precision per variable.
+    A recording's own copy has the score g = J_rᵀ w_r and, the pooled variables re-estimated, the
+    information V = I_δδ − I_δη A⁻¹ I_ηδ (A = JᵀJ + prior): δ = −V⁻¹ g, C = V⁻¹."""
+    A = J.T @ J + np.diag(prior)
+    Ainv = np.linalg.pinv(A, hermitian=True)
+    n_rho, out, start = J.shape[0] // sum(lengths), [], 0
+    for n in lengths:
+        rows = slice(start * n_rho, (start + n) * n_rho)
+        Jr, start = J[rows], start + n
+        cross = Jr[:, cols].T @ Jr
+        C = np.linalg.pinv(Jr[:, cols].T @ Jr[:, cols] - cross @ Ainv @ cross.T, hermitian=True, rcond=1e-10)
+        out.append((-C @ (Jr[:, cols].T @ w[rows]), C))
     return out
