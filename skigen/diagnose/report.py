@@ -248,7 +248,7 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
                 shape = ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}"
                                   for k, v in f.get("shape", {}).items() if k != "state") or "–"
                 L.append(f"| {f['effect']} | {_acts_on(f)} | `{f['expression']}` | "
-                         f"{_pm(f['coefficient'], f['std'])} {f.get('unit', '')} | {shape} | "
+                         f"{_pm(f['coefficient'], f['std'])} {'' if f.get('unit') in (None, '1') else f['unit']} | {shape} | "
                          f"{f['evidence']:+.1f} | {_fmt(f.get('free_run_without'), '.3g')} |")
             L.append("")
             for f in data["findings"]:
