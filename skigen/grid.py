@@ -460,7 +460,7 @@ class GridBlock:
 class _Column:
     """What the stream keeps of one column: its samples not yet laid on the grid, and counts."""
 
-    def __init__(self):
+    def __init__(self, output: bool):
         self.t, self.v = np.zeros(0), np.zeros(0)
         self.new = []                 # stamps not yet looked at for holes
         self.first = self.last = None
@@ -474,7 +474,7 @@ class _Column:
         self.limit = None             # seconds without a sample that make a hole, once known
         self.own = None               # an input's own sample interval, once known
         self.short = (0, 0, 0.0)      # an input's gaps short of a hole: count, grid samples held, longest
-        self.wraps = Wraps()          # an output's readings as a wrapped angle
+        self.wraps = Wraps() if output else None   # an output's readings as a wrapped angle
 
     def add(self, t, v):
         if len(t):
@@ -485,7 +485,8 @@ class _Column:
             self.repeated += repeated
             self.first_repeat = first if self.first_repeat is None else self.first_repeat
             self.t, self.v = np.concatenate([self.t, t]), np.concatenate([self.v, v])
-            self.wraps.add(t, v)
+            if self.wraps is not None:
+                self.wraps.add(t, v)
             self.new.append(t)
             self.first = float(t[0]) if self.first is None else self.first
             self.last = float(t[-1])
@@ -519,7 +520,7 @@ class GridStream:
         self.input_names, self.output_names = tuple(input_names), tuple(output_names)
         self.names = self.input_names + self.output_names
         self.time_unit, self.min_samples, self.block = time_unit, min_samples, block
-        self.cols = {n: _Column() for n in self.names}
+        self.cols = {n: _Column(n in self.output_names) for n in self.names}
         self.scale = self.origin = self.start = None
         self.next_k, self.end, self.row_t, self.n = 0, -np.inf, -np.inf, None
         self.spans, self.restarts = {}, set()
