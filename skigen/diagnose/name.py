@@ -387,7 +387,8 @@ def _ties_under(nominal: Model, recal: Model, corr: Correction, new: Correction,
     adoption dropped as not significant (a Coulomb friction kept beside a linear pwm gain, then
     dropped, left the thrust's pwm² term with it as a pair of two, never compared). Returns (report
     items, the corrections they come from, and (how far behind, correction) for each set ahead of
-    the chosen by what a finding must add: no tie, a better explanation)."""
+    an additive chosen by what a finding must add: no tie, a better explanation; a structural
+    chosen's are ties, as they were: it is no set of terms to swap)."""
     adopted = {_said(a) for a in chosen.adopted}
     said = adopted | {_said(a) for a in chosen.as_good}
     instead = [list(acts(a)) for a in chosen.adopted]
@@ -422,7 +423,7 @@ def _ties_under(nominal: Model, recal: Model, corr: Correction, new: Correction,
                             for a in added(corr, scored[0])]
                     whole.append(scored[0])
                     continue
-            if behind <= -evidence_threshold(alpha):
+            if behind <= -evidence_threshold(alpha) and chosen.kind == "additive":
                 ahead.append((behind, scored[0]))
             elif behind < evidence_threshold(alpha):
                 said |= {_said(a) for a in items}
