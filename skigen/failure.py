@@ -66,7 +66,7 @@ def explain(filt, prior, posterior, u, mem) -> str | None:
         if what := undefined(z):
             return (f"{what} not finite at {at_mean}: a term there, or within the step from it, overflows (a "
                     f"cubic or exponential of a state far out) or is undefined (a square root, logarithm or "
-                    f"division: write it to be defined there, e.g. sqrt(fmax(x, 0)))")
+                    f"division: write it to be defined there, e.g. sqrt(fmax(x, 1e-9)): a floor above 0, where its derivative is finite)")
         if filt.kind == "ekf":
             for J, r in zip(jac(z, u, mem), rows):
                 i, j = np.nonzero(~np.isfinite(np.array(J, float)))
@@ -82,7 +82,7 @@ def explain(filt, prior, posterior, u, mem) -> str | None:
                         f"{gamma:.3g} standard deviations from {at_mean}: a term there overflows (a cubic or "
                         f"exponential far out) or is undefined (a square root, logarithm or division). The model "
                         f"must be finite wherever the points reach. {nearer(filt)}; a term written to be defined "
-                        f"there (sqrt(fmax(x, 0))) cannot fail")
+                        f"there (sqrt(fmax(x, 1e-9)), a floor above 0) cannot fail")
     return None
 
 

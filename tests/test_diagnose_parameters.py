@@ -762,3 +762,23 @@ def test_a_step_in_the_disturbance_the_innovations_do_not_confirm_is_not_a_chang
     said = suggest.explain(None, types.SimpleNamespace(t=t), loc, confirm=lambda: {})
     assert "changes_at" not in said and said["unconfirmed_step"].startswith("a step at t = 30"), said
     assert "not said as a change" in said["unconfirmed_step"] and "outside the candidates" not in said.get("note", "")
+
+
+def test_a_candidate_whose_derivative_fails_where_it_is_evaluated_is_said():
+    """A user's exact tank outflow −√max(h, 0) scored +383, then failed a fold (its derivative
+    0·∞ below h = 0, which the widened range reaches) and was never named, the report saying no
+    candidate explains the mismatch; its line now says why, and a floor above 0 passes."""
+    from skigen.diagnose.catalog import user_candidates
+    from skigen.diagnose.name import unfit_slope
+    m = Model("tank", dt=0.05)
+    h = m.state("h", std=0.01, initial=0.1)
+    u = m.input("u")
+    m.dynamics({h: 0.2 * u - 0.5 * h})
+    m.output("h_meas", h, noise_std=0.003)
+    t = np.arange(400) * 0.05
+    level = 0.3 + 0.28 * np.sin(t)                      # 0.02 – 0.58 m: the range widened reaches below 0
+    rec = Recording("tank.csv", t, np.ones((400, 1)), level[:, None], ("u",), ("h_meas",))
+    exact, floored = user_candidates(m, ["sqrtflow:h:-sqrt(fmax(h,0))", "floor:h:-sqrt(fmax(h,1e-9))"])
+    why = unfit_slope(m, rec, level[:, None], exact)
+    assert why.startswith("its derivative in h is not finite at h = -0.03") and "sqrt(fmax(x, 1e-9))" in why, why
+    assert unfit_slope(m, rec, level[:, None], floored) is None

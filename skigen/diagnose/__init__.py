@@ -417,7 +417,7 @@ def _candidate(c, why: str) -> dict:
 def _unnamed(user_cands, additive, data: dict, model: Model, rec, states) -> list[dict]:
     """What became of each user (or declared) candidate that is not a finding nor listed as
     compensating or not identifiable: a restated catalog term, or not kept by the naming rounds."""
-    from .name import restated
+    from .name import restated, unfit_slope
     listed = {(f["effect"], f["equation"], f.get("through", "")) for key in ("findings", "compensating",
                                                                             "not_identifiable") for f in data[key]}
     unlisted = [i for i, c in enumerate(additive) if c in user_cands and c.key not in listed]
@@ -429,6 +429,7 @@ def _unnamed(user_cands, additive, data: dict, model: Model, rec, states) -> lis
                                          else f"the catalog's {twin.effect}")
         out.append(_candidate(c, f"on this recording it is {whose} on {c.equation} (`{twin.text}`), judged "
                                  f"as that" if twin is not None else
+                              f"not named: {why}" if (why := unfit_slope(model, rec, states, c)) else
                               "not named: no round adopted it (a round adopts its best proposal by "
                               "cross-validated gain, SKI's selection among all additive candidates or one "
                               "structural change; report.md lists the proposals)"))

@@ -154,6 +154,38 @@ def basis_values(model: Model, rec: Recording, states: np.ndarray, cands: list[A
     return np.asarray(f(states[:, :len(model.states)].T, rec.inputs.T)).reshape(len(cands), -1)
 
 
+def unfit_slope(model: Model, rec: Recording, states: np.ndarray, c: Additive) -> str | None:
+    """Where the EKF the naming fits with cannot use candidate ``c``: its rate finite and its
+    derivative in a state not, along the trajectory or at the ends of the range a candidate is
+    evaluated over (:func:`within_range`), with the inputs at their median; None where it can. A
+    user's exact tank outflow −√max(h, 0) scored +383, then failed a fold (0·∞ below h = 0, which
+    that range reaches) and was never named, "no candidate explains the mismatch"."""
+    nx = len(model.states)
+    x = ca.vertcat(*[v.sym for v in model.states])
+    u = ca.vertcat(*[v.sym for v in model.inputs]) if model.inputs else ca.SX(0, 1)
+    rate = c.contributions(model)[c.equation]
+    f = ca.Function("slope", [x, u], [rate, ca.jacobian(rate, x)])
+    X = states[:, :nx]
+    lo, hi = X.min(axis=0), X.max(axis=0)
+    pad = RANGE_MARGIN * (hi - lo)
+    ends = np.repeat(np.median(X, axis=0)[None, :], 2 * nx, axis=0)
+    ends[np.arange(nx), np.arange(nx)], ends[nx + np.arange(nx), np.arange(nx)] = lo - pad, hi + pad
+    points = np.vstack([X, ends])
+    um = np.median(rec.inputs, axis=0) if len(model.inputs) else np.zeros(0)
+    U = np.vstack([rec.inputs, np.repeat(um[None, :], 2 * nx, axis=0)]) if len(model.inputs) else np.zeros((len(points), 0))
+    with np.errstate(all="ignore"):
+        value, slope = (np.asarray(v) for v in f.map(len(points))(points.T, U.T))
+    bad = np.isfinite(value.ravel()) & ~np.isfinite(slope.reshape(nx, -1, order="F")).all(axis=0)
+    if not bad.any():
+        return None
+    k = int(np.argmax(bad))
+    i = int(np.argmax(~np.isfinite(slope.reshape(nx, -1, order="F")[:, k])))
+    return (f"its derivative in {model.state_names[i]} is not finite at {model.state_names[i]} = {points[k, i]:.4g} "
+            f"(where the naming evaluates it: the recorded range widened by {RANGE_MARGIN:.0%} each way), so the "
+            f"EKF it is fitted with fails there; write it with a derivative defined there (sqrt(fmax(x, 1e-9)) "
+            f"rather than sqrt(fmax(x, 0)))")
+
+
 def basis_rms(model: Model, rec: Recording, states: np.ndarray, cands: list[Additive]) -> np.ndarray:
     with np.errstate(over="ignore"):          # a trajectory that runs away: inf, said by the steps that use it
         return np.sqrt(np.mean(basis_values(model, rec, states, cands) ** 2, axis=1)) + 1e-12
