@@ -243,6 +243,24 @@ def test_the_rate_of_a_position_gets_friction_and_stiffness_whatever_its_declare
         == {"-tanh(omega/0.05)", "-tanh(omega/0.2)", "-tanh(omega/0.8)"}
 
 
+@pytest.mark.parametrize("role", [None, "angle"])
+def test_a_state_whose_rate_adds_a_velocity_is_its_position_whatever_its_role(role):
+    """An angle of attack α̇ = Zα·α + q + Zδ·δe declared without a role got no stiffness terms on q:
+    a −60·α³ pitching moment came out as 'the constant 8·al × 1.162', a mismatch remaining; with
+    role='angle' it was named 60.3 ± 0.7. α integrates q whatever its role."""
+    from skigen import Model
+    from skigen.diagnose.catalog import additive_candidates
+    m = Model("pitch", dt=0.01)
+    al = m.state("al", std=0.01, **({"role": role} if role else {}))
+    q = m.state("q", std=0.01)
+    de = m.input("de")
+    m.dynamics({al: -1.2 * al + q + 0.1 * de, q: -4 * al - 1.5 * q - 8 * de})
+    m.output("al_m", al, noise_std=1e-3)
+    stiffness = {(c.effect, c.formula) for c in additive_candidates(m, ["q", "al"], {"q": 1.0, "al": 1.0})
+                 if c.effect.endswith("stiffness")}
+    assert stiffness == {("linear_stiffness", "-al"), ("cubic_stiffness", "-al**3")}, stiffness   # on q, in α only
+
+
 def test_an_input_that_drives_two_equations_is_offered_terms_added_to_it():
     """The force on a cart-pole drives v̇ and, through the coupling, ω̇: friction, offset and gain
     are also offered through F, entering both equations as ∂(rate)/∂F does (to first order exactly
