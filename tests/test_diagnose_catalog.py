@@ -753,11 +753,12 @@ def test_a_thrust_constant_off_on_a_squared_command_is_named_on_the_command_s_te
     """KT 10 % low (a sagging battery) in v̇z = KT·pwm²/M − g, flown in closed loop: the input gain on
     the pwm term, −0.1 of it, is named alone and nothing remains (measured −0.0999 ± 0.0005 and
     −0.0994 ± 0.0005). The loop holds pwm near hover, so a rate offset and a linear gain on pwm
-    explain nearly as much. On seed 3 the pwm term wins its round; on seed 5 the offset wins it by
-    1.9 and a lidar gain of 0.895 is named next to make up the rest, until the revision finds the
-    pwm term alone within what a finding must add of both (fewer numbers), and says the offset and
-    the gain as ties. Before the pwm term was a candidate, ARD kept nine terms that cross-validated
-    below none of them, and a lidar gain was named."""
+    explain nearly as much. On seed 3 the pwm term wins its round; on seed 5 the search ranks an
+    offset (and a Coulomb friction) first under the noise before either, and the pwm term, 36.6
+    ahead of them under the noise each leaves, is adopted in their place (before, a lidar gain of
+    0.895 was named next to make up the rest, until the revision found the pwm term alone and said
+    the offset and the gain as ties). Before the pwm term was a candidate, ARD kept nine terms that
+    cross-validated below none of them, and a lidar gain was named."""
     from skigen.diagnose import diagnose
     m, frame = _hover(0.9, seed)
     d = diagnose(m, frame, tmp_path, figures=False, emit=False, show_progress=False).data
@@ -766,7 +767,8 @@ def test_a_thrust_constant_off_on_a_squared_command_is_named_on_the_command_s_te
     assert abs(f["coefficient"] + 0.1) < 3 * f["std"] < 0.003, f
     assert not d["remaining"]["mismatch"]
     if seed == 5:
-        assert {(a["effect"], a["expression"]) for a in f["as_good"]} == {("bias", "1"), ("sensor_gain", "0.895·z")}
+        assert not f.get("as_good"), f["as_good"]
+        assert "adopted as input_gain on vz instead" in (tmp_path / "report.md").read_text()
 
 
 def test_an_input_gain_on_a_state_without_a_role_beside_a_rate_is_named(tmp_path):
