@@ -384,11 +384,13 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
                 meta["figures"].append(Path(data["remaining"].pop("figure")))
     _gain_ratios(nominal, data["findings"])
     if (at := data["remaining"].get("changes_at")) is not None and data["findings"]:
-        caveats.append(f"the system changed at t = {at:.4g} s (what remains): the findings fit one model to the "
+        back = data["remaining"].get("changes_back")
+        when = f"at t = {at:.4g} s" + (f" and back at {back:.4g} s" if back is not None else "")
+        caveats.append(f"the system changed {when} (what remains): the findings fit one model to the "
                        f"stretches before and after it, and may stand for the change rather than for missing "
                        f"physics; diagnose the stretches apart")
         for f in data["findings"]:
-            _note(f, f"fitted across a change at t = {at:.4g} s: see the notes")
+            _note(f, f"fitted across a change {when}: see the notes")
     if data["remaining"].get("drifts") is not None and data["findings"]:
         caveats.append("what remains drifts over time: the findings fit one model to a recording whose system or "
                        "sensors drift, and may stand for the drift rather than for missing physics")
