@@ -211,9 +211,10 @@ def explain(model, rec, loc: Location, out_dir=None, names=None, tried=None, con
             return {"explained_by": None, "r2": None, "suggested_candidate": None, "drifts": rate,
                     "note": f"what remains in {eq} drifts over time: a straight line in time explains it best (R² "
                             f"{ramp_r2:.2g}; the best step {step_r2:.2g}; {shape}): something "
-                            f"drifts during the recording (a sensor's bias or gain warming up, wear, a leak), not "
-                            f"a shape of the states and inputs; the catalog has no drift, and the findings may "
-                            f"stand for it"}
+                            f"drifts during the recording (a sensor's bias or gain warming up, wear, a leak), or "
+                            f"a state slower than the recording that the model lacks (a second time constant), "
+                            f"not a shape of the states and inputs; the catalog has neither, and the findings "
+                            f"may stand for it"}
         return {"explained_by": None, "r2": None, "suggested_candidate": None, "changes_at": at,
                 "note": f"what remains in {eq} changes over time: a step at t = {at:.4g} s explains it best (R² "
                         f"{step_r2:.2g}; a drift {ramp_r2:.2g}; {shape}): the system changed during the recording "
