@@ -238,8 +238,10 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
         if data["findings"]:
             L += ["Evidence: the cross-validated log-likelihood each finding adds given the others (drop-one; "
                   "the findings' evidences need not add up). Free run without it: the free-run "
-                  "RMSE, over the output's spread and averaged over the outputs, of the corrected model without "
-                  f"this one finding (with all of them: {_fmt(data.get('free_run_with_all_findings'), '.3g')}); "
+                  "RMSE, over the output's spread and averaged over the outputs, of the model as named, without "
+                  f"this one finding (with all of them: {_fmt(data.get('free_run_with_all_findings'), '.3g')}), "
+                  "its coefficients as the naming fitted them, before the joint refit that gives those in the "
+                  "table and the corrected model (section 6 says how that one free-runs); "
                   "the findings are listed by it, the one a simulation needs most first: one step ahead a "
                   "delay or a sensor effect can carry more evidence than a force the simulation cannot do without.",
                   "", "| effect | acts on | term | coefficient ± std | shape | evidence | free run without it |",
