@@ -39,6 +39,7 @@ OFFSET_UNIT = 1e-6           # samples: offsets are summed as integers of this (
 RATE_GAP = 10                # an input without a sample for this many of its own intervals has a hole
 RATE_STAMPS = 256            # the input's first stamps whose median interval is its own
 RATE_OFF = 0.005             # a column's own interval this far (relative) from dt, and under 1/6, is noted
+SPARSE = 4.0                 # a column whose pace is this many dt or more: said (the grid is mostly between its samples)
 GAP_SHARE = 1.75             # a column's interval past this share of its median one is a gap, not its pace
 RATE_MIN = 8                 # intervals needed to know it (fewer: max_gap alone)
 
@@ -209,6 +210,12 @@ def _column_notes(name, column, output, count, early, dropped, repeated, first_r
                      f"{abs(pace / dt - 1):.1%} {'longer' if pace > dt else 'shorter'} than the model's dt = {dt:g} s: "
                      f"if it was logged at the model's rate, the logger's clock runs {pace / dt:.4g}× the true time, "
                      f"and the recording's dynamics with it")
+    if pace is not None and pace > SPARSE * dt:
+        notes.append(f"{kind} '{name}': its samples are {pace:.4g} s apart, {pace / dt:.3g}× the model's dt = "
+                     f"{dt:g} s: " + (f"the filter predicts about {pace / dt - 1:.0f} grid samples between "
+                                      f"readings" if output else
+                                      f"each is held over about {pace / dt:.0f} grid samples") +
+                     " (a model faster than its log; or a dt in other units than the stamps?)")
     if output and not count:
         notes.append(f"output '{name}' (column '{column}') has no value: never measured")
     return notes

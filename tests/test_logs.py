@@ -970,3 +970,21 @@ def test_a_filter_failing_on_most_steps_is_not_read_as_the_recording():
     verdict = next(line for line in lines if line.startswith("inconsistent"))
     assert ("why the first step failed is said above" in verdict) == any(
         line.startswith("why the first failed:") for line in lines), lines
+
+
+def test_a_column_far_slower_than_the_model_is_said(flight, tmp_path):
+    """A disc model at 5 ms run on a log stamped every 75 ms: 106 797 grid samples for 7 000 readings,
+    and 'no holes'. A column whose samples are 4 dt apart or more is said, in both readers; the
+    log at the model's rate is not."""
+    sparse = flight.iloc[::15].reset_index(drop=True)
+    notes = [n for n in load_recording(sparse, MODEL).notes if "× the model's dt" in n]
+    sparse.to_csv(tmp_path / "log.csv", index=False)
+    grid = stream_recording(tmp_path / "log.csv", MODEL)
+    list(grid)
+    assert [n for n in grid.notes if "× the model's dt" in n] == notes
+    assert notes == ["input 'delta': its samples are 0.3 s apart, 15× the model's dt = 0.02 s: each is held over about "
+                     "15 grid samples (a model faster than its log; or a dt in other units than the stamps?)",
+                     "output 'phi': its samples are 0.3 s apart, 15× the model's dt = 0.02 s: the filter predicts "
+                     "about 14 grid samples between readings (a model faster than its log; or a dt in other units "
+                     "than the stamps?)"], notes
+    assert not [n for n in load_recording(flight, MODEL).notes if "× the model's dt" in n]
