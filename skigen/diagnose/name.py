@@ -915,7 +915,7 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
         history[-1] = chosen
         for swapped in (False, True):
             chosen.adopted = added(corr, new)
-            chosen.as_good, chosen.alternatives = [], []   # its swaps' ties were under the noise before it: judged again
+            chosen.as_good, chosen.alternatives, chosen.rivals = [], [], []   # its swaps' ties were under the noise before it
             same = {_said(a) for a in chosen.adopted}
             for other, _, other_score, p in adopted:      # a finalist within what a finding must add: a tie
                 behind = -_gain(other_score, score)
