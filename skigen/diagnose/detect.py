@@ -182,9 +182,9 @@ def independence(eps: np.ndarray, Z: np.ndarray) -> tuple[float, int]:
     """(p-value, degrees of freedom) of N·R² of one output's normalised innovations regressed on
     ``Z`` (columns centred, about zero mean), χ²(rank Z), where both are finite."""
     ok = np.isfinite(eps) & np.all(np.isfinite(Z), axis=1)
-    e, z = eps[ok], Z[ok] - Z[ok].mean(axis=0)
-    if len(e) <= 2 * Z.shape[1]:
+    if ok.sum() <= 2 * Z.shape[1]:
         return 1.0, 0
+    e, z = eps[ok], Z[ok] - Z[ok].mean(axis=0)
     q = _basis(z)
     stat = len(e) * float(np.sum((q.T @ e) ** 2)) / max(float(np.dot(e, e)), 1e-300)
     return float(stats.chi2.sf(stat, q.shape[1])), q.shape[1]
