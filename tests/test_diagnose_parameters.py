@@ -457,6 +457,19 @@ def test_what_remains_is_suggested_in_the_user_s_names_with_three_periods_at_lea
     assert suggest.explain(None, None, loc, names={"th", "om", "i"})["explained_by"] == "th"
 
 
+def _thrust_sag(monkeypatch, suggest):
+    """(rng, t, pwm, loc): a thrust that sags at t = 30 s of 60, what a constant correction leaves
+    on vz (±0.4 about a step, 0.1 noise), with pwm the only feature ``suggest`` sees."""
+    import types
+    rng = np.random.default_rng(2)
+    t = np.arange(3000) * 0.02
+    pwm = 0.5 + 0.05 * rng.standard_normal(3000)
+    d = np.where(t > 30, -0.4, 0.4) + 0.1 * rng.standard_normal(3000)
+    loc = types.SimpleNamespace(equations=["vz"], disturbance={"vz": (d, np.full(3000, 0.1))}, states=None)
+    monkeypatch.setattr(suggest, "features", lambda model, rec, states: {"pwm": (pwm, None)})
+    return rng, t, pwm, loc
+
+
 def test_what_remains_that_steps_in_time_is_said_to_change_over_time(monkeypatch):
     """A thrust that sags at t = 30 s of 60: what the constant correction leaves is a step in time;
     the best shape of a state (a cosine of the command, R² 0.32 once) was suggested as a candidate.
@@ -464,12 +477,7 @@ def test_what_remains_that_steps_in_time_is_said_to_change_over_time(monkeypatch
     its candidate; a step within the disturbance's band (under 3 of its std) is not said."""
     import types
     from skigen.diagnose import suggest
-    rng = np.random.default_rng(2)
-    t = np.arange(3000) * 0.02
-    pwm = 0.5 + 0.05 * rng.standard_normal(3000)
-    d = np.where(t > 30, -0.4, 0.4) + 0.1 * rng.standard_normal(3000)
-    loc = types.SimpleNamespace(equations=["vz"], disturbance={"vz": (d, np.full(3000, 0.1))}, states=None)
-    monkeypatch.setattr(suggest, "features", lambda model, rec, states: {"pwm": (pwm, None)})
+    rng, t, pwm, loc = _thrust_sag(monkeypatch, suggest)
     out = suggest.explain(None, types.SimpleNamespace(t=t), loc)
     assert out["suggested_candidate"] is None and abs(out["changes_at"] - 30) < 0.1, out
     assert out["note"].startswith("what remains in vz changes over time: a step at t = 30") and "apart" in out["note"]
@@ -754,12 +762,7 @@ def test_a_step_in_the_disturbance_the_innovations_do_not_confirm_is_not_a_chang
     the shapes are suggested as usual."""
     import types
     from skigen.diagnose import suggest
-    rng = np.random.default_rng(2)
-    t = np.arange(3000) * 0.02
-    pwm = 0.5 + 0.05 * rng.standard_normal(3000)
-    d = np.where(t > 30, -0.4, 0.4) + 0.1 * rng.standard_normal(3000)
-    loc = types.SimpleNamespace(equations=["vz"], disturbance={"vz": (d, np.full(3000, 0.1))}, states=None)
-    monkeypatch.setattr(suggest, "features", lambda model, rec, states: {"pwm": (pwm, None)})
+    rng, t, pwm, loc = _thrust_sag(monkeypatch, suggest)
     said = suggest.explain(None, types.SimpleNamespace(t=t), loc, confirm=lambda: {"changes_at": 30.0})
     assert abs(said["changes_at"] - 30) < 0.1, said
     said = suggest.explain(None, types.SimpleNamespace(t=t), loc, confirm=lambda: {})

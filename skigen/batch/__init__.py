@@ -88,8 +88,8 @@ class BatchResult:
                 out.append(f"  {r['verdict']}: {r['log']}: mean NIS {r.get('mean_nis') or float('nan'):.3g} (expected "
                            f"{r.get('nis_expected') or float('nan'):.3g}); see {self.out_dir / r['log'] / 'summary.txt'}")
             if r["status"] == "ok":
-                out += [f"  {n.split(': ', 1)[0]}: {r['log']}: {n.split(': ', 1)[1]}" for n in r.get("notes") or []
-                        if str(n).startswith(UNITS)]
+                out += [f"  {UNITS}: {r['log']}: {n[len(UNITS) + 2:]}" for n in r.get("notes") or []
+                        if str(n).startswith(f"{UNITS}: ")]
             if r.get("mismatch") and r["status"] == "ok":
                 out.append(f"  mismatch: {r['log']}: " + ("; ".join(r.get("findings") or []) or "nothing named")
                            + ("; a mismatch remains" if r.get("remains") else ""))

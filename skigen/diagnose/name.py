@@ -175,11 +175,12 @@ def unfit_slope(model: Model, rec: Recording, states: np.ndarray, c: Additive) -
     U = np.vstack([rec.inputs, np.repeat(um[None, :], 2 * nx, axis=0)]) if len(model.inputs) else np.zeros((len(points), 0))
     with np.errstate(all="ignore"):
         value, slope = (np.asarray(v) for v in f.map(len(points))(points.T, U.T))
-    bad = np.isfinite(value.ravel()) & ~np.isfinite(slope.reshape(nx, -1, order="F")).all(axis=0)
+    finite = np.isfinite(slope.reshape(nx, -1, order="F"))
+    bad = np.isfinite(value.ravel()) & ~finite.all(axis=0)
     if not bad.any():
         return None
     k = int(np.argmax(bad))
-    i = int(np.argmax(~np.isfinite(slope.reshape(nx, -1, order="F")[:, k])))
+    i = int(np.argmax(~finite[:, k]))
     return (f"its derivative in {model.state_names[i]} is not finite at {model.state_names[i]} = {points[k, i]:.4g} "
             f"(where the naming evaluates it: the recorded range widened by {RANGE_MARGIN:.0%} each way), so the "
             f"EKF it is fitted with fails there; write it with a derivative defined there (sqrt(fmax(x, 1e-9)) "

@@ -86,9 +86,13 @@ def _step(t: np.ndarray, d: np.ndarray, sd: np.ndarray, w: np.ndarray, n: int = 
         r2, coef = _r2(d, w, phi)
         return (r2 if _resolved(coef, phi, sd) else -np.inf), float(at)
     best = max(map(score, grid))
-    k = int(np.searchsorted(grid, best[1]))
-    near = t[(t > grid[max(k - 1, 0)]) & (t < grid[min(k + 1, n - 1)])]
-    return max([best, *map(score, near)])
+    return max([best, *map(score, _between(t, grid, best[1]))])
+
+
+def _between(t: np.ndarray, grid: np.ndarray, at: float) -> np.ndarray:
+    """The samples of ``t`` strictly between the grid points either side of ``at``, a grid point."""
+    k = int(np.searchsorted(grid, at))
+    return t[(t > grid[max(k - 1, 0)]) & (t < grid[min(k + 1, len(grid) - 1)])]
 
 
 def _pulse(t: np.ndarray, d: np.ndarray, sd: np.ndarray, w: np.ndarray, n: int = 40) -> tuple[float, tuple]:
@@ -104,8 +108,7 @@ def _pulse(t: np.ndarray, d: np.ndarray, sd: np.ndarray, w: np.ndarray, n: int =
         return (r2 if _resolved(coef, phi, sd) else -np.inf), (float(a), float(b))
     best = max((score(a, b) for i, a in enumerate(grid) for b in grid[i + 1:]), key=lambda s: s[0])
     for end in (0, 1):                       # each end to the sample, the other held
-        k = int(np.searchsorted(grid, best[1][end]))
-        near = t[(t > grid[max(k - 1, 0)]) & (t < grid[min(k + 1, n - 1)])]
+        near = _between(t, grid, best[1][end])
         near = near[np.unique(np.linspace(0, len(near) - 1, min(len(near), 4 * n)).astype(int))] if len(near) else near
         best = max([best, *(score(*((x, best[1][1]) if end == 0 else (best[1][0], x))) for x in near
                             if (x < best[1][1] if end == 0 else x > best[1][0]))], key=lambda s: s[0])
@@ -187,10 +190,9 @@ def explain(model, rec, loc: Location, out_dir=None, names=None, tried=None, con
     step_r2, at = _step(rec.t, d, sd, w) if rec is not None else (-np.inf, 0.0)
     ramp_r2, rate = _ramp(rec.t, d, sd, w) if rec is not None else (-np.inf, 0.0)
     pulse_r2, (on, off) = _pulse(rec.t, d, sd, w) if rec is not None else (-np.inf, (0.0, 0.0))
-    drift = ramp_r2 >= step_r2               # a straight line in time, one number fewer than a step's
-    pulse = pulse_r2 > max(step_r2, ramp_r2) + PULSE_MARGIN    # one more than a step's: by a margin
+    pulse = pulse_r2 > max(step_r2, ramp_r2) + PULSE_MARGIN    # one number more than a step's: by a margin
+    drift = not pulse and ramp_r2 >= step_r2                     # a straight line in time, one fewer
     timed = max(step_r2, ramp_r2, pulse_r2 if pulse else -np.inf)
-    drift &= not pulse
     what = ("a drift in time" if drift else f"a pulse from t = {on:.4g} to {off:.4g} s" if pulse
             else f"a step at t = {at:.4g} s")
     if timed >= HINT_R2 and timed > max(best[0], closest[0]) + STEP_MARGIN and confirm is not None \

@@ -419,7 +419,7 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
                                 f"it drives to have it calibrated")
         if method == "filter-error":
             result.notes += (_absorbing(model, result.noise) + _following(result.model, recs, tested)
-                             + _disagreeing(prob, xi, inputs["p"], lengths, fitted_at, scale, recs))
+                             + _disagreeing(prob, xi, rho, inputs["p"], lengths, fitted_at, scale, recs))
         if method == "output-error" and (params := list(result.parameters) + list(result.weights)):
             result.notes += _unexplained_residuals(model, recs, result.predictions, params)
         A = result.model.state_jacobian()         # a yaw damping 6.81 ± 0.045 for 8 under Euler, said nowhere
@@ -848,8 +848,8 @@ DISAGREE = 1e-3   # false-alarm rate of a pair of recordings said to differ (one
                   # four recordings of a right pendulum model were said to disagree in 2 fleets of 60)
 
 
-def _disagreeing(prob: Problem, xi: np.ndarray, data, lengths, cols: list[int], scale: np.ndarray,
-                 recs) -> list[str]:
+def _disagreeing(prob: Problem, xi: np.ndarray, rho: np.ndarray, data, lengths, cols: list[int],
+                 scale: np.ndarray, recs) -> list[str]:
     """Filter error: a note naming each recording whose own parameters differ from most of the
     others' (:func:`~skigen.fit.uncertainty.recording_shifts`: each recording's step from the
     pooled fit; a pair differs where χ² of their difference is beyond DISAGREE, Bonferroni over
@@ -858,7 +858,7 @@ def _disagreeing(prob: Problem, xi: np.ndarray, data, lengths, cols: list[int], 
     if len(recs) < 2 or not cols:
         return []
     from scipy.stats import chi2
-    rho = np.asarray(prob.residuals(xi, data)[0])
+    rho = np.asarray(rho)                    # the pseudo-residuals at xi (:func:`_at_optimum`)
     J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(xi, data))
     ny = int(round((np.sqrt(1 + 4 * rho.shape[0]) - 1) / 2))        # n_rho = ny + ny²
     a = rho[:ny]
