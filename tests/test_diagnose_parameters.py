@@ -343,15 +343,15 @@ def test_a_free_runs_noise_is_a_random_walks_for_an_integrator():
             assert whole == pytest.approx(mean, rel=1e-12) and whole < q / (1 - a ** 2) + r
 
 
-@pytest.mark.xfail(strict=True, reason="known wrong on this machine (CasADi 3.8.0–3.8.2, NumPy 2.3–2.4, SciPy 1.16–1.17 "
-                   "alike, and at a131833, where it passed before): the friction is adopted, but round 2 then adopts "
-                   "a position-sensor gain of 0.87, which the joint refit takes to 0.41 beside a friction of 2.49")
 def test_a_correction_under_which_the_noises_trade_off_is_still_adopted(tmp_path):
     """A 12 s cart flight with Coulomb friction (1 N): the friction explains so much that, under it,
     the recording cannot tell the velocity's process noise from the encoder's (they trade off along
     a flat valley), and the recalibration refused. The best proposal (+131 cross-validated) was
     then dropped and the report said 'no candidate explains the mismatch'; the noise it was scored
-    under is now kept (measured: 0.986 ± 0.041 N, consistent afterwards)."""
+    under is now kept. Kept there, its width came out 5.5× the true one, and a position-sensor gain
+    of 0.87 was adopted beside it (0.41 after the joint refit, with an input gain 2.5× the declared
+    one); the noise now starts again from the declared one (measured: 1.0006 ± 0.0011 N, width
+    0.0016 m/s for a true 0.002, nothing else named, consistent afterwards)."""
     from models import cart
     from skigen.diagnose import diagnose
     run = cart.simulate(cart.smooth(cart.steps([0.1, -0.1, 0.05, -0.05, 0.15, 0.0], 2.0)), 12.0,
@@ -359,7 +359,7 @@ def test_a_correction_under_which_the_noises_trade_off_is_still_adopted(tmp_path
     frame = pd.DataFrame({"t": run.t, **run.inputs(), **run.outputs()})
     rep = diagnose(str(ROOT / "models" / "cart.py"), frame, tmp_path, figures=False, emit=False, show_progress=False)
     (f,) = rep.findings
-    assert f["effect"] == "coulomb_friction" and abs(f["coefficient"] - 1.0) < 3 * f["std"] < 0.15, f
+    assert f["effect"] == "coulomb_friction" and abs(f["coefficient"] - 1.0) < 3 * f["std"] < 0.005, f
     assert not rep.data["remaining"]["mismatch"]
 
 

@@ -335,7 +335,10 @@ def cv_loglik(nominal: Model, corr: Correction, rec: Recording, folds: Folds, rm
     base = Correction([], corr.structural)
     cands = [a[0] for a in corr.additive]
     m, r = _estimating(base, nominal, cands, rms, size)
-    start = start_priors(base.build(nominal), rec, folds)
+    try:            # where the filter estimating the terms stands: the model without them may stray
+        start = start_priors(m, rec, folds)
+    except (FloatingPointError, RuntimeError, np.linalg.LinAlgError):
+        start = start_priors(base.build(nominal), rec, folds)
 
     def held_out(f, fitted) -> float:
         if isinstance(fitted, Exception):        # diverged
@@ -797,10 +800,11 @@ def _refined(nominal: Model, best: Correction, i: int, alts: list[Additive], bes
     limit's bound, or a Coulomb friction's width on a log scale (past the grid's end by its own
     step): a bounded scalar search on the whole recording's log-likelihood after a joint refit.
     A limit's grid is of the state's quantiles, and a wall between two of them was placed on one
-    (0.0319 for a true 0.04, its coefficient 5σ low; refined where the shapes are searched, after
-    the rounds, whose later findings may already make up for the grid's bound: 0.0328 beside a
-    sensor offset there); a friction's widths are 4× apart, and one of 0.01 m/s was taken at
-    0.0044, its coefficient 2.5σ low and "a mismatch remains"."""
+    (0.0319 for a true 0.04, its coefficient 5σ low; refined after the rounds only, whose later
+    findings may already make up for the grid's bound: 0.0328 beside a sensor offset there; it is
+    refined when adopted, :func:`_shaped`, and again after the rounds); a friction's widths are 4×
+    apart, and one of 0.01 m/s was taken at 0.0044, its coefficient 2.5σ low and "a mismatch
+    remains"."""
     c = best.additive[i][0]
     if c.effect == "physical_limit":
         shape = dict(c.shape)
@@ -853,6 +857,9 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
     with the noise recalibrated under the correction)."""
     tick = progress or (lambda label: None)
     size = {eq: disturbance_rms.get(eq, 1.0) for eq in {c.equation for c in [*additive, *parameters]}}
+    variants = {}
+    for c in additive:
+        variants.setdefault(c.group, []).append(c)
     additive = representatives(distinct(nominal, rec, states, additive)) if additive else []
     every = additive + list(parameters)
     rms = dict(zip(every, basis_rms(nominal, rec, states, every))) if every else {}
@@ -943,7 +950,10 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
                 break
         earlier = [e[0] for e in corr.structural]
         rounds.append((chosen, corr))
+        fresh = {c.group for c, _, _ in new.additive} - {c.group for c, _, _ in corr.additive}
         corr, nominal, current = new, recal, score
+        if shaped := _shaped(nominal, corr, fresh, variants, rec, states, rms, size):
+            corr, current = shaped, cv_loglik(nominal, shaped, rec, folds, rms, size)
         if chosen.kind == "structural" and _label(corr.structural[-1][0]) != chosen.label:
             chosen.label += f", adopted as {_label(corr.structural[-1][0])}"   # a fractional delay, whole
         again = redelayed(nominal, corr, earlier, rec, alpha, rms, size)
@@ -953,6 +963,19 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
         history.append(revision)
         corr, nominal, current = revision.correction, revision.noise, revision.folds
     return corr, history, rms, size, nominal
+
+
+def _shaped(nominal: Model, corr: Correction, groups: set, variants: dict, rec: Recording, states: np.ndarray,
+            rms: dict, size: dict) -> Correction | None:
+    """``corr`` with the shape of its terms of ``groups`` (just adopted) searched at once
+    (:func:`shape_search`), or None when none has variants: a later round is weighed against the
+    best shape, not the grid's middle one."""
+    shaped = {g: variants[g] for g in groups if len(variants.get(g, ())) > 1}
+    if not shaped:
+        return None
+    if alts := [a for g in shaped.values() for a in g if a not in rms]:
+        rms.update(zip(alts, basis_rms(nominal, rec, states, alts)))
+    return shape_search(nominal, corr, shaped, rec, rms, size)[0]
 
 
 class StartRejected(Exception):
@@ -1228,13 +1251,23 @@ def recalibrated(nominal: Model, corr: Correction, rec: Recording, noise_from=No
     """``nominal`` with the noise the corrected model calibrates to: what the accepted terms
     explain is no longer left to the process noise (started from the user's declared noise
     ``noise_from`` as well: the nominal's calibration may sit where that was all process noise).
-    Where the recording cannot tell the noises apart under the correction (it explains so much that
-    process and sensor noise trade off along a flat valley), the noise it was scored under is kept."""
+    Where the recording cannot tell the noises apart there (it explains so much that process and
+    sensor noise trade off along a flat valley), the calibration starts again from ``noise_from``
+    (a cart's friction, under the nominal's velocity noise 84× the declared std, was given a width
+    5.5× the true one, for which a sensor gain then made up), and failing that too, the noise it
+    was scored under is kept."""
     from .calibrate import NoiseNotIdentifiable, calibrate
     try:
         cal, _ = calibrate(corr.build(nominal), [rec], noise_from=noise_from)
     except NoiseNotIdentifiable:
-        return nominal
+        if noise_from is None:
+            return nominal
+        declared = T.copy_model(nominal)
+        declared.covariances(Q=noise_from[0], R=noise_from[1], P0=nominal.initial_covariance())
+        try:
+            cal, _ = calibrate(corr.build(declared), [rec])
+        except NoiseNotIdentifiable:
+            return nominal
     nx = len(nominal.states)
     m = T.copy_model(nominal)
     m.covariances(Q=cal.process_noise()[:nx, :nx], R=cal.measurement_noise(), P0=nominal.initial_covariance())
