@@ -191,6 +191,8 @@ def _diagnose(args) -> int:
     except DiagnosisError as exc:
         raise CliError(str(exc)) from None
     d = report.data
+    for hint in (d["remaining"] or {}).get("units", []):       # first: the findings may only make up for it
+        print(f"check the units first: {hint}")
     for line in d["notes"]:
         print(f"note: {line}")
     c, cal = d["consistency"], d["noise"]["calibrated"]
@@ -242,8 +244,6 @@ def _diagnose(args) -> int:
         print(f"validation: {line}")
     if (d["remaining"] or {}).get("integration"):
         print(f"integration: {d['remaining']['integration']}")
-    for hint in (d["remaining"] or {}).get("units", []):
-        print(f"check the units: {hint}")
     if d["corrected_model"]:
         print(f"corrected model: {d['corrected_model']}")
     print(f"report: {Path(args.out) / 'report.md'} ({report.seconds:.1f} s)")

@@ -646,16 +646,20 @@ def _finer(method: str, substeps: int) -> str:
     return "use " + " or ".join(ways) if ways else "use a shorter dt"
 
 
+STILL = 1e-9     # |λ|·h: a mode that moves less of itself per step no step misplaces (and a free
+                 # integrator's 0 computes as ±1e-14 /s, whose 'error' the note was then about)
+
+
 def mode_error(A: np.ndarray, method: str, h: float) -> tuple[float, complex, complex] | None:
     """(error, λ, λ_step) of the mode of the continuous Jacobian ``A`` (1/s) that a ``method`` step
     of ``h`` s misplaces most: λ_step = log R(λh)/h is the rate the step gives the mode, and the
     error is |λ_step − λ| over max(|Re λ|, LIGHT·|λ|), as a share of the mode's damping (an Euler
     step adds ω²h/2 to a lightly damped mode's decay, which an identified damping term absorbs:
-    a pendulum's −0.10 read −0.154 at 100 Hz). None without modes; inf where R(λh) ≤ 0."""
+    a pendulum's −0.10 read −0.154 at 100 Hz). None without modes (beyond STILL); inf where R(λh) ≤ 0."""
     if not np.isfinite(A).all():
         return None
     lam = np.linalg.eigvals(A)
-    lam = lam[np.abs(lam) > 0]
+    lam = lam[np.abs(lam) * h > STILL]
     if not lam.size:
         return None
     gain = _step_gain(method, lam * h)

@@ -240,6 +240,23 @@ def test_a_refitted_value_is_written_to_its_std_second_digit():
     assert "coefficient 4.285 ± 0.043, cross" in finding_line(dict(delay, effect="bias", coefficient=4.285, std=0.043))
 
 
+def test_a_friction_coefficient_is_given_in_its_rates_unit():
+    """A Coulomb friction on a load's rate, 0.9933 ± 0.0029, was read as a torque in N·m: a
+    coefficient of a term without a unit (a bias, a friction's tanh) is in the rate's unit."""
+    from skigen.diagnose import _rate_unit
+    from skigen.diagnose.report import finding_line
+    m = Model("load", dt=0.01)
+    m.state("wl", unit="rad/s")
+    m.state("T", unit="K")
+    assert (_rate_unit(m, "wl"), _rate_unit(m, "T")) == ("rad/s²", "K/s")
+    d = Model("load", dt=0.01, discretization="discrete")
+    d.state("wl", unit="rad/s")
+    assert _rate_unit(d, "wl") == "rad/s"                  # a discrete model's term adds per sample
+    f = dict(effect="coulomb_friction", equation="wl", expression="-tanh(wl/0.0105)", coefficient=0.9933, std=0.0029,
+             unit="rad/s²", evidence=1492.4, free_run_without=0.352)
+    assert "coefficient 0.9933 rad/s² ± 0.0029, cross" in finding_line(f)
+
+
 def test_a_remaining_mismatch_points_at_a_step_too_coarse_for_a_fast_mode():
     """A coil whose current settles in 0.5 ms, integrated by RK4 at 0.5 ms: 1.9 % error per step
     on that mode; a voice-coil probe at λh = −1.3 (8 %) left a mismatch on a clean recording,

@@ -656,6 +656,24 @@ def test_a_start_whose_free_run_cannot_tell_weights_apart_is_not_refused_when_th
     assert any(n.startswith("output error: at the starting values the free run did not tell") for n in res.notes)
 
 
+
+def test_an_initial_state_no_output_sees_is_held():
+    """A motor and its load with the shaft spring left out: the load's angle enters no output,
+    and output error refused the fit ('thl@0' has no effect on the likelihood), advising
+    --estimate, which takes no initial state. That start is held, with a note, as filter error
+    holds such a state's noise."""
+    m, y, v, u = _linear("unseen")
+    angle = m.state("angle", std=0.2)
+    k = m.parameter("k", 3.0)
+    m.dynamics({y: v, v: -k * y - 0.5 * v + u, angle: v})
+    m.output("pos", y, noise_std=0.01)
+    truth, yt, vt, ut = _linear("unseen_truth")
+    truth.dynamics({yt: vt, vt: -4.0 * yt - 0.5 * vt + ut})
+    truth.output("pos", yt, noise_std=0.01)
+    res = fit(m, [_excited(truth, N=400)], method="output-error", show_progress=False)
+    assert abs(res.parameters["k"]["value"] - 4.0) < 3 * res.parameters["k"]["std"] < 0.02, res.parameters["k"]
+    assert "the initial value of angle is held at the declared one: no output sees it" in res.notes
+
 def test_a_stuck_output_is_named_not_fitted():
     m, y, v, u = _linear("stuck")
     k = m.parameter("k", 4.0)

@@ -190,3 +190,18 @@ def test_the_step_note_offers_what_makes_the_step_finer(method):
     assert re.search(r"; use (discretization=\"rk4\" or )?substeps=\d+$", note), note
     assert m.step_note([np.array([[-1e9]])], "here").endswith(
         "use a shorter dt" if method == "rk4" else 'use discretization="rk4"')
+
+
+def test_a_free_integrator_draws_no_step_note():
+    """A motor driving a load through a shaft: the drive's free rotation is a mode at 0, computed
+    as −7.7e-15 /s, and every fit of the right model was told the RK4 step of 5 ms moved it to 0
+    and to 'use a shorter dt'. A mode that moves less than STILL of itself per step is left out."""
+    Jm, Jl, k, c, b = 0.01, 0.05, 5.0, 0.02, 0.1
+    A = np.array([[0, 1, 0, 0], [-k / Jm, -(b + c) / Jm, k / Jm, c / Jm], [0, 0, 0, 1],
+                  [k / Jl, c / Jl, -k / Jl, -c / Jl]])
+    m = Model("flex", dt=0.005, discretization="rk4")
+    x = m.state("x", std=1.0)
+    m.dynamics({x: -x})
+    m.output("y", x, noise_std=0.1)
+    assert m.step_note([A], "here") is None
+    assert Model("flex", dt=0.05, discretization="euler").step_note([A], "here") is not None   # its 23.6 rad/s mode

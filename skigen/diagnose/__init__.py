@@ -783,6 +783,8 @@ def _findings(nominal: Model, corr: Correction, ev: dict, shapes: dict, worth: d
              "reading": c.reading + (f" ({c.variant})" if c.variant else "")}
         if c.through:
             f["through"] = c.through
+        if c.effect in UNITLESS_BASIS and (unit := _rate_unit(nominal, c.equation)):
+            f["unit"] = unit
         if c.shape:
             f["shape"] = dict(c.shape)
         if c in shapes:
@@ -803,6 +805,18 @@ def _findings(nominal: Model, corr: Correction, ev: dict, shapes: dict, worth: d
             f["written_in"] = list(s.equations)
         out.append(f)
     return sorted(out, key=lambda f: (-f["free_run_without"], -f["evidence"]))
+
+
+UNITLESS_BASIS = ("bias", "coulomb_friction")     # a term whose coefficient is in its rate's unit
+
+
+def _rate_unit(nominal: Model, eq: str) -> str:
+    """The unit of ``eq``'s rate (its state's per second; per sample for a discrete model): "rad/s"
+    → "rad/s²" (a Coulomb friction's 0.99 on a load's rate read as a torque, in N·m)."""
+    unit = next(v.unit for v in nominal.states if v.name == eq)
+    if not unit or nominal.discretization == "discrete":
+        return unit
+    return unit[:-2] + "/s²" if unit.endswith("/s") else f"{unit}/s"
 
 
 def _as_good(findings: list[dict], history) -> None:

@@ -242,7 +242,7 @@ def refit_jointly(nominal: Model, calibrated: Model, corr: Correction, rec, equa
                       show_progress=False, noise_from=noise_from)
         except FitError as exc:          # the fit's advice (--estimate …) is not the diagnosis's to give
             why = "; ".join(exc.lost) if isinstance(exc, NotIdentifiable) else str(exc)
-            info["note"] += (f"joint refit with {len(attempt)} lifted corrections"
+            info["note"] += (f"joint refit with {_own_terms(attempt) if attempt else 'the findings alone'}"
                              + (", the calibration's std as prior," if start is anchored else "")
                              + f" failed: {why}. ")
             continue
@@ -256,7 +256,7 @@ def refit_jointly(nominal: Model, calibrated: Model, corr: Correction, rec, equa
                 fewer = None
             lr = 2 * (fewer.objective - res.objective) if fewer is not None else np.inf
             if lr < stats.chi2.ppf(1 - alpha, len(weak)):
-                info["note"] += (f"{len(weak)} of the nominal's {len(attempt)} lifted corrections, each within "
+                info["note"] += (f"the refit's corrections of {_own_terms(weak)}, each within "
                                  f"{_lift_z(attempt, alpha):.2f} std of zero and together not significant "
                                  f"(likelihood ratio {lr:.2f}), left out. ")
                 res, (model, names, notes), attempt = fewer, plain, keep
@@ -272,6 +272,14 @@ def refit_jointly(nominal: Model, calibrated: Model, corr: Correction, rec, equa
     info["note"] += "coefficients from the cross-validated search"
     model, names, notes = parametrised(calibrated, corr, [])
     return _polished(model, rec, pieces, names, notes, info, window)
+
+
+def _own_terms(lifted: list) -> str:
+    """The nominal's own terms a joint refit corrects (:func:`liftable`), in words: "the nominal's
+    own viscous damping on `wl` and input gain on `wm` (refitted with the findings)"."""
+    said = [f"{c.effect.replace('_', ' ')} on `{c.equation}`" for c in lifted]
+    return (f"the nominal's own {', '.join(said[:-1]) + ' and ' if len(said) > 1 else ''}{said[-1]} "
+            f"(its constants refitted with the findings: the model declares no parameters)")
 
 
 def _lift_z(attempt: list, alpha: float) -> float:

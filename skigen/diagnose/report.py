@@ -63,7 +63,8 @@ def finding_line(f: dict) -> str:
     std = f["std"]
     bar = f"± {std:.2g}" if std is not None and math.isfinite(std) else (
         "(a whole number of samples: no error bar)" if f["effect"] == "input_delay" else "(no error bar)")
-    return (f"{where(f)}: {f['expression']}, coefficient {f['coefficient']:.6g} {bar}, "
+    unit = f" {f['unit']}" if f.get("unit") not in (None, "", "1") else ""
+    return (f"{where(f)}: {f['expression']}, coefficient {f['coefficient']:.6g}{unit} {bar}, "
             f"cross-validated evidence {f['evidence']:+.1f}, free run without it "
             f"{'diverges' if free is None or not math.isfinite(free) else format(free, '.3g')}"
             + "".join(f"; not told apart from {where(a)}: {a['expression']}, coefficient {a['coefficient']:.6g}"
@@ -187,14 +188,15 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
                    if data["findings"] else "**A significant mismatch exists; no candidate explains it.**")
     else:
         verdict = "**A significant mismatch exists; the corrected model explains it.**"
-    L += [verdict, ""] + [f"**A validation recording disagrees** — {line}.\n" for line in data.get("validation_disagrees", [])]
+    L += [verdict, ""]
+    if rem.get("units"):
+        L += ["**Check the units first** — the findings below may only be making up for them: "
+              + "; ".join(rem["units"]), ""]
+    L += [f"**A validation recording disagrees** — {line}.\n" for line in data.get("validation_disagrees", [])]
     if rem.get("noise_covers"):
         L += [f"**Consistent only with noise far above the declared** — {noise_covers_sentence(rem['noise_covers'])}.", ""]
     L += [f"{meta['samples']} samples, dt = {meta['dt']:g} s. {fit['validation']}.", ""]
     L += [f"Note: {n}." for n in data["notes"]] + [""] * bool(data["notes"])
-    if rem.get("units"):
-        L += ["**Check the units first** — the findings below may only be making up for them: "
-              + "; ".join(rem["units"]), ""]
     L += ["## 1. Calibrate the noise", "", data["noise"]["method"] + ":", ""] + _noise_table(data["noise"]) + [""]
     if data.get("mismatch_detected") and (low := _sensors_below(data["noise"])):
         L += [f"The calibration puts {low} far below the declared: on a model that misses something the filter "

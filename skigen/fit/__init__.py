@@ -324,6 +324,13 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
         if dead:                                    # a state no output sees: its noise moves no prediction
             held += dead
             notes.append(unseen_noise_note(unseen_states))
+        with np.errstate(over="ignore", invalid="ignore"):
+            unseen_starts = [i for i, k in enumerate(V.kinds) if k == "initial" and not np.any(J0[:, i])
+                             and not prior.ravel()[i]]
+        if unseen_starts:                           # output error: a state no output sees starts anywhere
+            held += unseen_starts
+            notes.append(f"the initial value of {', '.join(sorted({V.names[i].split('@')[0] for i in unseen_starts}))} "
+                         f"is held at the declared one: no output sees it")
         free = [i for i in range(len(V)) if i not in held]
         G = _dense(jac_g(theta0 / scale, p))
         lost = unidentified(J0[:, free], prior.ravel()[free], [V.names[i] for i in free], G[:, free])
