@@ -63,7 +63,7 @@ def finding_line(f: dict) -> str:
     std = f["std"]
     bar = f"± {std:.2g}" if std is not None and math.isfinite(std) else (
         "(a whole number of samples: no error bar)" if f["effect"] == "input_delay" else "(no error bar)")
-    unit = f" {f['unit']}" if f.get("unit") not in (None, "", "1") else ""
+    unit = f" {f['unit']}" if f.get("unit") not in (None, "", "1") and bar.startswith("±") else ""
     return (f"{where(f)}: {f['expression']}, coefficient {f['coefficient']:.6g}{unit} {bar}, "
             f"cross-validated evidence {f['evidence']:+.1f}, free run without it "
             f"{'diverges' if free is None or not math.isfinite(free) else format(free, '.3g')}"

@@ -417,7 +417,7 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
         result.notes = (notes + _unseen_notes(result) + _bound_notes(result.parameters) + _far_notes(result.parameters)
                         + _prior_notes(model, result.parameters, fisher_std)
                         + _correlated(result.correlation, {*result.parameters, *result.weights})
-                        + _unequal_residuals(result.recordings, model.output_names))
+                        + _unequal_residuals(result.recordings, recs, result.predictions, model.output_names))
         driven = [n for n, q in zip(model.state_names, np.diag(model.process_noise())) if q > 0]
         if method == "filter-error" and not driven:
             result.notes.append(f"'{model.name}' declares no process noise on any state, so filter error calibrates "
@@ -755,18 +755,27 @@ def _repeated(recs: list[Recording]) -> list[str]:
     return out
 
 
-def _unequal_residuals(reports: list[dict], outputs, least: int = 50) -> list[str]:
-    """A note per output whose residual RMS differs UNEQUAL-fold or more between recordings (of at
-    least ``least`` samples): one noise per output serves them all (a fleet's flights at 0.005 and
-    0.03 rad were fitted one 0.014 in silence), so the fit weighs them alike and its error bars
-    are those of that one noise."""
+def _unequal_residuals(reports: list[dict], recs, predictions, outputs, least: int = 50) -> list[str]:
+    """A note per output whose residuals' noise differs UNEQUAL-fold or more between recordings (of
+    at least ``least`` readings): one noise per output serves them all (a fleet's flights at 0.005
+    and 0.03 rad were fitted one 0.014 in silence), so the fit weighs them alike and its error bars
+    are those of that one noise. The noise is the RMS of the residuals' second differences over
+    √6 (white noise's), not their RMS: a free run drifts under process noise, more the longer the
+    recording, and the drift's increments are stationary where it kicks the output's rate (a
+    flight cut by a gap read 4.2-fold, 0.0038 to 0.016 rad, its encoder's noise 0.001 rad in both;
+    a cart's two runs 22-fold)."""
     out = []
-    for o in outputs:
-        seen = [(r["rmse"][o], r["file"]) for r in reports if r["samples"] >= least and r["rmse"].get(o)]
+    for j, o in enumerate(outputs):
+        seen = []
+        for report, rec, Y in zip(reports, recs, predictions):
+            e = rec.outputs[:, j] - Y[:, j]
+            if len(d := np.diff(e[np.isfinite(e)], 2)) >= least:
+                seen.append((float(np.sqrt(np.mean(d ** 2) / 6)), report["file"]))
         if len(seen) > 1 and max(seen)[0] >= UNEQUAL * min(seen)[0]:
             (lo, a), (hi, b) = min(seen), max(seen)
-            out.append(f"the recordings' residuals on {o} differ {hi / lo:.2g}-fold, RMSE {lo:.3g} ({Path(a).name}) "
-                       f"to {hi:.3g} ({Path(b).name}): one noise per output is fitted to them all, which weighs them "
+            out.append(f"the recordings' residuals on {o} differ {hi / lo:.2g}-fold from one reading to the next, "
+                       f"{lo:.3g} ({Path(a).name}) to {hi:.3g} ({Path(b).name}) (the RMS of their second differences "
+                       f"over √6: the noise, not a drift): one noise per output is fitted to them all, which weighs them "
                        f"alike, and the error bars are those of that one noise; fit them one by one (skigen batch "
                        f"--fit) to see each")
     return out
