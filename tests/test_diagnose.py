@@ -479,6 +479,46 @@ def test_a_recalibration_the_scored_noise_cannot_start_starts_from_the_declared_
     assert abs(np.sqrt(got.measurement_noise()[0, 0]) / cart.NOISE_STD - 1) < 0.01
 
 
+def test_a_proposals_term_the_refit_drops_is_said():
+    """The Silverbox's round 2 was listed as 'quadratic_drag on v, coulomb_friction on v,
+    physical_limit on v' while the friction, within 2.58 std of zero when the EKF refitted the
+    three, was left out in silence. A cart's friction proposed with a bias it does not have: the
+    bias is left out, and the round's note says so."""
+    from skigen.diagnose import catalog as C
+    from skigen.diagnose.name import Correction, Proposal, _adopt, basis_rms
+    nominal, rec, c, states = _cart_friction()
+    (bias,) = [b for b in C.additive_candidates(nominal, ["v"], {"v": 0.1}) if b.effect == "bias"]
+    rms = dict(zip([c, bias], basis_rms(nominal, rec, states, [c, bias])))
+    p = Proposal("additive", 0.0, 2, Correction([(c, 0.0, 0.0), (bias, 0.0, 0.0)]), "coulomb_friction on v, bias on v")
+    got, _ = _adopt(nominal, Correction(), p, rec, rms, {"v": 2.5}, 0.01, states,
+                    (nominal.process_noise(), nominal.measurement_noise()))
+    assert [a[0].effect for a in got.additive] == ["coulomb_friction"]
+    assert p.note == "bias on v not adopted: refitted with the others by the EKF, within 2.58 std of zero"
+
+
+def test_a_term_through_an_input_a_lag_now_carries_is_evaluated_as_absent():
+    """A short period whose elevator is found lagged (its lag state now the one the elevator
+    drives) with a mismatch left: 'what remains' evaluated the tried terms through the elevator on
+    the corrected model and the diagnosis died (KeyError: 'q') without a report. Such a term adds
+    nothing to q there: its values are zero, and the tried shapes leave it out."""
+    from skigen.diagnose import catalog as C
+    from skigen.diagnose.name import basis_values
+    from skigen import Model
+    m = Model("sp", dt=0.02)
+    a, q = m.state("alpha", role="angle", std=0.01), m.state("q", role="rate", std=0.01, process_std=5e-4)
+    de = m.input("de")
+    m.dynamics({a: q - 0.5 * a + 0.1 * de, q: -4 * a - q - 3 * de})
+    m.output("alpha_vane", a, noise_std=0.002)
+    rng = np.random.default_rng(0)
+    states, U = rng.normal(size=(200, 2)), rng.normal(size=(200, 1))
+    rec = Recording("r", np.arange(200) * 0.02, U, states[:, :1], ("de",), ("alpha_vane",))
+    through = C.channel_candidates(m, ["alpha", "q"], {"alpha": 1.0, "q": 1.0}, states, U)
+    assert {c.equation for c in through} == {"alpha", "q"}
+    assert np.all(np.abs(basis_values(m, rec, states, through)).max(axis=1) > 0)
+    lagged = T.actuator_lag(m, "de", 0.1)
+    assert np.all(basis_values(lagged, rec, np.c_[states, U], through) == 0)
+
+
 def _lag(name, extra=0.0):
     from skigen import Model
     m = Model(name, dt=0.1)

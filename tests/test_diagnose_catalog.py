@@ -137,6 +137,22 @@ def test_backlash_is_the_play_operator_in_a_discrete_model():
     assert np.allclose(y[1:, 0], arm.play(u, 0.7)[:-1])
 
 
+def test_a_discrete_actuator_lag_adds_no_delay_of_its_own():
+    """In a discrete model the plant saw the lag state before its update, a sample late: a lag as
+    short as nothing was a one-sample delay (a true 0.1 s lag at 50 Hz named 0.0725 s beside two
+    corrections). It sees the updated state: a 1 ms lag at 1 s per sample is the input itself,
+    and a 1 s lag the recursion u_act[k+1] = u_act[k] + (1 − e⁻¹)(u[k] − u_act[k])."""
+    from skigen.diagnose.transform import actuator_lag
+    u = np.random.default_rng(2).normal(size=30)
+    _, y = free_run(actuator_lag(_echo(), "u", 1e-3), u)
+    assert np.allclose(y[1:, 0], u[:-1])
+    lagged, a = np.zeros(30), 1 - np.exp(-1.0)
+    for k in range(29):
+        lagged[k + 1] = lagged[k] + a * (u[k] - lagged[k])
+    _, y = free_run(actuator_lag(_echo(), "u", 1.0), u)
+    assert np.allclose(y[:, 0], lagged)
+
+
 def test_backlash_rejects_a_width_that_is_not_positive():
     from skigen.diagnose.transform import backlash
     with pytest.raises(ValueError, match="input 'u'"):

@@ -251,7 +251,8 @@ def test_a_friction_coefficient_is_given_in_its_rates_unit():
     assert (_rate_unit(m, "wl"), _rate_unit(m, "T")) == ("rad/s²", "K/s")
     d = Model("load", dt=0.01, discretization="discrete")
     d.state("wl", unit="rad/s")
-    assert _rate_unit(d, "wl") == "rad/s"                  # a discrete model's term adds per sample
+    assert _rate_unit(d, "wl") == "rad/s²"     # a discrete model's term is a rate, added times dt (a bias of
+    #                                            0.0993 per second, 0.002 per sample, was said in rad/s)
     f = dict(effect="coulomb_friction", equation="wl", expression="-tanh(wl/0.0105)", coefficient=0.9933, std=0.0029,
              unit="rad/s²", evidence=1492.4, free_run_without=0.352)
     assert "coefficient 0.9933 rad/s² ± 0.0029, cross" in finding_line(f)

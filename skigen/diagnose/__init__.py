@@ -811,10 +811,11 @@ UNITLESS_BASIS = ("bias", "coulomb_friction")     # a term whose coefficient is 
 
 
 def _rate_unit(nominal: Model, eq: str) -> str:
-    """The unit of ``eq``'s rate (its state's per second; per sample for a discrete model): "rad/s"
-    → "rad/s²" (a Coulomb friction's 0.99 on a load's rate read as a torque, in N·m)."""
+    """The unit of ``eq``'s rate, its state's per second, "rad/s" → "rad/s²" (a Coulomb friction's
+    0.99 on a load's rate was read as a torque, in N·m); a discrete model's term is a rate too,
+    added times dt (:func:`transform.rate`)."""
     unit = next(v.unit for v in nominal.states if v.name == eq)
-    if not unit or nominal.discretization == "discrete":
+    if not unit:
         return unit
     return unit[:-2] + "/s²" if unit.endswith("/s") else f"{unit}/s"
 

@@ -144,11 +144,12 @@ class Proposal:
 def basis_values(model: Model, rec: Recording, states: np.ndarray, cands: list[Additive],
                  equations=None) -> np.ndarray:
     """(m, N): each candidate's rate on its equation along the (smoothed) trajectory; with
-    ``equations``, (m, len(equations)·N): its rate on each of them in turn (0 where it does not enter)."""
+    ``equations``, (m, len(equations)·N): its rate on each of them in turn (0 where it does not enter:
+    a term through an input that, in a corrected model, drives its actuator's lag state only)."""
     x = ca.vertcat(*[v.sym for v in model.states])
     u = ca.vertcat(*[v.sym for v in model.inputs]) if model.inputs else ca.SX(0, 1)
     rates = [c.contributions(model) for c in cands]
-    phi = ca.vertcat(*[r[c.equation] for c, r in zip(cands, rates)] if equations is None else
+    phi = ca.vertcat(*[r.get(c.equation, ca.SX(0)) for c, r in zip(cands, rates)] if equations is None else
                      [r.get(eq, ca.SX(0)) for r in rates for eq in equations])
     f = ca.Function("phi", [x, u], [phi]).map(len(rec.t))
     return np.asarray(f(states[:, :len(model.states)].T, rec.inputs.T)).reshape(len(cands), -1)
@@ -1168,14 +1169,18 @@ def _adopt(nominal: Model, corr: Correction, p: Proposal, rec: Recording, rms: d
     or None when none of an additive proposal's terms survives an honest (EKF) refit with a sign
     physics allows (the others go to ``p.set_aside``)."""
     accepted = refit(nominal, p.correction, rec, rms, size)
-    new_terms = []
+    new_terms, weak = [], []
     for c, coef, std in accepted.additive[len(corr.additive):]:
         if not significant(coef, std, alpha):
+            weak.append(c)
             continue
         if why := compensating(nominal, c, coef, states, rec):
             p.set_aside.append(term_item(c, coef, std, why))
         else:
             new_terms.append((c, coef, std))
+    if weak and new_terms:           # said, or the round's line lists a term the correction lacks
+        p.note = (f"{', '.join(_where(c) for c in weak)} not adopted: refitted with the others by the EKF, "
+                  f"within {stats.norm.isf(alpha / 2):.2f} std of zero")
     if p.kind == "additive" and not new_terms:
         if not p.set_aside:          # said, or the report lists a gain of +146 and adopts nothing in silence
             n = len(accepted.additive) - len(corr.additive)

@@ -168,18 +168,20 @@ def fractional_delay(model: Model, u: str, samples: float) -> Model:
 
 def actuator_lag(model: Model, u: str, tau: float, initial: float = 0.0, std: float = 1.0) -> Model:
     """The plant sees a first-order lag of u with time constant tau (seconds): a new state
-    ``<u>_act`` with d/dt u_act = (u − u_act)/tau, starting at ``initial``."""
+    ``<u>_act`` with d/dt u_act = (u − u_act)/tau, starting at ``initial``. In a discrete model
+    u_act[k+1] = u_act[k] + (1 − e^(−dt/tau))·(u[k] − u_act[k]), and the plant's step k sees
+    u_act[k+1], as a backlash's sees its play's new position: a lag as short as nothing is no lag
+    (seeing u_act[k], it was a sample's delay, and a true 0.1 s lag was named 0.0725 s)."""
     tau = _number(tau)
     if not isinstance(tau, ca.SX) and not tau > 0:
         raise ValueError("an actuator lag needs a positive time constant")
     sym = ca.SX.sym(_unique(model, f"{u}_act"))
-    m = replace_input(model, u, sym)
-    uu = _input(m, u)
-    if m.discretization == "discrete":
-        a = 1.0 - ca.exp(-m.dt / tau)
-        rhs = sym + a * (uu - sym)
+    uu = _input(model, u)
+    if model.discretization == "discrete":
+        rhs = sym + (1.0 - ca.exp(-model.dt / tau)) * (uu - sym)
+        m = replace_input(model, u, rhs)
     else:
-        rhs = (uu - sym) / tau
+        m, rhs = replace_input(model, u, sym), (uu - sym) / tau
     m, _ = add_state(m, sym.name(), rhs, unit=_unit(m, u), initial=initial, std=std, sym=sym)
     return m
 
