@@ -226,6 +226,35 @@ def test_a_log_in_other_units_is_said_and_two_sided_findings_keep_their_columns(
     assert _finding_key(dict(effect="constant", input="g", equation="v")) == "constant@g"
 
 
+def test_a_flight_far_above_the_fleets_nis_is_said():
+    """Seven flights under a sensor noise declared 10–30× too large ran 'conservative', one of them
+    logged in km/h among flights in m/s (mean NIS 1.18 against the others' 0.0095): said of it
+    alone (its row and the terminal: the next test); not said in a fleet whose flights agree, nor
+    among fewer than three logs with a NIS."""
+    from skigen.batch.summary import UNLIKE, unlike_the_fleet
+    nis = [0.0093, 0.0097, 0.0095, 1.18, 0.0096, 0.0094, 0.0099]
+    rows = [dict(log=f"f{i:02d}", status="ok", mean_nis=x, nis_expected=1.0, notes=[]) for i, x in enumerate(nis)]
+    ((log, x, median),) = unlike_the_fleet(rows + [dict(log="f07", status="failed")])
+    assert (log, x, median) == ("f03", 1.18, 0.0096) and x / median > UNLIKE
+    assert unlike_the_fleet([dict(r, mean_nis=1.0 + 0.01 * i) for i, r in enumerate(rows)]) == []
+    assert unlike_the_fleet(rows[2:4]) == []
+
+def test_a_run_batch_says_a_log_in_other_units(client, tmp_path):
+    """Four cart flights, one whose encoder is logged in mm: a filter-run batch said nothing of
+    it (the units were checked by fit and diagnose only); it now says 'check the units' of that log
+    alone, on its row and the terminal, and it stands far above the fleet's NIS."""
+    from models import cart
+    for i in range(4):
+        run_ = cart.simulate(cart.smooth(cart.steps([0.1, -0.1, 0.05], 1.0)), 3.0, seed=i)
+        write_recording(tmp_path / f"c{i}.csv", run_.t, run_.inputs(), {"p_meas": run_.p_meas * (1e3 if i == 2 else 1)})
+    res = batch("models/cart.py", str(tmp_path / "c*.csv"), tmp_path / "out", filter="ekf", client=client,
+                show_progress=False)
+    said = {r["log"]: [n for n in r["notes"] if n.startswith(("check the units", "unlike the fleet"))] for r in res.rows}
+    assert [len(said[f"c{i}"]) for i in range(4)] == [0, 0, 2, 0], said
+    assert said["c2"][0].endswith("× the nominal free run: is the recording in a unit 1000× smaller (mm for m, mV "
+                                  "for V)?") and said["c2"][1].startswith("unlike the fleet: "), said
+    assert any(line.startswith("  check the units: c2: output 'p_meas'") for line in res.lines())
+
 def test_a_step_is_a_move_and_a_slow_drift_is_not():
     rows = []
     for k in range(100):

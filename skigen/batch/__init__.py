@@ -31,12 +31,14 @@ from ..fit import OPTIMISTIC, UNITS
 from ..modelfile import canonical_spec
 from ..progress import progress
 from ..sources import printable
-from .summary import moves, order_rows, plot_summary, write_summary
+from .summary import moves, order_rows, plot_summary, unlike_the_fleet, write_summary
 from .task import MARKER, log_digest, model_digest, quantity_names, run_log
 
 __all__ = ["batch", "BatchError", "BatchResult", "MODES", "expand_logs", "log_names", "run_log"]
 
 MODES = ("run", "fit", "diagnose")
+UNLIKE_FLEET = "unlike the fleet"     # a note's opening: a log whose NIS stands far above the others'
+
 
 
 class BatchError(ValueError):
@@ -88,8 +90,8 @@ class BatchResult:
                 out.append(f"  {r['verdict']}: {r['log']}: mean NIS {r.get('mean_nis') or float('nan'):.3g} (expected "
                            f"{r.get('nis_expected') or float('nan'):.3g}); see {self.out_dir / r['log'] / 'summary.txt'}")
             if r["status"] == "ok":
-                out += [f"  {UNITS}: {r['log']}: {n[len(UNITS) + 2:]}" for n in r.get("notes") or []
-                        if str(n).startswith(f"{UNITS}: ")]
+                out += [f"  {said}: {r['log']}: {n[len(said) + 2:]}" for n in r.get("notes") or []
+                         for said in (UNITS, UNLIKE_FLEET) if str(n).startswith(f"{said}: ")]
             if r.get("mismatch") and r["status"] == "ok":
                 out.append(f"  mismatch: {r['log']}: " + ("; ".join(r.get("findings") or []) or "nothing named")
                            + ("; a mismatch remains" if r.get("remains") else ""))
@@ -275,6 +277,11 @@ def batch(model, logs, out_dir, *, mode: str = "run", filter: str | None = None,
                     cluster.close()
     ordered, order = order_rows([rows[n] for n in names])
     moved = moves(ordered)
+    for log, x, median in unlike_the_fleet(ordered):
+        row = next(r for r in ordered if r["log"] == log)
+        row["notes"] = list(row.get("notes") or []) + [
+            f"{UNLIKE_FLEET}: mean NIS {x:.3g}× the expected, {x / median:.3g}× the fleet's median {median:.3g}: its "
+            f"readings disagree with the model far more than the others' (units, a sensor, another vehicle)"]
     csv_path = write_summary(out / "summary.csv", ordered, moved, mode)
     fig = plot_summary(out / "summary.png", ordered, moved, order, title=f"{m.name}: {mode}"
                        + (f" ({filter}, {backend})" if mode == "run" else "")) if figures else None

@@ -24,7 +24,7 @@ from scipy.stats import norm
 
 from ..sources import printable
 
-__all__ = ["order_rows", "moves", "write_summary", "plot_summary", "threshold", "ALPHA", "EPOCH"]
+__all__ = ["order_rows", "moves", "unlike_the_fleet", "write_summary", "plot_summary", "threshold", "ALPHA", "EPOCH"]
 
 ALPHA = 0.05
 EPOCH = (1e9, 4.1e9)      # seconds since 1970: 2001–2100
@@ -80,6 +80,23 @@ def moves(rows: list[dict], alpha: float = ALPHA) -> list[dict]:
                 out.append(dict(quantity=q, log=rb["log"], previous=ra["log"], before=va, after=vb, z=z,
                                 threshold=z_crit) | ({"back": True} if back else {}))
     return out
+
+
+UNLIKE = 10.0     # a log's mean NIS (over the expected) this many times the fleet's median: said
+
+
+def unlike_the_fleet(rows: list[dict]) -> list[tuple[str, float, float]]:
+    """(log, its mean NIS over the expected, the fleet's median of that) for each ``ok`` log at
+    UNLIKE times the median or more, among at least three logs with a NIS: one flight's readings
+    disagree with the model far more than the others', whatever the declared noise makes of each
+    alone (a flight logged in km/h, 1.18 against the fleet's 0.0095 under a sensor noise declared
+    10–30× too large, was 'conservative' like all the others)."""
+    nis = {r["log"]: r["mean_nis"] / r["nis_expected"] for r in rows if r.get("status") == "ok"
+           and r.get("mean_nis") is not None and r.get("nis_expected")}
+    if len(nis) < 3:
+        return []
+    median = float(np.median(list(nis.values())))
+    return [(log, x, median) for log, x in nis.items() if median > 0 and x >= UNLIKE * median]
 
 
 def _cell(x) -> str:

@@ -97,6 +97,7 @@ def _num(x):
 
 
 def _run(spec, digest, path, tmp: Path, opt: dict, row: dict) -> None:
+    from ..fit import unit_notes
     from ..recording import TableWriter, load_recording
     from ..runtime import RunSummary, iter_run
     model = _model(spec, digest)
@@ -109,9 +110,10 @@ def _run(spec, digest, path, tmp: Path, opt: dict, row: dict) -> None:
                              cache_dir=opt["build"]):
             out.write(part.columns())
             summary.add(part)
-    lines = list(rec.notes) + summary.lines()
+    units = unit_notes(model, [rec])           # a log in km/h under a noise declared large runs 'conservative'
+    lines = list(rec.notes) + units + summary.lines()
     (tmp / "summary.txt").write_text("\n".join(lines) + "\n")
-    row["notes"] = list(rec.notes) + summary.attention()
+    row["notes"] = list(rec.notes) + units + summary.attention()
     names = filt.aug.names
     if summary.last is not None:
         mean, std = summary.last[0], summary.last[1]

@@ -273,7 +273,7 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
     declared = isinstance(starts, str)
     if declared and starts != "declared":
         raise ValueError(f"starts must be a list or 'declared', got '{starts}'")
-    twice, units = _repeated(recs), _units(model, recs)
+    twice, units = _repeated(recs), unit_notes(model, recs)
     with _said_with(units):
         recs, starts, notes = _usable(recs, None if declared else starts)
         notes = units + notes + twice
@@ -970,7 +970,7 @@ def _said_with(units: list[str]):
         raise
 
 
-def _units(model: Model, recs: list[Recording]) -> list[str]:
+def unit_notes(model: Model, recs: list[Recording]) -> list[str]:
     """A note per output read in other units than the model's (the declared model's free run times a
     unit conversion, :func:`~skigen.diagnose.unit_hints`): a roll angle logged in degrees was fitted
     to RMSE 8.9 (0.01 on its fleet) under the usual note on optimistic error bars."""
