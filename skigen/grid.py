@@ -18,6 +18,8 @@ would drive the model with a value it did not have.
 """
 from __future__ import annotations
 
+import re
+
 from dataclasses import dataclass
 
 import numpy as np
@@ -184,6 +186,19 @@ def _offset_note(name, used, offset, dt, phase_from) -> list[str]:
             f"{'after' if later else 'before'} the grid samples they are used at, on average (the grid "
             f"takes its phase from the {phase_from}' stamps): the model at t is compared with the reading "
             f"stamped at t {'+' if later else '−'} {ms:.3g} ms"]
+
+
+def merged(notes: list[str]) -> list[str]:
+    """``notes`` with those that say the same of several columns said once, naming them all
+    ("outputs 'x_m', 'y_m', each: …", their own name in the rest read "it"): a 100 Hz log of six outputs
+    for a 50 Hz model gave six sentences alike in one summary cell."""
+    said = re.compile(r"(input|output) '([^']*)'(: .*)$", re.S)
+    groups: dict = {}
+    for n in notes:
+        m = said.match(n)
+        groups.setdefault((m[1], m[3].replace(f"'{m[2]}'", "it")) if m else n, []).append((n, m and m[2]))
+    return [same[0][0] if len(same) == 1 else f"{key[0]}s {', '.join(repr(x) for _, x in same)}, each{key[1]}"
+            for key, same in groups.items()]
 
 
 def _column_notes(name, column, output, count, early, dropped, repeated, first_repeat, origin, start, dt,
@@ -449,7 +464,7 @@ def to_grid(samples: Samples, dt: float, input_names, output_names, input_hold: 
     holes = [Hole(h.t0 + origin, h.t1 + origin, h.columns, h.inputs) for h in
              _holes(series, input_names + output_names, input_names, start, end, max_gap, cols, dt)]
     return Recording(samples.source, origin + t, inputs, outputs, input_names, output_names,
-                     holes=tuple(holes), notes=tuple(notes), columns=dict(cols), max_gap=max_gap)
+                     holes=tuple(holes), notes=tuple(merged(notes)), columns=dict(cols), max_gap=max_gap)
 
 
 # --------------------------------------------------------------------------- streamed
@@ -768,6 +783,7 @@ class GridStream:
                 self.notes += c.wraps.note(name, self.origin)
             else:
                 self.notes += _short_gap_note(name, *c.short, c.limit)
+        self.notes = merged(self.notes)
 
     def time(self, k) -> float:
         """The time of grid sample ``k`` (seconds), as in the recording."""

@@ -635,7 +635,8 @@ def _read_ulog(path, names, mapping, time, real) -> Samples:
                                                                 f"{damage or ''})"))
         if fld not in d.data:
             fields = [f for f in d.data if f != "timestamp"]
-            raise RecordingError(f"{path}: topic '{topic}' has no field '{fld}' (fields: {', '.join(fields[:40])}"
+            raise RecordingError(f"{path}: '{n}' reads '{columns[n]}', but topic '{topic}' has no field '{fld}' "
+                                 f"(fields: {', '.join(fields[:40])}"
                                  f"{', …' if len(fields) > 40 else ''})")
         key = (topic, inst)
         if key not in groups:

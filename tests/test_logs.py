@@ -650,7 +650,8 @@ def test_ulog_topics_at_their_own_rates_arrays_and_instances(tmp_path, flight):
         load_recording(path, MODEL, columns={**mapping, "phi": "attitud.roll"})
     with pytest.raises(RecordingError, match="instance 2 \\(instances: 0, 1\\)"):
         load_recording(path, MODEL, columns={**mapping, "delta": "actuator:2.control[1]"})
-    with pytest.raises(RecordingError, match="topic 'attitude' has no field 'pitch' \\(fields: roll\\)"):
+    with pytest.raises(RecordingError, match="'phi' reads 'attitude.pitch', but topic 'attitude' has no field 'pitch' "
+                                             "\\(fields: roll\\)"):
         load_recording(path, MODEL, columns={**mapping, "phi": "attitude.pitch"})
 
 
@@ -988,3 +989,27 @@ def test_a_column_far_slower_than_the_model_is_said(flight, tmp_path):
                      "about 14 grid samples between readings (a model faster than its log; or a dt in other units "
                      "than the stamps?)"], notes
     assert not [n for n in load_recording(flight, MODEL).notes if "× the model's dt" in n]
+
+
+def test_what_the_grid_does_to_several_columns_alike_is_said_once(tmp_path):
+    """A 100 Hz log of two outputs for a 50 Hz model: 'sample(s) not used: a nearer sample of …'
+    was said of each, six sentences alike in one summary cell for a quadrotor's six outputs. Said
+    once, naming both, by both readers; a note of one column keeps its own wording."""
+    from skigen import Model
+    m = Model("two", dt=0.02)
+    x = m.state("x", std=1.0, process_std=0.01)
+    m.dynamics({x: -x + m.input("u")})
+    m.output("y1", x, noise_std=0.1)
+    m.output("y2", 2 * x, noise_std=0.1)
+    t = np.arange(1000) * 0.01
+    frame = pd.DataFrame({"t": t, "u": np.sin(t), "y1": np.cos(t), "y2": np.cos(2 * t)})
+    notes = list(load_recording(frame, m).notes)
+    assert notes == ["outputs 'y1', 'y2', each: 499 sample(s) not used: a nearer sample of it had the same grid "
+                     "sample (the log is faster than the model's 1/dt = 50 Hz)"], notes
+    frame.to_csv(tmp_path / "log.csv", index=False)
+    grid = stream_recording(tmp_path / "log.csv", m)
+    list(grid)
+    assert grid.notes == notes
+    one = list(load_recording(frame.drop(columns="y2").assign(y2=np.where(np.arange(1000) % 2, np.nan, 0.0)), m).notes)
+    assert one == ["output 'y1': 499 sample(s) not used: a nearer sample of 'y1' had the same grid sample (the log is "
+                   "faster than the model's 1/dt = 50 Hz)"], one
