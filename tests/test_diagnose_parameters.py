@@ -693,15 +693,32 @@ def test_a_line_in_the_innovations_spectrum_is_found_against_its_local_level():
 def test_a_round_s_set_scored_ahead_under_the_finding_s_noise_says_under_which():
     """A servo's round line read "as good: coulomb_friction … 39.6 ahead" beside the finding it was
     not adopted over: a set of the round scored under the noise the finding leaves, never weighed
-    under its own. It says so; a revision's replaced term keeps "ahead, with more numbers"."""
+    under its own. It says so, of a set of several terms too; a revision's replaced term keeps
+    "ahead, with more numbers"."""
     from skigen.diagnose.report import behind
     said = behind({"cv_loglik_behind": -39.6})
     assert said == ("cross-validated log-likelihood 39.6 ahead under the noise the finding leaves (a round weighs its "
                     "finalists each under the noise calibrated with it, and this set was not one)")
-    assert behind({"cv_loglik_behind": -0.6, "with": ["x"]}) == \
+    assert behind({"cv_loglik_behind": -0.6, "with": ["x"], "replaced": True}) == \
         "cross-validated log-likelihood 0.6 ahead, with more numbers"
+    assert behind({"cv_loglik_behind": -0.6, "with": ["x"]}).endswith("and this set was not one)")   # a round's set
     assert behind({"cv_loglik_behind": 1.8}) == "cross-validated log-likelihood 1.8 behind"
 
+
+def test_a_tie_of_several_terms_is_said_together():
+    """A motor's speed sensor reading 0.3 high ties with a bias on the speed and one on the current
+    together (the state shifted by 0.3), and the report said it was not told apart from each alone.
+    Each term of a tie of several names the others."""
+    from skigen.diagnose.name import _together
+    from skigen.diagnose.report import finding_line
+    items = [dict(effect="bias", equation=eq, expression="1", coefficient=c, std=s) for eq, c, s in
+             (("i", 3.025, 0.024), ("w", 1.540, 0.065))]
+    ties = _together(items, cv_loglik_behind=3.1)
+    assert [t["with"] for t in ties] == [["bias on w (`1`)"], ["bias on i (`1`)"]]
+    assert all(t["cv_loglik_behind"] == 3.1 for t in ties) and "with" not in _together(items[:1])[0]
+    f = dict(effect="sensor_offset", equation="w", output="speed_m", expression="w + 0.303", coefficient=0.3026,
+             std=0.0023, evidence=1537.8, free_run_without=0.0244, as_good=ties)
+    assert "not told apart from bias on i: 1, coefficient 3.025, together with bias on w (`1`)" in finding_line(f)
 
 def test_a_relation_that_changes_partway_is_said_to_change_over_time():
     """An elevator 20 % weaker from 50 s of 80 was fitted as its average gain, and 'a mismatch

@@ -397,10 +397,10 @@ def _ties(current: Correction, new: Correction, score, tried: list, alpha: float
         instead = [list(acts(a)) for a in mine if _said(a) not in {_said(b) for b in theirs}]
         if any(_said(item) not in seen for item in theirs):
             whole.append(trial)
-        for item in theirs:
+        for item in _together(theirs, cv_loglik_behind=behind, instead_of=instead):
             if _said(item) not in seen:
                 seen.add(_said(item))
-                out.append(item | {"cv_loglik_behind": behind, "instead_of": instead})
+                out.append(item)
     return out, whole
 
 
@@ -456,15 +456,15 @@ def _ties_under(nominal: Model, recal: Model, corr: Correction, new: Correction,
                 if behind >= evidence_threshold(alpha) and len(items) == len(chosen.adopted) \
                         and in_sample < evidence_threshold(alpha):
                     said |= {_said(a) for a in items}
-                    out += [a | {"loglik_behind": float(in_sample), "in_sample": True, "instead_of": instead}
-                            for a in added(corr, scored[0])]
+                    out += _together(added(corr, scored[0]), loglik_behind=float(in_sample), in_sample=True,
+                                     instead_of=instead)
                     whole.append(scored[0])
                     continue
             if behind <= -evidence_threshold(alpha) and chosen.kind == "additive":
                 ahead.append((behind, scored[0]))
             elif behind < evidence_threshold(alpha):
                 said |= {_said(a) for a in items}
-                out += [a | {"cv_loglik_behind": behind, "instead_of": instead} for a in added(corr, scored[0])]
+                out += _together(added(corr, scored[0]), cv_loglik_behind=behind, instead_of=instead)
                 whole.append(scored[0])
     return out, whole, ahead
 
@@ -929,7 +929,7 @@ def name_terms(nominal: Model, rec: Recording, folds: Folds, equations: list[str
             for other, _, other_score, p in adopted:      # a finalist within what a finding must add: a tie
                 behind = -_gain(other_score, score)
                 if p is not chosen and behind < evidence_threshold(alpha):   # not the same change found twice
-                    items = [item | {"cv_loglik_behind": behind} for item in added(corr, other) if _said(item) not in same]
+                    items = [a for a in _together(added(corr, other), cv_loglik_behind=behind) if _said(a) not in same]
                     chosen.as_good += items
                     chosen.alternatives += [other] if items else []
                 elif p is not chosen and behind < TIE_MARGIN * evidence_threshold(alpha) and \
@@ -1042,7 +1042,7 @@ def _revised(first: Model, corr: Correction, current, rounds: list, rec, folds, 
                      + ": fewer numbers for the same evidence" if _numbers(revised) < final else
                      "a tie that explains the recording better under the noise calibrated with it")
     instead, others = [list(acts(b)) for b in mine], replaced + later
-    revision.as_good = [a | {"cv_loglik_behind": -short, "instead_of": instead,
+    revision.as_good = [a | {"cv_loglik_behind": -short, "instead_of": instead, "replaced": True,
                              "with": [_text(b) for b in others if b is not a]} for a in others
                         if -short < evidence_threshold(alpha)]           # what it replaced, if still a tie
     return revision
@@ -1103,6 +1103,13 @@ def _pruned(first: Model, trial: Correction, optional: list, rec, folds, rms, si
         scored = drop
         optional.remove(t)
     return noise, scored
+
+
+def _together(items: list[dict], **about) -> list[dict]:
+    """The report items of one alternative explanation, each with ``about`` and, where it has
+    several terms, the others (``with``): a speed sensor's offset ties with a bias on the speed and
+    one on the current together (the state shifted by it), and was said to tie with each alone."""
+    return [a | about | ({"with": [_text(b) for b in items if b is not a]} if len(items) > 1 else {}) for a in items]
 
 
 def _text(item: dict) -> str:

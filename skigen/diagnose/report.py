@@ -15,11 +15,11 @@ def behind(tie: dict) -> str:
     """How far a tie is behind the finding: cross-validated, or in-sample with as many numbers."""
     if tie.get("in_sample"):
         return f"log-likelihood {tie['loglik_behind']:.1f} behind on the whole recording, with as many numbers"
-    if tie["cv_loglik_behind"] < 0 and "with" not in tie:    # a round's set scored under the finding's noise
+    if tie["cv_loglik_behind"] < 0 and not tie.get("replaced"):    # a round's set scored under the finding's noise
         return (f"cross-validated log-likelihood {-tie['cv_loglik_behind']:.1f} ahead under the noise the finding "
                 f"leaves (a round weighs its finalists each under the noise calibrated with it, and this set was "
                 f"not one)")
-    if tie["cv_loglik_behind"] < 0:              # a revision's: what it replaced (with more numbers, if with others)
+    if tie["cv_loglik_behind"] < 0:              # what a revision replaced (with more numbers, if with others)
         return (f"cross-validated log-likelihood {-tie['cv_loglik_behind']:.1f} ahead"
                 + (", with more numbers" if tie.get("with") else ""))
     return f"cross-validated log-likelihood {tie['cv_loglik_behind']:.1f} behind"
