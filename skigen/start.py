@@ -148,6 +148,15 @@ def _vague(model: Model) -> tuple:
     return filt, vague
 
 
+def vague_start(model: Model, rs: RecordedStart) -> tuple:
+    """(the EKF of ``model``, the vague start a fit gave a recording judged off the declared one:
+    :attr:`RecordedStart.vague_mean`, DIFFUSE times the declared std)."""
+    filt, init = _vague(model)
+    init["z"] = np.array(init["z"], float)
+    init["z"][:len(model.states)] = rs.vague_mean
+    return filt, init
+
+
 def _noise_times(model: Model, factor: float) -> Model:
     """A copy of ``model`` with Q and R times ``factor`` (P₀ kept)."""
     scaled = copy.copy(model)

@@ -29,7 +29,7 @@ from ..grid import clock
 from ..model import Model, ModelError
 from ..progress import note
 from ..recording import Recording, load_recording, resolution
-from ..start import recorded_start, vague_covariance
+from ..start import recorded_start, vague_covariance, vague_start
 from ..simulate import AMPLIFICATION, growth_rate, simulation_window
 from .problem import LOG_SCALE_BOUND, METHODS, Problem, build_problem, data_matrix
 from .uncertainty import covariance, recording_shifts, unidentified
@@ -425,8 +425,10 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
                                 f"the sensor noise and narrows the error bars. Declare a process_std on the states "
                                 f"it drives to have it calibrated")
         if method == "filter-error":
-            result.notes += (_absorbing(model, result.noise) + _following(result.model, recs, tested)
-                             + _disagreeing(prob, xi, rho, inputs["p"], lengths, fitted_at, scale, recs))
+            alone = functools.partial(_fitted_alone, model, estimate, noise_from, noise_caps)
+            result.notes += (_absorbing(model, result.noise) + _trusting(result.noise)
+                             + _following(result.model, recs, tested)
+                             + _disagreeing(prob, xi, rho, inputs["p"], lengths, fitted_at, scale, recs, alone))
         if method == "output-error" and (params := list(result.parameters) + list(result.weights)):
             result.notes += _unexplained_residuals(model, recs, result.predictions, params)
         A = result.model.state_jacobian()         # a yaw damping 6.81 ± 0.045 for 8 under Euler, said nowhere
@@ -768,7 +770,8 @@ def _unequal_residuals(reports: list[dict], recs, predictions, outputs, least: i
     for j, o in enumerate(outputs):
         seen = []
         for report, rec, Y in zip(reports, recs, predictions):
-            e = rec.outputs[:, j] - Y[:, j]
+            head = report.get("rmse_from") or 0           # where a filter learnt a recording's start
+            e = rec.outputs[head:, j] - Y[head:, j]
             if len(d := np.diff(e[np.isfinite(e)], 2)) >= least:
                 seen.append((float(np.sqrt(np.mean(d ** 2) / 6)), report["file"]))
         if len(seen) > 1 and max(seen)[0] >= UNEQUAL * min(seen)[0]:
@@ -830,6 +833,23 @@ def _absorbing(model: Model, noise: dict) -> list[str]:
             f"beside it (`skigen diagnose` says what is missing)"]
 
 
+def _trusting(noise: dict) -> list[str]:
+    """Filter error: a note where a sensor's noise came out surely below exp(−SENSOR_JUMP) of its
+    declared variance (2 std above the value still below): the filter takes those readings as
+    nearly exact and the process noise covers the misfit (four motors, one with another torque
+    constant, had both sensors' noise at 6·10⁻⁸ of the datasheet's, the process noise 14× and 58×,
+    said nowhere)."""
+    level = np.exp(-SENSOR_JUMP)
+    low = [f"{n[8:]} {v['value']:.2g}× its declared variance (at most {v['value'] + 2 * v['std']:.2g}×)"
+           for n, v in noise.get("scales", {}).items() if n.startswith("R_scale_") and v.get("std") is not None
+           and np.isfinite(v["std"]) and v["value"] + 2 * v["std"] < level]
+    if not low:
+        return []
+    return [f"filter error: the sensor noise on {'; '.join(low)}: the filter takes the readings as nearly exact and "
+            f"the process noise covers the misfit, which a model error or recordings that disagree leave (or the "
+            f"sensor noise was declared far too large)"]
+
+
 FOLLOWING = 0.01    # false-alarm rate of the test of the fitted model's innovations against the past
 
 
@@ -839,14 +859,17 @@ def _following(fitted: Model, recs, tested) -> list[str]:
     the outputs, the recordings and the two tests, at FOLLOWING; a recording's head where its
     filter learnt the start left out). A pitch model missing a 40 ms elevator delay had its
     process noise calibrated at 13× its declared variance, under the noise's note, and Mq and Mδ
-    came out 14σ and 15σ off, 'solved', no note."""
+    came out 14σ and 15σ off, 'solved', no note. A recording the fit started from the vague prior is
+    run from it too (from the declared start, a motor found spinning at 12 rad/s was 'not white')."""
     from ..diagnose.cv import ekf_run
     from ..diagnose.detect import independence, lags_for, normalised_innovations, past_regressors, whiteness
     tests = 2 * len(fitted.output_names) * len(recs)
     said = []
     for rec, rs in zip(recs, tested):
-        run = ekf_run(fitted, rec)
-        head = 0 if rs is None or rs.consistent else rs.head
+        judged = rs is not None and not rs.consistent        # run from the start the fit gave it
+        filt, init = vague_start(fitted, rs) if judged else (fitted, None)
+        run = ekf_run(filt, rec, init=init)
+        head = rs.head if judged else 0
         eps, Z = normalised_innovations(run)[head:], past_regressors(fitted, run, rec.inputs)[head:]
         for i, name in enumerate(fitted.output_names):
             p = min(whiteness(eps[:, i], lags_for(len(eps))), independence(eps[:, i], Z)[0]) * tests
@@ -865,42 +888,70 @@ DISAGREE = 1e-3   # false-alarm rate of a pair of recordings said to differ (one
 
 
 def _disagreeing(prob: Problem, xi: np.ndarray, rho: np.ndarray, data, lengths, cols: list[int],
-                 scale: np.ndarray, recs) -> list[str]:
+                 scale: np.ndarray, recs, alone=None) -> list[str]:
     """Filter error: a note naming each recording whose own parameters differ from most of the
-    others' (:func:`~skigen.fit.uncertainty.recording_shifts`: each recording's step from the
-    pooled fit; a pair differs where χ² of their difference is beyond DISAGREE, Bonferroni over
-    the pairs). Three flights and one of another vehicle (Lp −6 for −4) were fitted to Lp
-    −3.2 ± 0.06, neither's, with no word of which flight disagreed."""
+    others' (a pair differs where χ² of their difference is beyond DISAGREE, Bonferroni over the
+    pairs). Screened by each recording's step from the pooled fit
+    (:func:`~skigen.fit.uncertainty.recording_shifts`), and where that finds a disagreement,
+    confirmed by ``alone(recording, names)``, the recording fitted alone ((values, covariance) of
+    the variables ``cols``, or None): a step from a pooled fit one odd motor had pulled 0.016 off pointed the
+    three others 0.02 apart too, and all four were named. Three flights and one of another vehicle
+    (Lp −6 for −4) were fitted to Lp −3.2 ± 0.06, neither's, with no word of which flight disagreed."""
     if len(recs) < 2 or not cols:
         return []
-    from scipy.stats import chi2
     rho = np.asarray(rho)                    # the pseudo-residuals at xi (:func:`_at_optimum`)
     J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(xi, data))
     ny = int(round((np.sqrt(1 + 4 * rho.shape[0]) - 1) / 2))        # n_rho = ny + ny²
     a = rho[:ny]
     outer = (np.eye(ny)[:, :, None] - a[:, None, :] * a[None, :, :]).reshape(ny * ny, -1) / np.sqrt(2)
     w = np.vstack([a, outer]).T.ravel()      # the gradient's residuals: −log L's gradient is Jᵀw
-    shifts = recording_shifts(J, w, lengths, prior.ravel(), cols)
-    pairs = len(recs) * (len(recs) - 1) // 2
-    apart = np.zeros(len(recs), int)
-    for r, s in itertools.combinations(range(len(recs)), 2):
-        d, C = shifts[r][0] - shifts[s][0], shifts[r][1] + shifts[s][1]
-        dof = np.linalg.matrix_rank(C, hermitian=True, tol=1e-10 * max(np.abs(C).max(), 1e-300))
-        if dof and chi2.sf(float(d @ np.linalg.pinv(C, hermitian=True, rcond=1e-10) @ d), dof) * pairs < DISAGREE:
-            apart[[r, s]] += 1
-    odd = [r for r in range(len(recs)) if apart[r] > (len(recs) - 1) / 2]
+    own = [((xi[cols] + d) * scale[cols], C * np.outer(scale[cols], scale[cols]))
+           for d, C in recording_shifts(J, w, lengths, prior.ravel(), cols)]
+    names, how = [prob.variables.names[c] for c in cols], "a step from the pooled fit points it at "
+    if (odd := _odd(own)) and alone is not None and None not in (fitted := [alone(rec, names) for rec in recs]):
+        own, how, odd = fitted, "fitted alone: ", _odd(fitted)
     if not odd:
         return []
-    names = [prob.variables.names[c] for c in cols]
-    said = "; ".join(f"{Path(str(recs[r].path)).name} (a step from the pooled fit points it at "
-                     + ", ".join(f"{n} ≈ {v:.3g}" for n, v in zip(names, (xi[cols] + shifts[r][0]) * scale[cols])) + ")"
-                     for r in odd)
+    said = "; ".join(f"{Path(str(recs[r].path)).name} ({how}" + ", ".join(f"{n} ≈ {v:.3g}" for n, v in
+                                                                         zip(names, own[r][0])) + ")" for r in odd)
     pooled = ", ".join(f"{n} = {v:.4g}" for n, v in zip(names, xi[cols] * scale[cols]))
     return [f"filter error: {'the recordings disagree' if len(odd) == len(recs) else 'recordings disagree with most others'}"
             f" on the parameters (each recording's own values against each other's, at {DISAGREE:g} over the "
             f"pairs): {said}, against the pooled {pooled}: another vehicle, load or configuration, or a model "
             f"error each recording's excitation weighs its own way? The pooled values stand for none of them; "
             f"fit them one by one (skigen batch --fit) to see each"]
+
+
+def _odd(own: list[tuple[np.ndarray, np.ndarray]]) -> list[int]:
+    """The recordings whose values ((value, covariance) each) differ from more than half of the
+    others': χ² of a pair's difference beyond DISAGREE, Bonferroni over the pairs."""
+    from scipy.stats import chi2
+    pairs = len(own) * (len(own) - 1) // 2
+    apart = np.zeros(len(own), int)
+    for r, s in itertools.combinations(range(len(own)), 2):
+        d, C = own[r][0] - own[s][0], own[r][1] + own[s][1]
+        dof = np.linalg.matrix_rank(C, hermitian=True, tol=1e-10 * max(np.abs(C).max(), 1e-300))
+        if dof and chi2.sf(float(d @ np.linalg.pinv(C, hermitian=True, rcond=1e-10) @ d), dof) * pairs < DISAGREE:
+            apart[[r, s]] += 1
+    return [r for r in range(len(own)) if apart[r] > (len(own) - 1) / 2]
+
+
+def _fitted_alone(model: Model, estimate, noise_from, noise_caps, rec: Recording, names: list[str]):
+    """(values, covariance) of ``names`` in ``rec`` fitted alone by filter error from ``model``'s
+    declared values and noise (from the pooled fit's, whose sensor noise the odd recording had
+    pulled to 10⁻⁸ of the declared, one motor's came out 0.523 for 0.600), or None where it fails."""
+    try:
+        res = fit(model, [rec], method="filter-error", estimate=estimate, show_progress=False,
+                  noise_from=noise_from, noise_caps=noise_caps)
+    except FitError:
+        return None
+    values = {**res.parameters, **res.weights}
+    if any(n not in values for n in names):
+        return None
+    order = [res.correlation["names"].index(n) for n in names]
+    std = np.array([values[n]["std"] for n in names])
+    corr = np.asarray(res.correlation["matrix"], float)[np.ix_(order, order)]
+    return np.array([values[n]["value"] for n in names]), corr * np.outer(std, std)
 
 
 def _surely_above(scale: dict, level: float) -> bool:
