@@ -273,7 +273,7 @@ def _fit(args) -> int:
     try:
         result = fit(model, recs, method=args.method, estimate=args.estimate or None,
                      shooting=args.shooting, max_iter=args.max_iter)
-        checks = validate(result, held_out, init_samples=args.init_samples)
+        checks = validate(result, held_out, init_samples=args.init_samples, declared=model)
     except FitError as exc:
         raise CliError(str(exc)) from None
     spec = canonical_spec(args.model)
@@ -290,7 +290,8 @@ def _fit(args) -> int:
         span = (f" (free runs restarted every {r['window']:.3g} s)" if r.get("window") else
                 f" (from sample {r['rmse_from']}: before it the filter learns where the recording starts)"
                 if r.get("rmse_from") else "")
-        print(f"  {kind} {Path(r['file']).name}: {what}{span} " + per_output(r["rmse"]))
+        print(f"  {kind} {Path(r['file']).name}: {what}{span} " + per_output(r["rmse"])
+              + (f" (at the declared values: {per_output(r['rmse_declared'])})" if r.get("rmse_declared") else ""))
     for line in result.notes + [n for c in checks for n in c["notes"]]:
         if line not in read:                          # said as the recordings were read
             print(f"note: {line}")

@@ -952,17 +952,20 @@ def test_a_run_that_starts_spinning_draws_no_false_notes():
         p = res.parameters[name]
         assert abs(p["value"] - truth) < 3 * p["std"], (name, p)
 
+
 def test_validation_leaves_out_a_stuck_sensor_and_cuts_at_input_holes():
     """A held-out recording is read as the fit reads its own: the readings of a sensor stuck for
     2 s are left out of the RMSE (counted, the frozen angle scores 0.477 rad against 0.0104 without
     it; measured) and a 2 s input hole cuts it into two parts, each started from its own first samples; both
-    are said."""
+    are said. The declared values are scored there too: what the fit changed on a recording it
+    never saw (the CLI gave the fitted model's RMSE alone)."""
     from skigen.fit.output import validate
     from skigen.recording import load_recording
     model = pendulum(PENDULUM_START)
     res = fit(model, [_pendulum_frame(np.random.default_rng(8))], show_progress=False)
     frame = _pendulum_frame(np.random.default_rng(9))
-    (clean,) = validate(res, [load_recording(frame, model)])
+    (clean,) = validate(res, [load_recording(frame, model)], declared=model)
+    assert clean["rmse_declared"]["angle"] > 20 * clean["rmse"]["angle"]    # 0.279 for 0.0103: the fit's worth there
     frame.loc[300:399, "angle"] = frame.loc[300, "angle"]
     frame.loc[480:529, "u"] = np.nan
     checks = validate(res, [load_recording(frame, model)])

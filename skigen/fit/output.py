@@ -15,7 +15,7 @@ from . import FitError, FitResult, fit, per_output, rms, value_text
 __all__ = ["validate", "write_outputs"]
 
 
-def validate(result: FitResult, recordings, init_samples: int = 50) -> list[dict]:
+def validate(result: FitResult, recordings, init_samples: int = 50, declared=None) -> list[dict]:
     """Free-run simulation RMSE of the fitted model on held-out recordings.
 
     The initial state of each is estimated from its first ``init_samples``
@@ -26,9 +26,10 @@ def validate(result: FitResult, recordings, init_samples: int = 50) -> list[dict
     whose free run amplifies state errors more than AMPLIFICATION-fold over the
     recording (open-loop unstable) is instead restarted from its EKF's state every
     window within which it does so AMPLIFICATION-fold (``window`` in seconds, else
-    None). Returns one dict per recording (or part): file, samples, rmse per output, window,
-    notes (stuck readings and input holes, on the recording's first part), the simulated outputs
-    and the recording (part) itself.
+    None). ``declared``: the model as declared, scored the same way (``rmse_declared``: what the
+    fit changed on a recording it never saw). Returns one dict per recording (or part): file,
+    samples, rmse per output, window, notes (stuck readings and input holes, on the recording's
+    first part), the simulated outputs and the recording (part) itself.
     """
     model = result.model
     weights = [result.weights.get(n, {}).get("value", 0.0) for n in model.weight_names]
@@ -39,18 +40,28 @@ def validate(result: FitResult, recordings, init_samples: int = 50) -> list[dict
                            f"(--init-samples) estimate its initial state and the rest are scored: give a longer "
                            f"recording or fewer initial samples")
         n0 = init_samples
-        window, Y = (None, None) if model.weight_names else _windowed(model, rec, n0)
-        if Y is None:
-            head = fit(model, [rec.slice(0, max(n0, 2))], estimate=[], show_progress=False) \
-                if not model.weight_names else None
-            x0 = [head.initial_states[0][s]["value"] for s in model.state_names] if head else model.x0
-            _, Y = free_run(model, rec.inputs, x0=x0, weights=weights)
+        window, Y = _simulated(model, weights, rec, n0)
         e = rec.outputs[n0:] - Y[n0:]
         out.append(dict(file=str(rec.path), samples=int(len(rec.t) - n0),
                         window=window * model.dt if window else None,
                         rmse={o: rms(e[:, j]) for j, o in enumerate(model.output_names)},
                         notes=notes, simulated=Y, recording=rec))
+        if declared is not None:
+            e = rec.outputs[n0:] - _simulated(declared, [0.0] * len(declared.weight_names), rec, n0)[1][n0:]
+            out[-1]["rmse_declared"] = {o: rms(e[:, j]) for j, o in enumerate(model.output_names)}
     return out
+
+
+def _simulated(model, weights, rec, n0: int):
+    """(window in samples or None, outputs): ``model``'s free run over ``rec`` from the state its
+    first ``n0`` samples give, or restarted from its EKF's (:func:`_windowed`)."""
+    window, Y = (None, None) if model.weight_names else _windowed(model, rec, n0)
+    if Y is None:
+        head = fit(model, [rec.slice(0, max(n0, 2))], estimate=[], show_progress=False) \
+            if not model.weight_names else None
+        x0 = [head.initial_states[0][s]["value"] for s in model.state_names] if head else model.x0
+        _, Y = free_run(model, rec.inputs, x0=x0, weights=weights)
+    return window, Y
 
 
 def _validation_parts(recordings):
@@ -214,10 +225,11 @@ def _write_report(path: Path, result: FitResult, validation, figures) -> Path:
     if validation:
         lines += ["## Validation (free-run simulation from the first samples' initial state, or restarted from "
                   "the EKF's state where the model amplifies errors, see the last column)", "",
-                  "| file | samples scored | RMSE | free run |", "|---|---|---|---|"]
+                  "| file | samples scored | RMSE | at the declared values | free run |", "|---|---|---|---|---|"]
         for v in validation:
             lines.append(f"| {Path(v['file']).name} | {v['samples']} | "
-                         + per_output(v["rmse"]) + " | "
+                         + per_output(v["rmse"]) + " | " + (per_output(v["rmse_declared"]) if "rmse_declared" in v
+                                                            else "–") + " | "
                          + (f"restarted from the EKF's state every {v['window']:.3g} s: the model amplifies a "
                             f"state error {AMPLIFICATION:g}-fold within that" if v.get("window") else "whole recording")
                          + " |")
