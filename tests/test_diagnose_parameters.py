@@ -823,3 +823,20 @@ def test_a_candidate_whose_derivative_fails_where_it_is_evaluated_is_said():
     why = unfit_slope(m, rec, level[:, None], exact)
     assert why.startswith("its derivative in h is not finite at h = -0.03") and "sqrt(fmax(x, 1e-9))" in why, why
     assert unfit_slope(m, rec, level[:, None], floored) is None
+
+
+def test_what_remains_says_which_test_says_so():
+    """A short period with an unmodelled sin(60α) moment: section 7 read "A mismatch remains in `q`."
+    and nothing more. It says which of the corrected model's tests failed, and, where no slow
+    disturbance is significant, that what is left changes from sample to sample."""
+    from skigen.diagnose.report import remaining_why
+    rem = dict(whiteness_pvalue=8.2e-14, independence_pvalue=0.2, disturbance_gain={"alpha": -3.2, "q": 5.36},
+               disturbance_threshold=6.4)
+    assert remaining_why(rem, 0.01) == (
+        "Judged on the corrected model: its innovations are not white (p = 8.2e-14). No slowly varying disturbance "
+        "is significant: what is left changes from sample to sample (a delay, a fast mode, a term the candidates "
+        "lack), not slowly.")
+    slow = remaining_why(dict(rem, whiteness_pvalue=0.5, disturbance_gain={"q": 9.1}), 0.01)
+    assert slow == ("Judged on the corrected model: a slowly varying disturbance is significant on `q` "
+                    "(log-likelihood gain +9.1, threshold 6.4).")
+    assert remaining_why(dict(rem, whiteness_pvalue=0.5), 0.01) == ""

@@ -292,6 +292,7 @@ def remaining(model, rec, run: RunResult, equations, alpha: float, out_dir=None,
     from .suggest import explain
     v = judge(model, rec, run, equations, alpha)
     out = {"mismatch": v.mismatch, "whiteness_pvalue": v.consistency.whiteness_pvalue,
+           "independence_pvalue": v.consistency.independence_pvalue,
            "disturbance_gain": v.gains, "disturbance_threshold": v.threshold, "where": None}
     if not v.mismatch:
         return out

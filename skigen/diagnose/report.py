@@ -5,6 +5,8 @@ import json
 import math
 from pathlib import Path
 
+import numpy as np
+
 from ..fit import plus_minus as _pm
 from ..simulate import AMPLIFICATION
 
@@ -100,6 +102,27 @@ def _acts_on(f: dict) -> str:
 def _together(tie: dict) -> str:
     """A tie that is one of several terms explaining as well together (a revision's): the others."""
     return f", together with {', '.join(tie['with'])}" if tie.get("with") else ""
+
+
+def remaining_why(rem: dict, alpha: float) -> str:
+    """What says a mismatch remains, in words: the corrected model's tests that failed (each at
+    α/3, as :func:`~skigen.diagnose.detect.judge` splits it), and where
+    only the one-step tests did, that what is left changes faster than a slow disturbance (a short
+    period's unmodelled sin(60α) left "A mismatch remains in `q`." and nothing more)."""
+    failed = [f"its innovations are not white (p = {rem['whiteness_pvalue']:.2g})"] \
+        if rem.get("whiteness_pvalue", 1.0) < alpha / 3 else []
+    if (p := rem.get("independence_pvalue")) is not None and p < alpha / 3:
+        failed.append(f"they follow the states and inputs before them (p = {p:.2g})")
+    gains, threshold = rem.get("disturbance_gain") or {}, rem.get("disturbance_threshold", np.inf)
+    slow = {e: g for e, g in gains.items() if g > threshold}
+    if slow:
+        failed.append("a slowly varying disturbance is significant on " + ", ".join(
+            f"`{e}` (log-likelihood gain {g:+.1f}, threshold {threshold:.1f})" for e, g in slow.items()))
+    if not failed:
+        return ""
+    return ("Judged on the corrected model: " + "; ".join(failed) + "." + (
+        " No slowly varying disturbance is significant: what is left changes from sample to sample (a delay, a "
+        "fast mode, a term the candidates lack), not slowly." if gains and not slow else ""))
 
 
 def _fmt(x, spec=".4g"):
@@ -304,7 +327,7 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
         else:
             at = rem.get("where") or {}
             L.append("**A mismatch remains** " + (f"in `{'`, `'.join(at.get('equations', []))}`" if at else "")
-                     + (f", {at['regime']}" if at.get("regime") else "") + ".")
+                     + (f", {at['regime']}" if at.get("regime") else "") + ". " + remaining_why(rem, c["alpha"]))
             if rem.get("tried"):
                 L.append(rem["tried"] + ".")
             if rem.get("unconfirmed_step"):
