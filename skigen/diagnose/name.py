@@ -801,11 +801,10 @@ def _refined(nominal: Model, best: Correction, i: int, alts: list[Additive], bes
     limit's bound, or a Coulomb friction's width on a log scale (past the grid's end by its own
     step): a bounded scalar search on the whole recording's log-likelihood after a joint refit.
     A limit's grid is of the state's quantiles, and a wall between two of them was placed on one
-    (0.0319 for a true 0.04, its coefficient 5σ low; refined after the rounds only, whose later
-    findings may already make up for the grid's bound: 0.0328 beside a sensor offset there; it is
-    refined when adopted, :func:`_shaped`, and again after the rounds); a friction's widths are 4×
-    apart, and one of 0.01 m/s was taken at 0.0044, its coefficient 2.5σ low and "a mismatch
-    remains"."""
+    (0.0319 for a true 0.04, its coefficient 5σ low; refined after the rounds alone, 0.0328 beside a
+    sensor offset a later round had found for the grid's bound: it is refined when adopted too,
+    :func:`_shaped`); a friction's widths are 4× apart, and one of 0.01 m/s was taken at 0.0044,
+    its coefficient 2.5σ low and "a mismatch remains"."""
     c = best.additive[i][0]
     if c.effect == "physical_limit":
         shape = dict(c.shape)
