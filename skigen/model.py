@@ -388,8 +388,8 @@ class Model:
         missing = [n for n in self.state_names if n not in self.rhs]
         if missing:
             raise ModelError(f"no dynamics for state(s) {', '.join(missing)}")
-        known = set(self.state_names + self.input_names + self.parameter_names
-                    + [_sym_name(m.sym) for m in self.memory])
+        known = {ca.SX(v.sym).element_hash(): v.name for v in self.states + self.inputs + self.parameters}
+        known |= {ca.SX(m.sym).element_hash(): _sym_name(m.sym) for m in self.memory}
         for name, expr in self.rhs.items():
             _check_scalar(expr, f"dynamics of '{name}'")
             _check_symbols(expr, known, f"dynamics of '{name}'")
@@ -676,11 +676,20 @@ def _check_scalar(expr: ca.SX, what: str):
         raise ModelError(f"{what} must be a scalar, got shape {expr.shape}")
 
 
-def _check_symbols(expr: ca.SX, known: set[str], what: str):
+def _check_symbols(expr: ca.SX, known: dict[int, str], what: str):
+    """ModelError where ``expr`` uses a symbol that is not one of ``known`` ({element hash: name}):
+    by identity, not name (a second ``ca.SX.sym("beta")`` beside the state beta passed, and CasADi
+    then stopped the run: "variables [beta] are free")."""
+    names = set(known.values())
     for s in ca.symvar(expr):
-        if s.name() not in known:
-            raise ModelError(f"{what} uses symbol '{s.name()}', which is not a declared state, "
-                             f"input, parameter or input history")
+        if s.element_hash() in known:
+            continue
+        if s.name() in names:
+            raise ModelError(f"{what} uses a symbol named '{s.name()}' that is not the model's '{s.name()}' (a "
+                             f"second ca.SX.sym('{s.name()}'), or another model's): use the symbol the model's "
+                             f"declaration returned")
+        raise ModelError(f"{what} uses symbol '{s.name()}', which is not a declared state, "
+                         f"input, parameter or input history")
 
 
 def _factored(e: ca.SX) -> tuple[float, ca.SX]:

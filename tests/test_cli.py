@@ -253,6 +253,16 @@ def test_a_prefix_that_would_hide_a_standard_header_is_refused(prefix):
     assert check_prefix("math_ekf") == "math_ekf"
 
 
+@pytest.mark.parametrize("prefix", ["casadi", "casadi_ukf"])
+def test_a_prefix_casadi_takes_for_its_own_is_refused(prefix):
+    """`--prefix casadi` (or a model named 'casadi', whose default prefix is casadi_ukf) named the
+    kernel casadi_…_kernel, which CasADi's generator made static: the C did not link."""
+    from skigen.emit.c import check_prefix
+    with pytest.raises(ValueError, match=f"prefix '{prefix}' would name the kernel '{prefix}_kernel', which CasADi"):
+        check_prefix(prefix)
+    assert check_prefix("casadix") == "casadix"
+
+
 @pytest.mark.parametrize("origin, noted", [(5e5, True), (0.0, False)])
 def test_a_float_build_of_a_state_far_from_its_origin_is_noted(tmp_path, origin, noted):
     """A position 500 km from its origin with a 1 m std: float rounds it to 0.03 m, and a user's

@@ -96,6 +96,8 @@ def test_declaration_errors_name_the_culprit(mutate, message):
 @pytest.mark.parametrize("mutate, message", [
     (lambda m, x, v, u: m.dynamics({v: u + ca.SX.sym("k")}), "dynamics of 'v' uses symbol 'k'"),
     (lambda m, x, v, u: m.unknown(v, [term("bad", ca.SX.sym("ghost"))]), "basis term 'bad' uses symbol 'ghost'"),
+    (lambda m, x, v, u: m.dynamics({v: u - ca.SX.sym("x")}),       # another symbol of the state's name: CasADi said
+     "dynamics of 'v' uses a symbol named 'x' that is not the model's 'x' (a second ca.SX.sym('x')"),   # 'free'
     (lambda m, x, v, u: m.output("vel2", ca.vertcat(v, v), noise_std=1), "output 'vel2' must be a scalar"),
     (lambda m, x, v, u: m.covariances(Q=np.eye(3)), "Q (process noise) has shape (3, 3); expected (2, 2)"),
     (lambda m, x, v, u: m.covariances(P0=[[1, 0.5], [0.4, 1]]), "P0 (initial covariance) is not symmetric"),

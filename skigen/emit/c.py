@@ -404,6 +404,10 @@ def check_prefix(prefix: str) -> str:
                          + (f" like the standard <{prefix}.h>, which it would hide from the generated code"
                             if prefix != "main" else " and source like a program's entry point")
                          + "; choose another")
+    if prefix == "casadi" or prefix.startswith("casadi_"):
+        raise ValueError(f"prefix '{prefix}' would name the kernel '{prefix}_kernel', which CasADi's code generator "
+                         f"takes for one of its own runtime functions ('casadi_…', made static: the C would not "
+                         f"link); choose another")
     why = function_name_problem(prefix)
     if why:
         raise ValueError(f"prefix '{prefix}' cannot name CasADi Functions: {why}; CasADi's start with a "
