@@ -435,6 +435,9 @@ def _parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    if getattr(args, "out", None) == "":             # '' wrote into the current folder without a word
+        print("skigen: error: --out is empty: give the folder or file to write", file=sys.stderr)
+        return 2
     try:
         return args.func(args)
     except (CliError, ModelError, RecordingError, OSError) as exc:

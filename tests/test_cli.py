@@ -263,6 +263,17 @@ def test_a_prefix_casadi_takes_for_its_own_is_refused(prefix):
     assert check_prefix("casadix") == "casadix"
 
 
+def test_a_prefix_too_long_for_a_file_name_and_an_empty_out_are_refused(capsys):
+    """A 250-character prefix failed with a raw CasADi stream error (its file names passed 255
+    characters); `--out ''` wrote into the current folder without a word."""
+    from skigen.cli import main
+    from skigen.emit.c import check_prefix
+    with pytest.raises(ValueError, match="has 250 characters: the files it names"):
+        check_prefix("a" * 250)
+    assert main(["generate", "models/wingrock.py", "--filter", "ekf", "--out", ""]) == 2
+    assert "--out is empty" in capsys.readouterr().err
+
+
 @pytest.mark.parametrize("origin, noted", [(5e5, True), (0.0, False)])
 def test_a_float_build_of_a_state_far_from_its_origin_is_noted(tmp_path, origin, noted):
     """A position 500 km from its origin with a 1 m std: float rounds it to 0.03 m, and a user's

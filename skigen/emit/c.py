@@ -394,6 +394,9 @@ STANDARD_HEADERS = frozenset("""assert complex ctype errno fenv float inttypes i
     uchar wchar wctype""".split())
 
 
+LONGEST_PREFIX = 200    # characters: '<prefix>_kernel.c' and its kin stay under a file name's 255
+
+
 def check_prefix(prefix: str) -> str:
     """``prefix``, or ValueError naming the rule it breaks: a C identifier that can begin CasADi
     Function names (``<prefix>_kernel``) and names no standard header (``<prefix>.h``)."""
@@ -404,6 +407,9 @@ def check_prefix(prefix: str) -> str:
                          + (f" like the standard <{prefix}.h>, which it would hide from the generated code"
                             if prefix != "main" else " and source like a program's entry point")
                          + "; choose another")
+    if len(prefix) > LONGEST_PREFIX:
+        raise ValueError(f"prefix '{prefix[:20]}…' has {len(prefix)} characters: the files it names "
+                         f"('<prefix>_kernel.c') would pass the file system's 255; keep it to {LONGEST_PREFIX}")
     if prefix == "casadi" or prefix.startswith("casadi_"):
         raise ValueError(f"prefix '{prefix}' would name the kernel '{prefix}_kernel', which CasADi's code generator "
                          f"takes for one of its own runtime functions ('casadi_…', made static: the C would not "
