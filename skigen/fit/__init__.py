@@ -894,9 +894,10 @@ def _disagreeing(prob: Problem, xi: np.ndarray, rho: np.ndarray, data, lengths, 
     pairs). Screened by each recording's step from the pooled fit
     (:func:`~skigen.fit.uncertainty.recording_shifts`), and where that finds a disagreement,
     confirmed by ``alone(recording, names)``, the recording fitted alone ((values, covariance) of
-    the variables ``cols``, or None): a step from a pooled fit one odd motor had pulled 0.016 off pointed the
-    three others 0.02 apart too, and all four were named. Three flights and one of another vehicle
-    (Lp −6 for −4) were fitted to Lp −3.2 ± 0.06, neither's, with no word of which flight disagreed."""
+    the variables ``cols``, or None): a step from a pooled fit one odd motor had pulled 0.016 off
+    pointed the three others 0.02 apart too, and all four were named. Three flights and one of
+    another vehicle (Lp −6 for −4) were fitted to Lp −3.2 ± 0.06, neither's, with no word of which
+    flight disagreed."""
     if len(recs) < 2 or not cols:
         return []
     rho = np.asarray(rho)                    # the pseudo-residuals at xi (:func:`_at_optimum`)
@@ -946,7 +947,7 @@ def _fitted_alone(model: Model, estimate, noise_from, noise_caps, rec: Recording
     except FitError:
         return None
     values = {**res.parameters, **res.weights}
-    if any(n not in values for n in names):
+    if any(n not in values or n not in res.correlation["names"] for n in names):
         return None
     order = [res.correlation["names"].index(n) for n in names]
     std = np.array([values[n]["std"] for n in names])
