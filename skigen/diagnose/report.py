@@ -327,7 +327,8 @@ def write_markdown(path, data: dict, meta: dict) -> Path:
         else:
             at = rem.get("where") or {}
             L.append("**A mismatch remains** " + (f"in `{'`, `'.join(at.get('equations', []))}`" if at else "")
-                     + (f", {at['regime']}" if at.get("regime") else "") + ". " + remaining_why(rem, c["alpha"]))
+                     + (f", {at['regime']}" if at.get("regime") else "") + "."
+                     + (f" {why}" if (why := remaining_why(rem, c["alpha"])) else ""))
             if rem.get("tried"):
                 L.append(rem["tried"] + ".")
             if rem.get("unconfirmed_step"):
