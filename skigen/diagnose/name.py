@@ -1273,13 +1273,16 @@ def recalibrated(nominal: Model, corr: Correction, rec: Recording, noise_from=No
     except NoiseNotIdentifiable:
         if noise_from is None:
             return nominal
-        declared = T.copy_model(nominal)
-        declared.covariances(Q=noise_from[0], R=noise_from[1], P0=nominal.initial_covariance())
         try:
-            cal, _ = calibrate(corr.build(declared), [rec])
+            cal, _ = calibrate(corr.build(_with_noise(nominal, *noise_from)), [rec])
         except NoiseNotIdentifiable:
             return nominal
     nx = len(nominal.states)
-    m = T.copy_model(nominal)
-    m.covariances(Q=cal.process_noise()[:nx, :nx], R=cal.measurement_noise(), P0=nominal.initial_covariance())
+    return _with_noise(nominal, cal.process_noise()[:nx, :nx], cal.measurement_noise())
+
+
+def _with_noise(model: Model, Q, R) -> Model:
+    """A copy of ``model`` with process noise ``Q`` and sensor noise ``R`` (its P₀ kept)."""
+    m = T.copy_model(model)
+    m.covariances(Q=Q, R=R, P0=model.initial_covariance())
     return m
