@@ -390,6 +390,22 @@ def test_emission_is_deterministic_and_path_free(style, filters, tmp_path):
             assert not re.search(r"(?<![\w.])\d+\.\d*(e[+-]?\d+)?(?![\w.])", code), p.name  # float literals
 
 
+def test_a_full_disk_leaves_no_half_filter_and_names_the_file(filters, tmp_path, monkeypatch):
+    """Out of space while writing the .c, generate left the header written and said only
+    "[Errno 28] No space left on device": the files are written whole or not at all."""
+    import errno
+    write = Path.write_text
+
+    def full(self, text, *args, **kwargs):
+        if self.name.endswith(".c.partial") and "kernel" not in self.name:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return write(self, text, *args, **kwargs)
+    monkeypatch.setattr(Path, "write_text", full)
+    with pytest.raises(OSError, match=r"cannot write .*wingrock_ekf\.c: No space left on device"):
+        emit_c(filters["ekf"], tmp_path / "gen", "double")
+    assert list((tmp_path / "gen").iterdir()) == []
+
+
 def test_filters_link_into_one_program(filters, emitted, tmp_path):
     """Three kinds, a looped float SKI and a float copy under other prefixes in one binary,
     headers together."""

@@ -512,11 +512,26 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
              f"{prefix}.c": string.Template((_HERE / "filter.c.in").read_text()).substitute(values),
              **kernel_files}
     texts = {f: _file_local(t, f[:-2]) if f.endswith(".c") else t for f, t in texts.items()}
-    paths = []
-    for fname, text in texts.items():
-        (out / fname).write_text(text, newline="\n")
-        paths.append(out / fname)
-    return paths
+    return write_whole(out, texts)
+
+
+def write_whole(out: Path, texts: dict[str, str]) -> list[Path]:
+    """Write each ``{file name: text}`` in ``out``, all of them or none: every text is written
+    beside its file first and moved into place once all are written. A failure (a full disk)
+    removes what it wrote and names the file, not only "[Errno 28] No space left on device"."""
+    partial = {out / f: out / f".{f}.partial" for f in texts}
+    try:
+        for (path, tmp), text in zip(partial.items(), texts.values()):
+            try:
+                tmp.write_text(text, newline="\n")
+            except OSError as exc:
+                raise OSError(exc.errno, f"cannot write {path}: {exc.strerror or exc}") from exc
+        for path, tmp in partial.items():
+            tmp.replace(path)
+    finally:
+        for tmp in partial.values():
+            tmp.unlink(missing_ok=True)
+    return list(partial)
 
 
 @functools.lru_cache(maxsize=None)
