@@ -225,7 +225,7 @@ def _column_notes(name, column, output, count, early, dropped, repeated, first_r
                      f"{abs(pace / dt - 1):.1%} {'longer' if pace > dt else 'shorter'} than the model's dt = {dt:g} s: "
                      f"if it was logged at the model's rate, the logger's clock runs {pace / dt:.4g}× the true time, "
                      f"and the recording's dynamics with it")
-    if pace is not None and pace > SPARSE * dt:
+    if pace is not None and pace >= SPARSE * dt * (1 - RATE_OFF):
         notes.append(f"{kind} '{name}': its samples are {pace:.4g} s apart, {pace / dt:.3g}× the model's dt = "
                      f"{dt:g} s: " + (f"the filter predicts about {pace / dt - 1:.0f} grid samples between "
                                       f"readings" if output else

@@ -160,7 +160,8 @@ def check_group(g: Group, columns: dict, time_col: str, real: str, fail) -> None
         inf = np.isinf(v)
         if inf.any():
             i = int(np.argmax(inf))
-            fail(i, columns[name], f"{v[i]:g}: values must be finite (leave the cell empty if not measured)")
+            fail(i, columns[name], f"{v[i]:g}: values must be finite (an inf, or a number beyond "
+                                   f"±{np.finfo(float).max:.4g} written; leave the cell empty if not measured)")
         if real == "float":
             big = np.abs(v) > FLOAT_MAX
             if big.any():

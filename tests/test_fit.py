@@ -745,7 +745,8 @@ def test_a_parameter_fitted_far_from_its_starting_value_is_said():
     assert said[0].endswith("×): check the units of the inputs and outputs it acts through before reading the rest")
     from skigen.fit import _far_notes              # hardly determined: no unit is blamed for it
     assert _far_notes({"cd": dict(initial=0.3, value=0.00136, std=0.74)}) == []
-    assert _far_notes({"cd": dict(initial=0.3, value=0.00136, std=0.001)}) != []
+    assert _far_notes({"cd": dict(initial=0.3, value=0.00136, std=0.0001)}) != []
+    assert _far_notes({"cd": dict(initial=0.3, value=0.00136, std=0.001)}) == []     # zero within 2 std: absent
 
 
 def test_a_parameter_used_nowhere_is_held_by_default_and_refused_when_named():
@@ -1023,6 +1024,20 @@ def test_a_vague_estimate_is_not_said_to_sit_on_a_bound():
     cd, = _bound_notes({"cd": dict(value=4.8e-10, std=0.04, bounds=(0.0, 5.0))})
     assert "sits on its lower bound 0" in cd
     assert _bound_notes({"R": dict(value=3.87, std=0.95, bounds=(0.01, None))}) == []
+
+
+def test_a_parameter_fitted_to_zero_is_said_absent_not_vague_nor_a_unit_slip():
+    """A damping whose truth is 0 (declared 0.3, bounds [0, ∞)) came out 3.6e-6 ± 6.8e-5, and the
+    fit said 'the data hardly determine it' and 'check the units': it is determined 4 400× more
+    tightly than the declared value, and a value at zero says the effect is absent, not scaled."""
+    from skigen.fit import _bound_notes, _far_notes
+    c = dict(value=3.63153e-06, std=6.8e-05, initial=0.3, bounds=(0.0, None))
+    said, = _bound_notes({"c": c})
+    assert said == ("c = 3.63153e-06 ± 6.8e-05 is zero within its std, 4.41e+03 std from the 0.3 declared: what "
+                    "it sets is absent from the recordings or below what they resolve")
+    assert _far_notes({"c": c}) == []
+    vague, = _bound_notes({"c": c | dict(std=0.2)})                  # no tighter than what was declared
+    assert "the data hardly determine it" in vague
 
 
 def test_an_output_never_measured_has_no_rmse(tmp_path):

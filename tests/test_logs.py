@@ -989,6 +989,11 @@ def test_a_column_far_slower_than_the_model_is_said(flight, tmp_path):
                      "about 14 grid samples between readings (a model faster than its log; or a dt in other units "
                      "than the stamps?)"], notes
     assert not [n for n in load_recording(flight, MODEL).notes if "× the model's dt" in n]
+    every_fourth = [n for n in load_recording(flight.iloc[::4].reset_index(drop=True), MODEL).notes
+                    if "× the model's dt" in n]                  # exactly 4 dt: was said only from 5 on
+    assert len(every_fourth) == 2 and "0.08 s apart, 4× the model's dt" in every_fourth[0], every_fourth
+    assert not [n for n in load_recording(flight.iloc[::3].reset_index(drop=True), MODEL).notes
+                if "× the model's dt" in n]
 
 
 def test_what_the_grid_does_to_several_columns_alike_is_said_once(tmp_path):

@@ -79,6 +79,7 @@ def _error(path, ins=INS, outs=OUTS, **kw):
     ("t,delta,p,phi\n0,1,2,3\n0.1,,2,3\n", 3, "delta", "inputs must be present in every row"),
     ("t,delta,p,phi\n0,1,2,3\n0.1,1,2,3\n0.2,nan,2,3\n", 4, "delta", "inputs must be present in every row"),
     ("t,delta,p,phi\n0,1,2,3\n0.1,inf,2,3\n", 3, "delta", "inf: values must be finite"),
+    ("t,delta,p,phi\n0,1,2,3\n0.1,1e400,2,3\n", 3, "delta", "a number beyond ±1.798e+308 written"),
     ("t,delta,p,phi\n0,1,2,3\n,1,2,3\n", 3, "t", "'t'"),
     ("t,delta,p,phi\n0,1,2,3\nnan,1,2,3\n", 3, "t", "finite"),
     ("t,delta,p,phi\n0,1,2,3\n0.1,1,2,-inf\n", 3, "phi", "-inf: values must be finite"),

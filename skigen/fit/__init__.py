@@ -515,11 +515,13 @@ def _far_notes(parameters: dict) -> list[str]:
     unit or scaling slip in what they multiply is likelier than a datasheet that far off (a PWM
     command in µs where the model wants a fraction put a thrust constant at 0.0084 for 18); not one
     the recordings hardly determine, within 2 std of its declared value (a drag 0.00136 ± 0.74 on
-    a hover at constant throttle for a declared 0.3 was sent to check the units)."""
+    a hover at constant throttle for a declared 0.3 was sent to check the units); nor one within 2
+    std of zero, which says the effect is absent, not scaled (:func:`_bound_notes`)."""
     out = []
     for name, p in parameters.items():
         a, b = p["initial"], p["value"]
-        if a and b and np.isfinite(b) and max(abs(a / b), abs(b / a)) >= FAR and not abs(b - a) < 2 * p["std"]:
+        if (a and b and np.isfinite(b) and max(abs(a / b), abs(b / a)) >= FAR and not abs(b - a) < 2 * p["std"]
+                and not abs(b) < 2 * p["std"]):
             out.append(f"{name} = {b:.4g} ± {p['std']:.2g} for the {a:g} declared ({abs(b / a):.3g}×"
                        f"{', its sign flipped' if a * b < 0 else ''}): check the units of the inputs and outputs "
                        f"it acts through before reading the rest")
@@ -527,8 +529,10 @@ def _far_notes(parameters: dict) -> list[str]:
 
 
 def _bound_notes(parameters: dict) -> list[str]:
-    """A note per parameter that sits on a bound, or whose 2σ interval is wider than its bounds
-    (an infinite std has its own note, :func:`_unseen_notes`)."""
+    """A note per parameter that sits on a bound, whose 2σ interval is wider than its bounds, that
+    is zero within 2 std where the std is a tenth of its declared value or less (the effect is
+    absent: a damping whose truth is 0), or whose std is VAGUE times its value (an infinite std has
+    its own note, :func:`_unseen_notes`)."""
     notes = []
     for name, p in parameters.items():
         value, std, (lo, hi) = p["value"], p["std"], p["bounds"]
@@ -545,6 +549,10 @@ def _bound_notes(parameters: dict) -> list[str]:
         elif 4 * std > hi - lo:
             notes.append(f"{name} = {value:.6g} ± {std:.2g}: its 2σ interval is wider than its bounds "
                          f"[{lo:g}, {hi:g}]; the data hardly determine it")
+        elif abs(value) < 2 * std and VAGUE * std < abs(p.get("initial") or 0.0):
+            notes.append(f"{name} = {value:.6g} ± {std:.2g} is zero within its std, {abs(p['initial']) / std:.3g} std "
+                         f"from the {p['initial']:g} declared: what it sets is absent from the recordings or "
+                         f"below what they resolve")
         elif std > VAGUE * abs(value):
             notes.append(f"{name} = {value:.6g} ± {std:.2g}: its std is {std / max(abs(value), 1e-300):.2g} times "
                          f"its value; the data hardly determine it")
