@@ -687,6 +687,7 @@ def test_a_line_in_the_innovations_spectrum_is_found_against_its_local_level():
                                 innovation_var=np.ones((n, 1)))
     said = periodic_line({}, run, ["r_meas"], dt, 0.01)["periodic"]
     assert said["output"] == "r_meas" and said["note"].startswith("the innovations of r_meas carry a line at a period of 9")
+    assert f"9.09 s (0.11 Hz; {100 * said['share']:.2g} % of their variance" in said["note"], said["note"]   # 0 % for 0.009 %
     assert periodic_line({"explained_by": "psi"}, run, ["r_meas"], dt, 0.01) == {}
 
 

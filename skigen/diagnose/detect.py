@@ -345,7 +345,8 @@ def periodic_line(said: dict, run: RunResult, outputs, dt: float, alpha: float) 
     if not lines:
         return {}
     name, period, p, share = max(lines, key=lambda x: x[3])
-    note = (f"the innovations of {name} carry a line at a period of {period:.3g} s ({100 * share:.0f} % of their "
-            f"variance, p = {p:.2g} against their spectrum's local level): a disturbance periodic in time the model "
-            f"has no input for (waves, a vibration, an imbalance), or an oscillation it misses")
+    note = (f"the innovations of {name} carry a line at a period of {period:.3g} s ({1 / period:.3g} Hz; "
+            f"{100 * share:.2g} % of their variance, p = {p:.2g} against their spectrum's local level): a disturbance "
+            f"periodic in time the model has no input for (waves, a vibration, an imbalance, mains hum at 50 or "
+            f"60 Hz), or an oscillation it misses")
     return {"periodic": {"output": name, "period": period, "pvalue": p, "share": share, "note": note}}
