@@ -38,7 +38,8 @@ from . import transform as T
 from .calibrate import calibrate
 from .correct import emit_filter, header_lines, refit_jointly, write_model_file
 from .cv import DEFAULT_BLOCKS, DEFAULT_FOLDS, Folds, ekf_run, fold_loglik
-from .detect import Consistency, consistency, judge, normalised_innovations, relation_break, remaining, unexplained
+from .detect import (Consistency, consistency, drifting, judge, normalised_innovations, relation_break, remaining,
+                     unexplained)
 from .errors import DiagnosisError
 from .evidence import weigh
 from .figures import diagnosis_figures, plot_residuals
@@ -391,7 +392,7 @@ def diagnose(model, recording, out_dir, *, candidates=None, alpha: float = 0.01,
                        f"physics; diagnose the stretches apart")
         for f in data["findings"]:
             _note(f, f"fitted across a change {when}: see the notes")
-    if data["remaining"].get("drifts") is not None and data["findings"]:
+    if drifting(data["remaining"]) and data["findings"]:
         caveats.append("what remains drifts over time: the findings fit one model to a recording whose system or "
                        "sensors drift, and may stand for the drift rather than for missing physics")
         for f in data["findings"]:

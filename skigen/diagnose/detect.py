@@ -22,6 +22,7 @@ innovations regressed on them is χ² with as many degrees of freedom as indepen
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 from dataclasses import dataclass, field
 
@@ -134,12 +135,22 @@ def relation_break(model, rec, run: RunResult, alpha: float) -> dict:
     driven by a chirp: p = 0.008 at 25 s), so the split is tested beyond a time-invariant
     alternative as large as itself: piecewise-linear functions of each state and input with as many
     new columns in all as the split adds (then 2.1, and 5·10⁻¹⁸ for the elevator). The signal whose
-    split alone gains most names where; {} when no change is significant, or where it moves how the
-    innovations follow the past by less than MOVES of how they follow it throughout (its share of
-    their variance below MOVES² of that relation's): a misfit's best fit moves that little with the
-    excitation and the sample, and a change so small cannot be what the findings stand for
-    (Silverbox's 65 062 samples split at 98.6 s with p = 10⁻⁵: a share of 0.05 % beside 46 %
-    followed throughout, a move of 3 %; a servo's gain drop: 29 % beside 4 %)."""
+    split alone gains most names where.
+
+    {} when no change is significant; where it moves how the innovations follow the past by less
+    than MOVES of how they follow it throughout (its share of their variance below MOVES² of that
+    relation's): a misfit's best fit moves that little with the excitation and the sample, and a
+    change so small cannot be what the findings stand for (Silverbox's 65 062 samples split at
+    98.6 s with p = 10⁻⁵: a share of 0.05 % beside 46 % followed throughout, a move of 3 %; a
+    servo's gain drop: 29 % beside 4 %).
+
+    {"relation_drifts", "note"} where a straight line in time of the relation explains it as well
+    as the best split (as many columns): a mass falling as fuel burns was "changes at 34.5 s".
+    {"relation_moves", "note"} where, beyond that first change, the relation splits again
+    (Bonferroni over the times): F treats the innovations as independent, and where they follow
+    each other (a tachometer behind a lag the model lacks: lag-one correlation 0.89) any split is
+    'significant' (that one at 10, 23.5 or 27 s by the seed, p = 10⁻¹¹¹) and so is a second; a
+    system that changes throughout does the same. Neither is said as a change in time."""
     eps, Z = normalised_innovations(run), past_regressors(model, run, rec.inputs)
     signals = list(model.state_names) + list(model.input_names)
     past = [np.r_[np.nan, s[:-1]] for s in _signals(model, run, rec.inputs)]
@@ -148,39 +159,86 @@ def relation_break(model, rec, run: RunResult, alpha: float) -> dict:
     best, tests = None, BREAKS * len(model.output_names)
     for i, name in enumerate(model.output_names):
         ok = np.isfinite(eps[:, i]) & np.all(np.isfinite(Z), axis=1)
-        X, t = np.column_stack([np.ones(int(ok.sum())), Z[ok]]), rec.t[ok]
-        q = _basis(np.column_stack([X, *(_pieces(s[ok], knots) for s in past)]))
-        if len(t) < 4 * (q.shape[1] + X.shape[1]):
-            continue
-        out = lambda M, q=q: M - q @ (q.T @ M)               # beyond the time-invariant alternative
-        e = out(eps[ok, i])
-        for at in t[np.linspace(BREAK_TRIM * len(t), (1 - BREAK_TRIM) * len(t), BREAKS).astype(int)]:
-            split = out(X * (t > at)[:, None])
-            rss, dof = _residual_ss(e, split)
-            rest = len(t) - q.shape[1] - dof
-            if dof and rss > 0:
-                F = (float(e @ e) - rss) / dof / (rss / rest)
-                rank = (float(stats.f.logsf(F, dof, rest)), -F)  # a large change's p underflows, even in logs
-                if best is None or rank < best[0]:
-                    best = (rank, float(at), name, F, dof, e, X, t, out, eps[ok, i])
-    if best is None or best[0][0] + np.log(tests) >= np.log(alpha):
+        X = np.column_stack([np.ones(int(ok.sum())), Z[ok]])
+        alt = np.column_stack([X, *(_pieces(s[ok], knots) for s in past)])
+        split = _best_split(eps[ok, i], X, alt, rec.t[ok])
+        if split and (best is None or split.rank < best.rank):
+            best = dataclasses.replace(split, output=name, raw=eps[ok, i], X=X, alt=alt, t=rec.t[ok])
+    if best is None or best.rank[0] + np.log(tests) >= np.log(alpha):
         return {}
-    (log_p, _), at, name, F, dof, e, X, t, out, raw = best
-    after = (t > at)[:, None]
-    total = float(np.sum((raw - raw.mean()) ** 2))
-    change = (float(e @ e) - _residual_ss(e, out(X * after))[0]) / total
-    throughout = 1.0 - _residual_ss(raw, X)[0] / total
+    after = (best.t > best.at)[:, None]
+    total = float(np.sum((best.raw - best.raw.mean()) ** 2))
+    change = (float(best.e @ best.e) - _residual_ss(best.e, best.out(best.X * after))[0]) / total
+    throughout = 1.0 - _residual_ss(best.raw, best.X)[0] / total
     if change < MOVES ** 2 * throughout:
         return {}
-    most = min(signals, key=lambda g: _residual_ss(e, out(X[:, 1:][:, group == signals.index(g)] * after))[0])
-    p = min(1.0, float(np.exp(log_p)) * tests)
-    note = (f"how the innovations of {name} follow the states and inputs changes at t = {at:.4g} s, most in how "
-            f"they follow {most} (Chow's F = {F:.3g} on {dof} regressors beyond a time-invariant alternative as "
-            f"large, p = {p:.2g} over {BREAKS} times and the outputs): the system changed during the recording (a "
-            f"gain, a friction, a failure); diagnose the stretches before and after it apart")
-    return {"changes_at": at, "note": note,
-            "break": {"output": name, "at": at, "F": float(F), "dof": int(dof), "pvalue": p, "signal": most,
-                      "share": change, "share_throughout": throughout}}
+    span = (best.t - best.t.mean()) / np.ptp(best.t)
+    drift = _residual_ss(best.e, best.out(best.X * span[:, None]))[0] <= _residual_ss(best.e, best.out(best.X * after))[0]
+    first = best.X * (span[:, None] if drift else after)
+    again = _best_split(best.raw, best.X, np.column_stack([best.alt, first]), best.t)
+    if again and again.rank[0] + np.log(BREAKS) < np.log(alpha):
+        times = sorted({best.at, again.at}) if not drift else [again.at]
+        how = ("a drift, then a change at " if drift else "changes at ") + " and ".join(f"{a:.4g}" for a in times)
+        return {"relation_moves": {"output": best.output, "at": times, "drift": drift, "share": change,
+                                   "share_throughout": throughout},
+                "note": f"how the innovations of {best.output} follow the states and inputs moves throughout the "
+                        f"recording ({how} s, each beyond the other, and more): not one change. Innovations that "
+                        f"follow each other in time (a misfit slower than a sample: a sensor's lag, a drift) do this, "
+                        f"as does a system that changes throughout"}
+    e, X, out = best.e, best.X, best.out
+    most = min(signals, key=lambda g: _residual_ss(e, out(first[:, 1:][:, group == signals.index(g)]))[0])
+    if drift:
+        rss, dof = _residual_ss(e, out(first))
+        F = (float(e @ e) - rss) / dof / (rss / (len(e) - best.alt.shape[1] - dof))
+        p = float(stats.f.sf(F, dof, len(e) - best.alt.shape[1] - dof)) * len(model.output_names)
+        note = (f"how the innovations of {best.output} follow the states and inputs drifts over the recording, most in "
+                f"how they follow {most}: a straight line in time of that relation explains it as well as any one "
+                f"change (F = {F:.3g} on {dof} regressors, p = {p:.2g}): the system changes gradually during the "
+                f"recording (fuel burning, a battery draining, heating, wear), and the findings fit its average")
+        return {"relation_drifts": {"output": best.output, "F": float(F), "dof": int(dof), "pvalue": p, "signal": most,
+                                    "share": change, "share_throughout": throughout}, "note": note}
+    p = min(1.0, float(np.exp(best.rank[0])) * tests)
+    note = (f"how the innovations of {best.output} follow the states and inputs changes at t = {best.at:.4g} s, most "
+            f"in how they follow {most} (Chow's F = {best.F:.3g} on {best.dof} regressors beyond a time-invariant "
+            f"alternative as large, p = {p:.2g} over {BREAKS} times and the outputs): the system changed during the "
+            f"recording (a gain, a friction, a failure); diagnose the stretches before and after it apart")
+    return {"changes_at": best.at, "note": note,
+            "break": {"output": best.output, "at": best.at, "F": best.F, "dof": best.dof, "pvalue": p,
+                      "signal": most, "share": change, "share_throughout": throughout}}
+
+
+@dataclass(frozen=True)
+class _Split:
+    rank: tuple          # (log p, −F): a large change's p underflows, even in logs
+    at: float            # s: the relation differs after this time
+    F: float
+    dof: int
+    e: np.ndarray        # the innovations beyond the time-invariant alternative
+    out: object          # M ↦ M beyond that alternative
+    output: str = ""
+    raw: np.ndarray = None
+    X: np.ndarray = None
+    alt: np.ndarray = None
+    t: np.ndarray = None
+
+
+def _best_split(eps: np.ndarray, X: np.ndarray, alt: np.ndarray, t: np.ndarray) -> _Split | None:
+    """The time among BREAKS (within BREAK_TRIM of either end) where splitting the regression of
+    ``eps`` on ``X`` gains most beyond ``alt``; None on too few samples."""
+    q = _basis(alt)
+    if len(t) < 4 * (q.shape[1] + X.shape[1]):
+        return None
+    out = lambda M: M - q @ (q.T @ M)
+    e, best = out(eps), None
+    for at in t[np.linspace(BREAK_TRIM * len(t), (1 - BREAK_TRIM) * len(t), BREAKS).astype(int)]:
+        rss, dof = _residual_ss(e, out(X * (t > at)[:, None]))
+        rest = len(t) - q.shape[1] - dof
+        if dof and rss > 0:
+            F = (float(e @ e) - rss) / dof / (rss / rest)
+            rank = (float(stats.f.logsf(F, dof, rest)), -F)
+            if best is None or rank < best.rank:
+                best = _Split(rank, float(at), float(F), int(dof), e, out)
+    return best
 
 
 def _basis(X: np.ndarray) -> np.ndarray:
@@ -318,7 +376,12 @@ def remaining(model, rec, run: RunResult, equations, alpha: float, out_dir=None,
 
 def timed(said: dict) -> bool:
     """Whether what remains was said to change in time (a step, a drift; :func:`~skigen.diagnose.suggest.explain`)."""
-    return said.get("changes_at") is not None or said.get("drifts") is not None
+    return said.get("changes_at") is not None or drifting(said)
+
+
+def drifting(said: dict) -> bool:
+    """Whether what remains was said to drift in time (its disturbance, or how the innovations follow the past)."""
+    return said.get("drifts") is not None or said.get("relation_drifts") is not None
 
 
 def unexplained(said: dict, model, rec, run: RunResult, alpha: float, changed=None) -> dict:
