@@ -1026,6 +1026,21 @@ def test_a_vague_estimate_is_not_said_to_sit_on_a_bound():
     assert _bound_notes({"R": dict(value=3.87, std=0.95, bounds=(0.01, None))}) == []
 
 
+def test_derivatives_that_are_not_finite_are_a_fit_error_not_a_crash():
+    """A discrete model's joint refit in a diagnosis met 7 188 of 7 200 rows of J non-finite and
+    NumPy's eigh stopped the run ("Eigenvalues did not converge"); a FitError the diagnosis catches
+    and says instead."""
+    import types
+    from skigen.fit import FitError, fisher
+    J = np.ones((4, 2))
+    J[1, 0] = np.nan
+    prob = types.SimpleNamespace(fisher=lambda xi, data: (J, np.zeros(2)))
+    with pytest.raises(FitError, match=r"not finite at the values found \(1 of 4 residuals\)"):
+        fisher(prob, np.zeros(2), None)
+    assert np.array_equal(fisher(types.SimpleNamespace(fisher=lambda xi, data: (np.eye(2), np.ones(2))),
+                                 np.zeros(2), None)[0], np.eye(2))
+
+
 def test_a_parameter_fitted_to_zero_is_said_absent_not_vague_nor_a_unit_slip():
     """A damping whose truth is 0 (declared 0.3, bounds [0, ∞)) came out 3.6e-6 ± 6.8e-5, and the
     fit said 'the data hardly determine it' and 'check the units': it is determined 4 400× more

@@ -369,7 +369,7 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
         robust = method == "output-error"      # simulation residuals may be coloured; innovations are white
         xi, rho, nll, C, info = _at_optimum(prob, jac_g, sol, inputs, lengths, robust)
         if lost:          # seen at the start only: the free run there may not move what tells them apart
-            J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(xi, p))
+            J, prior = fisher(prob, xi, p)
             if again := unidentified(J[:, free], prior.ravel()[free], [V.names[i] for i in free],
                                      _dense(jac_g(xi, p))[:, free]):
                 raise _not_identifiable(model, [_acts_elsewhere(prob, xi * scale, scale, p, V, model, s) for s in again])
@@ -473,7 +473,7 @@ def _acts_elsewhere(prob: Problem, theta0, scale, p, V, model: Model, sentence: 
         theta[i] = theta0[i] * k
         if not (lo is None or lo <= theta[i]) or not (hi is None or theta[i] <= hi) or theta[i] == theta0[i]:
             continue
-        J, _ = (np.asarray(ca.DM(v)) for v in prob.fisher(theta / scale, p))
+        J, _ = fisher(prob, theta / scale, p)
         if np.all(np.isfinite(J[:, i])) and np.any(J[:, i] != 0):
             return (f"{sentence} at {theta0[i]:.6g}, but it has at {theta[i]:.6g}: the recordings do not reach "
                     f"where it acts from there (a limit beyond every recorded command); start it within what "
@@ -691,6 +691,19 @@ def _solve(prob: Problem, solver, inputs: dict, negligible, label: str | None) -
     return sol, dict(stats, iter_count=iterations, return_status=status)
 
 
+def fisher(prob: Problem, xi, data) -> tuple[np.ndarray, np.ndarray]:
+    """(J, prior precision) of the pseudo-residuals at the scaled unknowns ``xi``; a FitError where
+    J is not finite (a discrete model whose refit wandered where its states overflow: NumPy's
+    eigh stopped the diagnosis with "Eigenvalues did not converge")."""
+    J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(xi, data))
+    if not np.all(np.isfinite(J)):
+        bad = int(np.sum(~np.all(np.isfinite(J), axis=1)))
+        raise FitError(f"the likelihood's derivatives are not finite at the values found ({bad} of {J.shape[0]} "
+                       f"residuals): the model overflows or divides by zero near them, and no error bar can be "
+                       f"given; check its stability there, or bound the parameters that take it there")
+    return J, prior
+
+
 def _at_optimum(prob: Problem, jac_g, sol: dict, inputs: dict, lengths, robust: bool):
     """(the solution within its bounds, the residuals, −log L per sample, the covariance of the
     scaled unknowns, its info, with ``information``: the Fisher information's diagonal) at IPOPT's
@@ -698,7 +711,7 @@ def _at_optimum(prob: Problem, jac_g, sol: dict, inputs: dict, lengths, robust: 
     xi = np.clip(np.asarray(sol["x"]).ravel(), inputs["lbx"], inputs["ubx"])   # IPOPT may overstep a bound by ~1e-8
     p = inputs["p"]
     rho, nll = (np.asarray(v) for v in prob.residuals(xi, p))
-    J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(xi, p))
+    J, prior = fisher(prob, xi, p)
     C, info = covariance(J, rho if robust else None, lengths, prior.ravel(), _dense(jac_g(xi, p)))
     info["information"] = np.sum(J * J, axis=0) + prior.ravel()
     return xi, rho, nll, C, info
@@ -909,7 +922,7 @@ def _disagreeing(prob: Problem, xi: np.ndarray, rho: np.ndarray, data, lengths, 
     if len(recs) < 2 or not cols:
         return []
     rho = np.asarray(rho)                    # the pseudo-residuals at xi (:func:`_at_optimum`)
-    J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(xi, data))
+    J, prior = fisher(prob, xi, data)
     ny = int(round((np.sqrt(1 + 4 * rho.shape[0]) - 1) / 2))        # n_rho = ny + ny²
     a = rho[:ny]
     outer = (np.eye(ny)[:, :, None] - a[:, None, :] * a[None, :, :]).reshape(ny * ny, -1) / np.sqrt(2)
@@ -1195,7 +1208,7 @@ def _scales(prob: Problem, theta0: np.ndarray, data: np.ndarray) -> tuple[np.nda
     (J_ρ and the prior precision at θ0: ∂ρ/∂ξ scales with the unit, the precision with its square)."""
     V = prob.variables
     nominal = np.array(V.scale)
-    J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(theta0 / nominal, np.r_[nominal, data]))
+    J, prior = fisher(prob, theta0 / nominal, np.r_[nominal, data])
     with np.errstate(over="ignore"):         # a start whose filter diverges: its information is no unit
         info = np.sum(J * J, axis=0) + prior.ravel()
     scale = nominal.copy()
