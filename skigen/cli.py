@@ -346,7 +346,7 @@ def _parser() -> argparse.ArgumentParser:
     r.add_argument("--out", required=True, help="result CSV")
     _add_filter_options(r)
     _add_data_options(r)
-    r.set_defaults(func=_run)
+    r.set_defaults(func=_run, out_is="file")
     g = sub.add_parser("generate", help="emit the C library of a filter")
     g.add_argument("model")
     g.add_argument("--filter", choices=FILTERS, default=None,
@@ -360,7 +360,7 @@ def _parser() -> argparse.ArgumentParser:
                                     "builds under different prefixes link into one binary")
     g.add_argument("--out", required=True, help="output directory")
     _add_filter_options(g)
-    g.set_defaults(func=_generate)
+    g.set_defaults(func=_generate, out_is="folder")
     d = sub.add_parser("diagnose", help="find, name and correct what the model misses in a recording")
     d.add_argument("model", help="model file (.py exposing `model`) or package.module:attribute")
     d.add_argument("data", help="recording: CSV, Parquet or PX4 ULog")
@@ -375,7 +375,7 @@ def _parser() -> argparse.ArgumentParser:
                         "(repeatable)")
     d.add_argument("--no-figures", action="store_true", help="skip the figures")
     _add_data_options(d)
-    d.set_defaults(func=_diagnose)
+    d.set_defaults(func=_diagnose, out_is="folder")
     f = sub.add_parser("fit", help="fit a model's parameters, weights and initial states to recordings")
     f.add_argument("model", help="model file (.py exposing `model`) or package.module:attribute")
     f.add_argument("data", nargs="+", help="recording(s): CSV, Parquet or PX4 ULog")
@@ -394,7 +394,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="samples of a --validate recording used to estimate its initial state (50)")
     f.add_argument("--max-iter", type=int, default=200, help="IPOPT iteration limit (200)")
     f.add_argument("--no-figures", action="store_true", help="skip the figures")
-    f.set_defaults(func=_fit)
+    f.set_defaults(func=_fit, out_is="folder")
     _add_data_options(f)
     a = sub.add_parser("batch", help="run, fit or diagnose a model over many logs on Dask (local or a cluster)")
     a.add_argument("model", help="model file (.py exposing `model`) or package.module:attribute")
@@ -424,7 +424,7 @@ def _parser() -> argparse.ArgumentParser:
                        help="a running Dask scheduler, e.g. tcp://host:8786 (logs and DIR at the same paths on "
                             "every worker)")
     _add_data_options(a)
-    a.set_defaults(func=_batch)
+    a.set_defaults(func=_batch, out_is="folder")
     b = sub.add_parser("bench", help=f"print a benchmark table ({', '.join(BENCHMARKS)})")
     b.add_argument("name")
     b.add_argument("--json", action="store_true", help="print one JSON object")
@@ -433,10 +433,27 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+def _out_problem(given: str, kind: str) -> str | None:
+    """Why ``--out`` cannot be written as a ``kind`` ("file" or "folder"), before any work: a run
+    of 10⁶ rows into an existing folder failed only at its end, a folder that is a file said
+    "[Errno 17] File exists"."""
+    if given == "":                                    # '' wrote into the current folder without a word
+        return "--out is empty: give the folder or file to write"
+    out = Path(given)
+    if kind == "file" and out.is_dir():
+        return f"--out {out} is a folder; give the name of the CSV file to write"
+    if kind == "folder" and out.exists() and not out.is_dir():
+        return f"--out {out} is a file; give a folder to write into"
+    up = next((p for p in out.parents if p.exists()), None)
+    if up is not None and not up.is_dir():
+        return f"--out {out}: {up} is a file, not a folder"
+    return None
+
+
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
-    if getattr(args, "out", None) == "":             # '' wrote into the current folder without a word
-        print("skigen: error: --out is empty: give the folder or file to write", file=sys.stderr)
+    if getattr(args, "out", None) is not None and (why := _out_problem(args.out, args.out_is)):
+        print(f"skigen: error: {why}", file=sys.stderr)
         return 2
     try:
         return args.func(args)

@@ -35,7 +35,7 @@ C_KEYWORDS = frozenset("""auto break case char const continue default do double 
 # names a written model file binds (a symbol named like them would overwrite or be shadowed).
 RESERVED = frozenset("""t time timestamp nis loglik status measured code tanh exp log sqrt abs fabs sin cos tan
     atan atan2 sign fmin fmax pi model ca np Model Path load_model""".split())
-RESERVED_PREFIXES = ("std_", "innov_", "prior_var_", "w_")
+RESERVED_PREFIXES = ("std_", "innov_", "measured_", "prior_var_", "w_")
 
 
 class ModelError(ValueError):

@@ -274,6 +274,21 @@ def test_a_prefix_too_long_for_a_file_name_and_an_empty_out_are_refused(capsys):
     assert "--out is empty" in capsys.readouterr().err
 
 
+def test_an_out_of_the_wrong_kind_is_refused_before_any_work(tmp_path, capsys):
+    """`run --out DIR` ran 10⁶ rows, then failed renaming its 365 MB partial file onto the folder;
+    `generate --out afile.txt` said "[Errno 17] File exists"."""
+    from skigen.cli import main
+    afile = tmp_path / "afile.txt"
+    afile.write_text("x")
+    for argv, said in ((["run", "models/wingrock.py", "missing.csv", "--out", str(tmp_path)], "is a folder; give the "
+                        "name of the CSV file to write"),
+                       (["generate", "models/wingrock.py", "--out", str(afile)], "is a file; give a folder"),
+                       (["run", "models/wingrock.py", "missing.csv", "--out", str(afile / "r.csv")],
+                        f"{afile} is a file, not a folder")):
+        assert main(argv) == 2
+        assert said in capsys.readouterr().err, argv
+
+
 @pytest.mark.parametrize("origin, noted", [(5e5, True), (0.0, False)])
 def test_a_float_build_of_a_state_far_from_its_origin_is_noted(tmp_path, origin, noted):
     """A position 500 km from its origin with a 1 m std: float rounds it to 0.03 m, and a user's

@@ -598,3 +598,17 @@ def test_float_ski_stays_close_on_the_delay_model():
     single = run(filt, rec, backend="c", real="float", show_progress=False)
     assert not np.any(single.code == Status.NUMERICAL_FAILURE)
     assert np.max(np.abs(single.mean - double.mean) / double.std) < 0.01
+
+
+def test_a_discrete_model_s_weight_is_said_to_enter_the_next_value(tmp_path):
+    """The header's index comment said 'times 1 in the rate of Tc' for a discrete model, whose
+    unknown term is added to the next value, not to a rate."""
+    from skigen import Model
+    from skigen.library import polynomial
+    m = Model("tank", dt=0.1, discretization="discrete")
+    h = m.state("h", unit="m", std=0.1, process_std=0.01)
+    m.dynamics({h: 0.9 * h})                                         # h[k+1]
+    m.output("h_m", h, unit="m", noise_std=0.01)
+    m.unknown(h, polynomial([h], 1), prior_variance=1.0)
+    header = next(p for p in emit_c(derive(m, "ski"), tmp_path, "double") if p.name == "tank_ski.h").read_text()
+    assert "#define TANK_SKI_Z_W_ONE 1 /* times 1 in the next value of h */" in header, header

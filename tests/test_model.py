@@ -74,6 +74,7 @@ def test_direction_term_shares_one_weight():
     (lambda m, x, v, u: m.state("z", role="altitud"), "role must be one of"),
     (lambda m, x, v, u: m.output("w_meas", v), "output name 'w_meas' is reserved: it starts with 'w_', which names"),
     (lambda m, x, v, u: m.input("status"), "input name 'status' is reserved: a result column"),
+    (lambda m, x, v, u: m.state("measured_y"), "state name 'measured_y' is reserved: it starts with 'measured_'"),
     (lambda m, x, v, u: m.state("double"), "state name 'double' is reserved: a C keyword"),
     (lambda m, x, v, u: m.unknown(v, [term("b", ca.vertcat(1, 2))]), "basis term 'b' has shape (2, 1)"),
     (lambda m, x, v, u: (m.unknown(v, [term("1", 1, key="one")]), m.unknown(v, [term("1", 1, key="one")])),

@@ -173,11 +173,12 @@ def _c_strings(names) -> str:
 def _index_macros(filt: DerivedFilter, PREFIX: str) -> str:
     """``#define <PREFIX>_Z_<NAME> i`` for every state and weight, likewise U_ inputs, Y_ outputs
     and P_ declared parameters (of ``settings.param``), each with its declared unit (a weight:
-    the term it multiplies and the equation whose rate it enters)."""
+    the term it multiplies and the equation whose rate, or next value in a discrete model, it enters)."""
     model = filt.aug.model
     groups = {"Z": filt.aug.names, "U": filt.aug.u_names, "Y": model.output_names, "P": filt.aug.fixed_names}
     units = {v.name: v.unit for v in [*model.states, *model.inputs, *model.outputs, *model.parameters]}
-    units |= {w: f"times {t.name} in the rate of {eq.replace('+', ' and ')}" for w, eq, t, _ in model.weights()}
+    enters = "the next value" if model.discretization == "discrete" else "the rate"
+    units |= {w: f"times {t.name} in {enters} of {eq.replace('+', ' and ')}" for w, eq, t, _ in model.weights()}
     lines, seen = [], {}
     for tag, names in groups.items():
         for i, name in enumerate(names):
