@@ -838,6 +838,34 @@ def test_an_input_gain_is_said_as_a_ratio_to_the_declared_one():
     assert "ratio" not in found[2] and "note" not in found[2]            # d(rate)/d(pwm) depends on the states
 
 
+def test_a_linear_finding_of_the_other_sign_says_so_and_a_discrete_one_per_step():
+    """A rudder logged with the opposite sign read "the input acts × −0.995 as strongly as declared",
+    a damping declared +0.5 (pushing) "viscous_damping 0.997" alone; both now say the sign is the
+    other way. A discrete model's gain read "1 → 1.091 per unit of u" for a declared 0.05 per step."""
+    from skigen import Model
+    from skigen.diagnose import _gain_ratios
+    m = Model("yaw", dt=0.05)
+    om, d = m.state("om"), m.input("d")
+    m.dynamics({om: 0.5 * om + 3 * d})
+    found = [{"effect": "viscous_damping", "kind": "additive", "equation": "om", "expression": "-om",
+              "coefficient": 0.9972, "std": 0.0018},
+             {"effect": "input_gain", "kind": "additive", "equation": "om", "expression": "d", "coefficient": -5.99,
+              "std": 0.01}]
+    _gain_ratios(m, found)
+    assert found[0]["note"] == ("om's rate follows om × -0.9944 ± 0.0036 as strongly as declared (0.5 → -0.4972 per "
+                                "unit of om): the other sign; check the sign convention of om in the model and the "
+                                "recording")
+    assert found[1]["ratio"] == pytest.approx(-2.99 / 3) and found[1]["note"].endswith(
+        ": the other sign; check the sign convention of d in the model and the recording")
+    disc = Model("surge", dt=0.05, discretization="discrete")
+    v, u = disc.state("v"), disc.input("u")
+    disc.dynamics({v: 0.98 * v + 0.05 * u})
+    gain = [{"effect": "input_gain", "kind": "additive", "equation": "v", "expression": "u", "coefficient": 0.091,
+             "std": 0.002}]
+    _gain_ratios(disc, gain)
+    assert gain[0]["note"] == "the input acts × 1.091 ± 0.002 as strongly as declared (0.05 → 0.05455 per step per unit of u)"
+
+
 def test_a_term_set_aside_in_two_rounds_is_said_once():
     """A tank's anti-drag set aside as compensating in two rounds was listed, and printed, twice."""
     from skigen.diagnose import _once

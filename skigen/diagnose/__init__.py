@@ -667,26 +667,51 @@ def _once(items: list[dict]) -> list[dict]:
     return list({(a["effect"], a["equation"], a.get("through", "")): a for a in items}.values())
 
 
+RATIO_EFFECTS = ("input_gain", "viscous_damping", "linear_stiffness")   # linear in one signal: said as a ratio
+
+
 def _gain_ratios(nominal: Model, findings: list[dict]) -> None:
-    """An input gain said as a ratio to the declared one, beside the term added: on the bare input,
-    where the declared rate's derivative b in it is a nonzero constant, (b + coefficient)/b; on the
-    input's own terms, 1 + coefficient (an elevator at 80 %: "input_gain on q: de, 2.42" left the
-    user to work out −12 → −9.58)."""
+    """A linear finding said as a ratio to the declared dependence it corrects, beside the term
+    added: where the term is k·s for one state or input s and the declared rate's (a discrete
+    model's next value's) derivative b in s is a nonzero constant, (b + c·k)/b; on an input's own
+    terms, 1 + the coefficient (an elevator at 80 %: "input_gain on q: de, 2.42" left the user to
+    work out −12 → −9.58). A ratio below zero by 2 std says the sign is the other way (a rudder
+    logged with the opposite sign read "× −0.995 as strongly", a damping declared +0.5 "0.997")."""
+    discrete = nominal.discretization == "discrete"
+    scale, per = (nominal.dt, " per step") if discrete else (1.0, "")
     for f in findings:
-        if f["effect"] != "input_gain" or f.get("kind") != "additive":
+        if f["effect"] not in RATIO_EFFECTS or f.get("kind") != "additive":
             continue
-        if f["expression"] in nominal.input_names:
-            u = T.symbols(nominal)[f["expression"]]
-            d = ca.jacobian(nominal.rhs[f["equation"]], u)
-            if not d.is_constant() or not (b := float(ca.evalf(d)) / (nominal.dt if nominal.discretization
-                                                                       == "discrete" else 1.0)):
-                continue
-            ratio, std = (b + f["coefficient"]) / b, f["std"] / abs(b)
-            said = f"{b:.4g} → {b + f['coefficient']:.4g} per unit of {f['expression']}"
+        if f["effect"] == "input_gain" and f["expression"] not in nominal.input_names:
+            ratio, std, name, said = 1 + f["coefficient"], f["std"], None, "its terms scaled"
+        elif (linear := _linear_in_one(nominal, f["expression"])) is None:
+            continue
         else:
-            ratio, std, said = 1 + f["coefficient"], f["std"], "its terms scaled"
+            name, k = linear
+            d = ca.jacobian(nominal.rhs[f["equation"]], T.symbols(nominal)[name])
+            if not d.is_constant() or not (b := float(ca.evalf(d)) / scale):
+                continue
+            ratio, std = (b + f["coefficient"] * k) / b, f["std"] * abs(k / b)
+            said = f"{b * scale:.4g} → {(b + f['coefficient'] * k) * scale:.4g}{per} per unit of {name}"
         f["ratio"], f["ratio_std"] = ratio, std
-        _note(f, f"the input acts × {ratio:.4g} ± {std:.2g} as strongly as declared ({said})")
+        what = ("the input acts" if f["effect"] == "input_gain" else
+                f"{f['equation']}'s {'next value' if discrete else 'rate'} follows {name}")
+        flipped = (f": the other sign; check the sign convention of {name or 'the input'} in the model and the "
+                   f"recording") if ratio + 2 * std < 0 else ""
+        _note(f, f"{what} × {ratio:.4g} ± {std:.2g} as strongly as declared ({said}){flipped}")
+
+
+def _linear_in_one(nominal: Model, expression: str) -> tuple[str, float] | None:
+    """(name, k) where ``expression`` is k·s for one state or input s and a constant k; else None."""
+    phi = T.formula(nominal, expression)
+    names = [n for n, v in T.symbols(nominal).items() if ca.depends_on(phi, v)]
+    if len(names) != 1:
+        return None
+    s = T.symbols(nominal)[names[0]]
+    k = ca.jacobian(phi, s)
+    if not k.is_constant() or not ca.is_equal(ca.simplify(phi - k * s), ca.SX(0), 3):
+        return None
+    return names[0], float(ca.evalf(k))
 
 
 def _note(finding: dict, text: str) -> None:
