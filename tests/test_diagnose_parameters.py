@@ -335,6 +335,7 @@ def test_a_worse_free_run_is_named_per_output():
     assert _worse(before, after) == "v (0.01306 → 0.01387)" and _worse(after, after) == ""
     within = dict(after, free_run_noise={"v": 0.0139, "soc": 0.2, "i": 0.1})   # as good as the noise allows
     assert _worse(before, within) == ""
+    assert _worse({"free_run_rmse": {"enc": 0.007065}}, {"free_run_rmse": {"enc": 0.007068}}) == ""   # 0.04 %
 
 
 def test_a_free_runs_noise_is_a_random_walks_for_an_integrator():

@@ -439,14 +439,17 @@ def _unnamed(user_cands, additive, data: dict, model: Model, rec, states) -> lis
     return out
 
 
+WORSE = 0.01   # a free-run RMSE larger by less than this share is as good (0.007065 → 0.007068 was "worse")
+
+
 def _worse(before: dict, after: dict) -> str:
     """'y (0.1 → 0.2), …': the outputs whose free-run RMSE (in the ``free_run_rmse`` of the fit
-    metrics ``after``) exceeds ``before``'s and the one the model's noise gives a right model's
-    free run (``free_run_noise``: within it, as under an integrator's random walk, which of two
-    free runs strays less is chance), or ''."""
+    metrics ``after``) exceeds ``before``'s by WORSE of it and the one the model's noise gives a
+    right model's free run (``free_run_noise``: within it, as under an integrator's random walk,
+    which of two free runs strays less is chance), or ''."""
     b, a, noise = before["free_run_rmse"], after["free_run_rmse"], after.get("free_run_noise", {})
     return ", ".join(f"{k} ({b[k]:.4g} → {a[k]:.4g})" for k in a
-                     if None not in (a[k], b.get(k)) and a[k] > b[k] and not a[k] <= (noise.get(k) or 0.0))
+                     if None not in (a[k], b.get(k)) and a[k] > (1 + WORSE) * b[k] and not a[k] <= (noise.get(k) or 0.0))
 
 
 def started(model: Model, rec, who: str, then: str = "", judge=None) -> tuple[Model, list[str]]:
