@@ -98,9 +98,9 @@ class Correction:
         if unknown:                                 # one block per candidate: weights in their order
             r = np.ones(len(unknown)) if scales is None else np.asarray(scales, float)
             prior = np.broadcast_to(np.asarray(prior_variance, float), (len(unknown),))
-            for i, c in enumerate(unknown):
+            for i, c in enumerate(unknown):         # a rate, as add_term's: × dt in a discrete model's next value
                 eqs, e = zip(*c.contributions(nominal).items())
-                m.unknown(list(eqs), [term(c.formula, ca.vertcat(*e) / r[i], key=f"c{i}")],
+                m.unknown(list(eqs), [term(c.formula, T.rate(nominal, ca.vertcat(*e)) / r[i], key=f"c{i}")],
                           prior_variance=prior[i] * r[i] ** 2)
         for s, value, _ in self.structural:
             m = s.build(m, value)
