@@ -606,6 +606,29 @@ def test_a_declared_parameter_calibrated_orders_of_magnitude_away_points_at_the_
     assert calibrate(m, [rec])[1].note == ""              # Lda 30: twice the declared
 
 
+def test_noise_that_cannot_be_calibrated_says_the_units_first_and_not_the_fit_s_advice(monkeypatch):
+    """An attitude log in degrees: the noise scales could not be told apart, and the error ended in
+    "Hold some at their declared values (… --estimate NAME …)", which `skigen diagnose` has not,
+    with the units hint as the last parenthesis of 1 kB. The units come first, two sets are named,
+    and the advice is the diagnosis's."""
+    import importlib
+    from skigen.fit import NotIdentifiable
+    C = importlib.import_module("skigen.diagnose.calibrate")      # the module, not the function of that name
+    m, rec = _roll_logged(1.0)
+
+    def lost(*args, **kwargs):
+        raise NotIdentifiable("… Hold some at their declared values (--estimate NAME) …", [f"set {i}" for i in range(5)])
+    monkeypatch.setattr(C, "fit", lost)
+    monkeypatch.setattr(C, "unit_notes", lambda model, recs: ["check the units: output 'phi' [rad] is 57.3× the "
+                                                              "nominal free run: is it in degrees?"])
+    with pytest.raises(C.NoiseNotIdentifiable) as exc:
+        C.calibrate(m, [rec])
+    assert str(exc.value) == ("check the units: output 'phi' [rad] is 57.3× the nominal free run: is it in degrees? "
+                              "could not calibrate the noise of 'roll' on this recording: set 0; set 1; and 3 more "
+                              "such set(s). Declare the noises you know (process_std, noise_std) nearer their size, "
+                              "or record richer excitation")
+
+
 def test_a_lifted_correction_near_zero_is_weak_beside_one_that_is_not():
     """A pendulum's exact nominal beside a gyro's 1.08 gain: the joint refit corrected its stiffness,
     damping and input gain by 3.0, 0.3 and 2.9 std and kept all three because one passed 2.58 (the

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..fit import FitError, NotIdentifiable, _bound_notes, _far_notes, fit, unseen_noise_note
+from ..fit import FitError, NotIdentifiable, _bound_notes, _far_notes, fit, unit_notes, unseen_noise_note
 from ..model import Model
 from ..recording import Recording
 from .errors import DiagnosisError
@@ -92,7 +92,7 @@ def calibrate(model: Model, recs: list[Recording], show_progress: bool = False,
     where the model's EKF over the whole recording stood (:func:`block_starts`). noise_from: the
     user's declared (Q, R), started from as well when ``model`` carries another noise (see
     :func:`skigen.fit.fit`)."""
-    pieces = [blocks(r, max_samples) for r in recs]
+    given, pieces = recs, [blocks(r, max_samples) for r in recs]
     starts = [s for r, b in zip(recs, pieces) for s in (block_starts(model, r, b) or [None] * len(b))]
     recs = [b for bs in pieces for b in bs]
     res, note = None, ""
@@ -105,9 +105,15 @@ def calibrate(model: Model, recs: list[Recording], show_progress: bool = False,
     try:
         res = res or fit(model, recs, method="filter-error", estimate=[], starts=starts,
                          show_progress=show_progress, noise_from=noise_from)
+    except NotIdentifiable as exc:     # the fit's advice (--estimate …) is not the diagnosis's to give
+        units = unit_notes(model, given)
+        more = f"; and {len(exc.lost) - 2} more such set(s)" if len(exc.lost) > 2 else ""
+        raise NoiseNotIdentifiable("".join(u + ("" if u.endswith("?") else ".") + " " for u in units)
+                                   + f"could not calibrate the noise of '{model.name}' on this recording: "
+                                   + "; ".join(exc.lost[:2]) + more + ". Declare the noises you know (process_std, "
+                                   "noise_std) nearer their size, or record richer excitation") from None
     except FitError as exc:
-        kind = NoiseNotIdentifiable if isinstance(exc, NotIdentifiable) else DiagnosisError
-        raise kind(f"could not calibrate the noise of '{model.name}' on this recording: {exc}") from None
+        raise DiagnosisError(f"could not calibrate the noise of '{model.name}' on this recording: {exc}") from None
     said = _bound_notes(res.parameters) + _far_notes(res.parameters)
     unseen = unseen_noise_note(res.noise["unseen"]) if res.noise.get("unseen") else ""
     note = "; ".join(filter(None, [note, *(f"calibrating the declared parameters: {n}" for n in said), unseen]))
