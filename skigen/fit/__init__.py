@@ -530,7 +530,7 @@ def _far_notes(parameters: dict) -> list[str]:
 
 def _bound_notes(parameters: dict) -> list[str]:
     """A note per parameter that sits on a bound, whose 2σ interval is wider than its bounds, that
-    is zero within 2 std where the std is a tenth of its declared value or less (the effect is
+    is zero within its std where that is a tenth of its declared value or less (the effect is
     absent: a damping whose truth is 0), or whose std is VAGUE times its value (an infinite std has
     its own note, :func:`_unseen_notes`)."""
     notes = []
@@ -549,7 +549,7 @@ def _bound_notes(parameters: dict) -> list[str]:
         elif 4 * std > hi - lo:
             notes.append(f"{name} = {value:.6g} ± {std:.2g}: its 2σ interval is wider than its bounds "
                          f"[{lo:g}, {hi:g}]; the data hardly determine it")
-        elif abs(value) < 2 * std and VAGUE * std < abs(p.get("initial") or 0.0):
+        elif abs(value) < std and VAGUE * std < abs(p.get("initial") or 0.0):
             notes.append(f"{name} = {value:.6g} ± {std:.2g} is zero within its std, {abs(p['initial']) / std:.3g} std "
                          f"from the {p['initial']:g} declared: what it sets is absent from the recordings or "
                          f"below what they resolve")
