@@ -449,7 +449,7 @@ class RunSummary:
             expected = self.expected_sum / self.nis_count
             out.append(f"mean NIS {self.nis_sum / self.nis_count:.3f} (expected {expected:.3f}: the "
                        f"{len(aug.model.output_names)} output(s) used {expected:.3g} at a time on average, "
-                       f"{self.with_measurement} of {self.samples} samples measured)")
+                       f"{self.with_measurement} of {self.samples} samples with a reading used)")
             out.append(self.verdict())
         elif self.present:
             out.append(f"no reading was used ({self.present} samples had one: each failed, was gated or "

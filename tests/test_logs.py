@@ -481,7 +481,7 @@ def test_nis_expectation_counts_the_outputs_measured():
     df = pd.DataFrame({"t": t, "u": 0.0, "xm": rng.normal(0, 0.1, 500), "vm": vm})
     lines = skigen.run(m, df, filter="ekf").summary().lines()
     nis = next(line for line in lines if line.startswith("mean NIS"))
-    assert "expected 1.500" in nis and "500 of 500 samples measured" in nis
+    assert "expected 1.500" in nis and "500 of 500 samples with a reading used" in nis
     per_output = next(line for line in lines if line.startswith("measured per output"))
     assert "xm 500 of 500, vm 250 of 500 used" in per_output     # the empty cells of vm are counted
     full = skigen.run(m, df.assign(vm=rng.normal(0, 0.1, 500)), filter="ekf").summary().lines()
