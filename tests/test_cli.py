@@ -253,6 +253,16 @@ def test_a_prefix_that_would_hide_a_standard_header_is_refused(prefix):
     assert check_prefix("math_ekf") == "math_ekf"
 
 
+@pytest.mark.parametrize("prefix", ["pp_model", "wingrock_ukf_kernel"])
+def test_a_prefix_named_like_another_filter_s_part_is_refused(prefix):
+    """`--prefix pp_model` wrote pp_model.h, the header `--prefix pp --style loops` writes for its
+    model: the two in one folder overwrote each other and a unity build failed."""
+    from skigen.emit.c import check_prefix
+    with pytest.raises(ValueError, match=f"prefix '{prefix}' would name its files like a part of filter"):
+        check_prefix(prefix)
+    assert check_prefix("modeled") == "modeled"
+
+
 @pytest.mark.parametrize("prefix", ["casadi", "casadi_ukf"])
 def test_a_prefix_casadi_takes_for_its_own_is_refused(prefix):
     """`--prefix casadi` (or a model named 'casadi', whose default prefix is casadi_ukf) named the

@@ -398,6 +398,9 @@ STANDARD_HEADERS = frozenset("""assert complex ctype errno fenv float inttypes i
 LONGEST_PREFIX = 200    # characters: '<prefix>_kernel.c' and its kin stay under a file name's 255
 
 
+PART_SUFFIXES = ("_kernel", "_model")      # <prefix>_kernel.[ch], <prefix>_model.[ch]: a filter's other files
+
+
 def check_prefix(prefix: str) -> str:
     """``prefix``, or ValueError naming the rule it breaks: a C identifier that can begin CasADi
     Function names (``<prefix>_kernel``) and names no standard header (``<prefix>.h``)."""
@@ -415,6 +418,10 @@ def check_prefix(prefix: str) -> str:
         raise ValueError(f"prefix '{prefix}' would name the kernel '{prefix}_kernel', which CasADi's code generator "
                          f"takes for one of its own runtime functions ('casadi_…', made static: the C would not "
                          f"link); choose another")
+    if part := next((p for p in PART_SUFFIXES if prefix.endswith(p) and len(prefix) > len(p)), None):
+        raise ValueError(f"prefix '{prefix}' would name its files like a part of filter '{prefix[:-len(part)]}' "
+                         f"({prefix}.h is that filter's {part[1:]} header): two such filters in one folder or "
+                         f"one build overwrite each other or clash; choose another")
     why = function_name_problem(prefix)
     if why:
         raise ValueError(f"prefix '{prefix}' cannot name CasADi Functions: {why}; CasADi's start with a "
