@@ -486,3 +486,34 @@ def test_a_load_present_only_mid_recording_is_said_on_and_off(tmp_path):
     rem = d["remaining"]
     assert rem["mismatch"] and abs(rem["changes_at"] - 14.0) < 0.3 and abs(rem["changes_back"] - 26.0) < 0.3, rem
     assert "acts only from t = " in rem["note"] and not rem.get("suggested_candidate"), rem
+
+
+def test_an_input_saturation_clipping_most_commands_is_named(tmp_path):
+    """A mass-spring-damper's force clipped at ±1 N, its commands held levels in ±2 N (half of them
+    clipped): the limit's grid began at |u|'s 0.6 quantile (1.2 N), so the limit was 'not
+    identifiable, best at an end of the range searched', or named an input gain of −0.66 with a
+    mismatch remaining. The grid goes on below its first quantile while that end is best."""
+    import pandas as pd
+    from skigen import Model
+    from skigen.diagnose import diagnose
+    rng, dt, n = np.random.default_rng(1), 0.02, 2500
+    u, k = np.zeros(n), 0
+    while k < n:
+        hold = int(rng.uniform(0.3, 1.5) / dt)
+        u[k:k + hold], k = rng.uniform(-2, 2), k + hold
+    p, v = np.zeros(n), np.zeros(n)
+    for j in range(n - 1):
+        p[j + 1] = p[j] + dt * v[j]
+        v[j + 1] = v[j] + dt * (-4 * p[j] - 0.8 * v[j] + 2 * np.clip(u[j], -1.0, 1.0)) + 0.002 * rng.normal()
+    m = Model("msd", dt=dt, discretization="euler")
+    x, w, f = m.state("p", unit="m", std=0.01, process_std=1e-6), m.state("v", unit="m/s", std=0.01,
+                                                                          process_std=0.002), m.input("u", unit="N")
+    m.dynamics({x: w, w: -4 * x - 0.8 * w + 2 * f})
+    m.output("p_meas", x, unit="m", noise_std=0.002)
+    m.output("v_meas", w, unit="m/s", noise_std=0.01)
+    frame = pd.DataFrame({"t": np.arange(n) * dt, "u": u, "p_meas": p + rng.normal(0, 0.002, n),
+                          "v_meas": v + rng.normal(0, 0.01, n)})
+    d = diagnose(m, frame, tmp_path, show_progress=False, figures=False, emit=False).data
+    (limit,) = d["findings"]
+    assert limit["effect"] == "input_saturation" and abs(limit["coefficient"] - 1.0) < 4 * limit["std"], limit
+    assert not d["remaining"]["mismatch"], d["remaining"]

@@ -202,8 +202,8 @@ class Structural:
     coarser: "Structural | None" = None
     refit: bool = True        # its value a parameter of the joint refit (not a whole delay, a fraction, a play)
     beyond: float = 0.0       # > 0: the grid goes on past an end that is best, its value times this
-                              # (an offset, a lag, a width, a delay; not a limit or sensor range, whose
-                              # grid ends at the recorded extremes)
+                              # (an offset, a lag, a width, a delay, a symmetric limit below its
+                              # grid; past a recorded extreme it changes nothing)
     least: float = 0.0        # the grid does not go below this (a lag's time constant: the integration step)
     equations: tuple = ()     # a constant: where it is written (states' equations; 'output y' for an output)
 
@@ -541,15 +541,17 @@ def _saturations(u: str, unit: str, x: np.ndarray, both: bool) -> list[Structura
     Each grid ends at the input's extreme, a limit that clips nothing (the nominal): a limit
     passed by the last few commands alone lies between the last quantile and it, where the
     profile can bracket it (held levels 66.8, 72.1 and 74.7 W around a true 70 W were called
-    not identifiable, the best grid value at the grid's end)."""
+    not identifiable, the best grid value at the grid's end). The symmetric grid goes on below
+    its first quantile while that end is best: a limit clipping more than 40 % of the commands
+    (±1.0 or ±1.2 N of held levels in ±2 N) was "not identifiable", or named an input gain."""
     def grid(values, qs, end, log=False):
         return filled([float(q) for q in np.unique(np.r_[np.quantile(values, qs), end]) if q > 0 or not log], log)
     if both:
         limits = grid(np.abs(x), [0.6, 0.8, 0.9, 0.95, 0.99], np.abs(x).max(), log=True)
         return [Structural("input_saturation", u, "limit", unit, limits, False, True,
                            lambda m, a, u=u: T.input_saturation(m, u, -a, a),
-                           lambda a, u=u: f"clip({u}, {_num(-a)}, {_num(a)})", READINGS["input_saturation"])
-                ] if limits else []
+                           lambda a, u=u: f"clip({u}, {_num(-a)}, {_num(a)})", READINGS["input_saturation"],
+                           beyond=GRID_RATIO)] if limits else []
     upper, lower = grid(x, [0.25, 0.5, 0.75, 0.9, 0.97], x.max()), grid(x, [0.03, 0.1, 0.25, 0.5, 0.75], x.min())
     return [Structural("input_saturation", u, "limit", unit, upper, False, False,
                        lambda m, a, u=u: T.input_saturation(m, u, None, a),
