@@ -158,7 +158,7 @@ def _ran(args, model, n, t0, t1, summary) -> int:
 
 
 def _generate(args) -> int:
-    from .emit.c import check_prefix, choose_style, emit_c, float_precision
+    from .emit.c import check_prefix, choose_style, emit_c, float_precision, left_over
 
     model = load_model(args.model)
     try:
@@ -171,6 +171,9 @@ def _generate(args) -> int:
         raise CliError(str(exc)) from None
     for f in files:
         print(f)
+    if stale := left_over(files):
+        print(f"note: {', '.join(p.name for p in stale)} in {files[0].parent} are not from this generation (another "
+              f"--style or an earlier run): remove them before building the folder", file=sys.stderr)
     if args.real == "float" and (why := float_precision(filt)):
         print(f"note: {why}", file=sys.stderr)
     why = (f" (auto: {filt.tunable.n_instructions()} operations unrolled, looped above "

@@ -612,3 +612,14 @@ def test_a_discrete_model_s_weight_is_said_to_enter_the_next_value(tmp_path):
     m.unknown(h, polynomial([h], 1), prior_variance=1.0)
     header = next(p for p in emit_c(derive(m, "ski"), tmp_path, "double") if p.name == "tank_ski.h").read_text()
     assert "#define TANK_SKI_Z_W_ONE 1 /* times 1 in the next value of h */" in header, header
+
+
+def test_files_another_style_left_in_the_folder_are_named(filters, tmp_path):
+    """Generating a folder again unrolled left the looped kernel's model files in it without a word:
+    dead code in a build of the folder. `generate` names them (``left_over``)."""
+    from skigen.emit.c import left_over
+    looped = emit_c(filters["ukf"], tmp_path, "double", style="loops")
+    assert left_over(looped) == []
+    (tmp_path / "notes.txt").write_text("mine")
+    unrolled = emit_c(filters["ukf"], tmp_path, "double", style="unrolled")
+    assert [p.name for p in left_over(unrolled)] == ["wingrock_ukf_model.c", "wingrock_ukf_model.h"]

@@ -523,6 +523,15 @@ def emit_c(filt: DerivedFilter, out_dir, real: str = "double", prefix: str | Non
     return write_whole(out, texts)
 
 
+def left_over(written: list[Path]) -> list[Path]:
+    """Files beside ``written`` named as this filter's parts (``<prefix>.[ch]``, ``<prefix>_kernel.[ch]``,
+    ``<prefix>_model.[ch]``) that this generation did not write: a looped kernel's model files
+    stayed when the folder was generated again unrolled, dead code in a build of the folder."""
+    prefix = written[0].stem
+    names = {f"{prefix}{part}{ext}" for part in ("", *PART_SUFFIXES) for ext in (".c", ".h")}
+    return sorted(p for p in written[0].parent.iterdir() if p.name in names and p not in written)
+
+
 def write_whole(out: Path, texts: dict[str, str]) -> list[Path]:
     """Write each ``{file name: text}`` in ``out``, all of them or none: every text is written
     beside its file first and moved into place once all are written. A failure (a full disk)
