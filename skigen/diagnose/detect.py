@@ -182,7 +182,7 @@ def relation_break(model, rec, run: RunResult, alpha: float) -> dict:
         return {"relation_moves": {"output": best.output, "at": times, "drift": drift, "share": change,
                                    "share_throughout": throughout},
                 "note": f"how the innovations of {best.output} follow the states and inputs moves throughout the "
-                        f"recording ({how} s, each beyond the other, and more): not one change. Innovations that "
+                        f"recording ({how} s, each significant beyond the other): not one change. Innovations that "
                         f"follow each other in time (a misfit slower than a sample: a sensor's lag, a drift) do this, "
                         f"as does a system that changes throughout"}
     e, X, out = best.e, best.X, best.out
@@ -190,7 +190,7 @@ def relation_break(model, rec, run: RunResult, alpha: float) -> dict:
     if drift:
         rss, dof = _residual_ss(e, out(first))
         F = (float(e @ e) - rss) / dof / (rss / (len(e) - best.alt.shape[1] - dof))
-        p = float(stats.f.sf(F, dof, len(e) - best.alt.shape[1] - dof)) * len(model.output_names)
+        p = min(1.0, float(stats.f.sf(F, dof, len(e) - best.alt.shape[1] - dof)) * len(model.output_names))
         note = (f"how the innovations of {best.output} follow the states and inputs drifts over the recording, most in "
                 f"how they follow {most}: a straight line in time of that relation explains it as well as any one "
                 f"change (F = {F:.3g} on {dof} regressors, p = {p:.2g}): the system changes gradually during the "
