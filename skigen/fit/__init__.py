@@ -473,7 +473,7 @@ def _acts_elsewhere(prob: Problem, theta0, scale, p, V, model: Model, sentence: 
         theta[i] = theta0[i] * k
         if not (lo is None or lo <= theta[i]) or not (hi is None or theta[i] <= hi) or theta[i] == theta0[i]:
             continue
-        J, _ = fisher(prob, theta / scale, p)
+        J, _ = fisher(prob, theta / scale, p, finite=False)
         if np.all(np.isfinite(J[:, i])) and np.any(J[:, i] != 0):
             return (f"{sentence} at {theta0[i]:.6g}, but it has at {theta[i]:.6g}: the recordings do not reach "
                     f"where it acts from there (a limit beyond every recorded command); start it within what "
@@ -691,12 +691,13 @@ def _solve(prob: Problem, solver, inputs: dict, negligible, label: str | None) -
     return sol, dict(stats, iter_count=iterations, return_status=status)
 
 
-def fisher(prob: Problem, xi, data) -> tuple[np.ndarray, np.ndarray]:
-    """(J, prior precision) of the pseudo-residuals at the scaled unknowns ``xi``; a FitError where
-    J is not finite (a discrete model whose refit wandered where its states overflow: NumPy's
-    eigh stopped the diagnosis with "Eigenvalues did not converge")."""
+def fisher(prob: Problem, xi, data, finite: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """(J, prior precision) of the pseudo-residuals at the scaled unknowns ``xi``; with ``finite``, a
+    FitError where J is not finite (a discrete model whose refit wandered where its states overflow:
+    NumPy's eigh stopped the diagnosis with "Eigenvalues did not converge"). Away from the values
+    found (a start, a probe elsewhere) a J not finite is the caller's to weigh: ``finite=False``."""
     J, prior = (np.asarray(ca.DM(v)) for v in prob.fisher(xi, data))
-    if not np.all(np.isfinite(J)):
+    if finite and not np.all(np.isfinite(J)):
         bad = int(np.sum(~np.all(np.isfinite(J), axis=1)))
         raise FitError(f"the likelihood's derivatives are not finite at the values found ({bad} of {J.shape[0]} "
                        f"residuals): the model overflows or divides by zero near them, and no error bar can be "
@@ -1208,7 +1209,7 @@ def _scales(prob: Problem, theta0: np.ndarray, data: np.ndarray) -> tuple[np.nda
     (J_ρ and the prior precision at θ0: ∂ρ/∂ξ scales with the unit, the precision with its square)."""
     V = prob.variables
     nominal = np.array(V.scale)
-    J, prior = fisher(prob, theta0 / nominal, np.r_[nominal, data])
+    J, prior = fisher(prob, theta0 / nominal, np.r_[nominal, data], finite=False)
     with np.errstate(over="ignore"):         # a start whose filter diverges: its information is no unit
         info = np.sum(J * J, axis=0) + prior.ravel()
     scale = nominal.copy()
