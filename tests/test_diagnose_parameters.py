@@ -888,6 +888,14 @@ def test_a_linear_finding_of_the_other_sign_says_so_and_a_discrete_one_per_step(
              "std": 0.002}]
     _gain_ratios(disc, gain)
     assert gain[0]["note"] == "the input acts × 1.091 ± 0.002 as strongly as declared (0.05 → 0.05455 per step per unit of u)"
+    damping = [{"effect": "viscous_damping", "kind": "additive", "equation": "v", "expression": "-v", "coefficient": 0.2,
+                "std": 0.004},                                        # 0.98 v: a damping of 0.4 /s, declared
+               {"effect": "viscous_damping", "kind": "additive", "equation": "v", "expression": "-v", "coefficient": 0.2,
+                "std": 0.004, "through": "u"}]                       # through an input: no ratio of its own
+    _gain_ratios(disc, damping)
+    assert damping[0]["note"] == ("v's change per step follows v × 1.5 ± 0.01 as strongly as declared (0.98 → 0.97 per "
+                                  "step per unit of v)"), damping[0]["note"]
+    assert "note" not in damping[1]
 
 
 def test_a_term_set_aside_in_two_rounds_is_said_once():

@@ -679,11 +679,13 @@ def _gain_ratios(nominal: Model, findings: list[dict]) -> None:
     model's next value's) derivative b in s is a nonzero constant, (b + c·k)/b; on an input's own
     terms, 1 + the coefficient (an elevator at 80 %: "input_gain on q: de, 2.42" left the user to
     work out −12 → −9.58). A ratio below zero by 2 std says the sign is the other way (a rudder
-    logged with the opposite sign read "× −0.995 as strongly", a damping declared +0.5 "0.997")."""
+    logged with the opposite sign read "× −0.995 as strongly", a damping declared +0.5 "0.997").
+    A term added through an input is not a ratio of the equation's own dependence: not said."""
     discrete = nominal.discretization == "discrete"
     scale, per = (nominal.dt, " per step") if discrete else (1.0, "")
     for f in findings:
-        if f["effect"] not in RATIO_EFFECTS or f.get("kind") != "additive":
+        own = 0.0
+        if f["effect"] not in RATIO_EFFECTS or f.get("kind") != "additive" or f.get("through"):
             continue
         if f["effect"] == "input_gain" and f["expression"] not in nominal.input_names:
             ratio, std, name, said = 1 + f["coefficient"], f["std"], None, "its terms scaled"
@@ -692,13 +694,15 @@ def _gain_ratios(nominal: Model, findings: list[dict]) -> None:
         else:
             name, k = linear
             d = ca.jacobian(nominal.rhs[f["equation"]], T.symbols(nominal)[name])
-            if not d.is_constant() or not (b := float(ca.evalf(d)) / scale):
+            own = float(discrete and name == f["equation"])      # x[k+1] = x[k] + dt·(rate): the identity is no rate
+            if not d.is_constant() or not (b := (float(ca.evalf(d)) - own) / scale):
                 continue
             ratio, std = (b + f["coefficient"] * k) / b, f["std"] * abs(k / b)
-            said = f"{b * scale:.4g} → {(b + f['coefficient'] * k) * scale:.4g}{per} per unit of {name}"
+            said = f"{b * scale + own:.4g} → {(b + f['coefficient'] * k) * scale + own:.4g}{per} per unit of {name}"
         f["ratio"], f["ratio_std"] = ratio, std
         what = ("the input acts" if f["effect"] == "input_gain" else
-                f"{f['equation']}'s {'next value' if discrete else 'rate'} follows {name}")
+                f"{f['equation']}'s {'rate' if not discrete else 'change per step' if own else 'next value'} "
+                f"follows {name}")
         flipped = (f": the other sign; check the sign convention of {name or 'the input'} in the model and the "
                    f"recording") if ratio + 2 * std < 0 else ""
         _note(f, f"{what} × {ratio:.4g} ± {std:.2g} as strongly as declared ({said}){flipped}")
