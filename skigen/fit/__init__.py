@@ -369,7 +369,7 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
         robust = method == "output-error"      # simulation residuals may be coloured; innovations are white
         xi, rho, nll, C, info = _at_optimum(prob, jac_g, sol, inputs, lengths, robust)
         if lost:          # seen at the start only: the free run there may not move what tells them apart
-            J, prior = fisher(prob, xi, p)
+            J, prior = info["J"], info["prior"]
             if again := unidentified(J[:, free], prior.ravel()[free], [V.names[i] for i in free],
                                      _dense(jac_g(xi, p))[:, free]):
                 raise _not_identifiable(model, [_acts_elsewhere(prob, xi * scale, scale, p, V, model, s) for s in again])
@@ -428,7 +428,8 @@ def fit(model: Model, recordings, *, method: str = "output-error", estimate=None
             alone = functools.partial(_fitted_alone, model, estimate, noise_from, noise_caps)
             result.notes += (_absorbing(model, result.noise) + _trusting(result.noise)
                              + _following(result.model, recs, tested)
-                             + _disagreeing(prob, xi, rho, inputs["p"], lengths, fitted_at, scale, recs, alone))
+                             + _disagreeing(prob, xi, rho, info["J"], info["prior"], lengths, fitted_at, scale, recs,
+                                            alone))
         if method == "output-error" and (params := list(result.parameters) + list(result.weights)):
             result.notes += _unexplained_residuals(model, recs, result.predictions, params)
         A = result.model.state_jacobian()         # a yaw damping 6.81 ± 0.045 for 8 under Euler, said nowhere
@@ -707,14 +708,15 @@ def fisher(prob: Problem, xi, data, finite: bool = True) -> tuple[np.ndarray, np
 
 def _at_optimum(prob: Problem, jac_g, sol: dict, inputs: dict, lengths, robust: bool):
     """(the solution within its bounds, the residuals, −log L per sample, the covariance of the
-    scaled unknowns, its info, with ``information``: the Fisher information's diagonal) at IPOPT's
-    solution."""
+    scaled unknowns, its info, with ``information``: the Fisher information's diagonal, and ``J``,
+    ``prior``: :func:`fisher` there, for the checks that follow) at IPOPT's solution."""
     xi = np.clip(np.asarray(sol["x"]).ravel(), inputs["lbx"], inputs["ubx"])   # IPOPT may overstep a bound by ~1e-8
     p = inputs["p"]
     rho, nll = (np.asarray(v) for v in prob.residuals(xi, p))
     J, prior = fisher(prob, xi, p)
     C, info = covariance(J, rho if robust else None, lengths, prior.ravel(), _dense(jac_g(xi, p)))
     info["information"] = np.sum(J * J, axis=0) + prior.ravel()
+    info["J"], info["prior"] = J, prior
     return xi, rho, nll, C, info
 
 
@@ -909,8 +911,8 @@ DISAGREE = 1e-3   # false-alarm rate of a pair of recordings said to differ (one
                   # four recordings of a right pendulum model were said to disagree in 2 fleets of 60)
 
 
-def _disagreeing(prob: Problem, xi: np.ndarray, rho: np.ndarray, data, lengths, cols: list[int],
-                 scale: np.ndarray, recs, alone=None) -> list[str]:
+def _disagreeing(prob: Problem, xi: np.ndarray, rho: np.ndarray, J: np.ndarray, prior: np.ndarray, lengths,
+                 cols: list[int], scale: np.ndarray, recs, alone=None) -> list[str]:
     """Filter error: a note naming each recording whose own parameters differ from most of the
     others' (a pair differs where χ² of their difference is beyond DISAGREE, Bonferroni over the
     pairs). Screened by each recording's step from the pooled fit
@@ -919,11 +921,11 @@ def _disagreeing(prob: Problem, xi: np.ndarray, rho: np.ndarray, data, lengths, 
     the variables ``cols``, or None): a step from a pooled fit one odd motor had pulled 0.016 off
     pointed the three others 0.02 apart too, and all four were named. Three flights and one of
     another vehicle (Lp −6 for −4) were fitted to Lp −3.2 ± 0.06, neither's, with no word of which
-    flight disagreed."""
+    flight disagreed. ``rho``, ``J``, ``prior``: the pseudo-residuals and :func:`fisher` at ``xi``
+    (:func:`_at_optimum`)."""
     if len(recs) < 2 or not cols:
         return []
-    rho = np.asarray(rho)                    # the pseudo-residuals at xi (:func:`_at_optimum`)
-    J, prior = fisher(prob, xi, data)
+    rho = np.asarray(rho)
     ny = int(round((np.sqrt(1 + 4 * rho.shape[0]) - 1) / 2))        # n_rho = ny + ny²
     a = rho[:ny]
     outer = (np.eye(ny)[:, :, None] - a[:, None, :] * a[None, :, :]).reshape(ny * ny, -1) / np.sqrt(2)
