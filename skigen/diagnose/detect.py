@@ -168,12 +168,14 @@ def relation_break(model, rec, run: RunResult, alpha: float) -> dict:
         return {}
     after = (best.t > best.at)[:, None]
     total = float(np.sum((best.raw - best.raw.mean()) ** 2))
-    change = (float(best.e @ best.e) - _residual_ss(best.e, best.out(best.X * after))[0]) / total
+    stepped = _residual_ss(best.e, best.out(best.X * after))[0]
+    change = (float(best.e @ best.e) - stepped) / total
     throughout = 1.0 - _residual_ss(best.raw, best.X)[0] / total
     if change < MOVES ** 2 * throughout:
         return {}
     span = (best.t - best.t.mean()) / np.ptp(best.t)
-    drift = _residual_ss(best.e, best.out(best.X * span[:, None]))[0] <= _residual_ss(best.e, best.out(best.X * after))[0]
+    drifted, drift_dof = _residual_ss(best.e, best.out(best.X * span[:, None]))
+    drift = drifted <= stepped
     first = best.X * (span[:, None] if drift else after)
     again = _best_split(best.raw, best.X, np.column_stack([best.alt, first]), best.t)
     if again and again.rank[0] + np.log(BREAKS) < np.log(alpha):
@@ -188,7 +190,7 @@ def relation_break(model, rec, run: RunResult, alpha: float) -> dict:
     e, X, out = best.e, best.X, best.out
     most = min(signals, key=lambda g: _residual_ss(e, out(first[:, 1:][:, group == signals.index(g)]))[0])
     if drift:
-        rss, dof = _residual_ss(e, out(first))
+        rss, dof = drifted, drift_dof
         F = (float(e @ e) - rss) / dof / (rss / (len(e) - best.alt.shape[1] - dof))
         p = min(1.0, float(stats.f.sf(F, dof, len(e) - best.alt.shape[1] - dof)) * len(model.output_names))
         note = (f"how the innovations of {best.output} follow the states and inputs drifts over the recording, most in "
